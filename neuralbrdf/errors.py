@@ -1,0 +1,51 @@
+"""Error types shared by every layer of neuralbrdf.
+
+Bad input must fail with a message that names the file, the row or key and what was expected
+(never a NaN that travels on).  :class:`InputError` carries that location so the command line
+can print it as one line.
+"""
+
+from __future__ import annotations
+
+from os import PathLike
+
+
+class InputError(ValueError):
+    """Invalid user input: a file, row, column or key that does not meet the contract.
+
+    Parameters
+    ----------
+    message:
+        What is wrong and what was expected.
+    path:
+        The offending file, if any.
+    line:
+        1-based line number in that file (the header is line 1), if known.
+    column:
+        Column name or key, if known.
+    """
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        path: str | PathLike[str] | None = None,
+        line: int | None = None,
+        column: str | None = None,
+    ) -> None:
+        self.path = None if path is None else str(path)
+        self.line = line
+        self.column = column
+        self.reason = message
+        super().__init__(self._format())
+
+    def _format(self) -> str:
+        where = []
+        if self.path is not None:
+            where.append(self.path)
+        if self.line is not None:
+            where.append(f"line {self.line}")
+        if self.column is not None:
+            where.append(f"column {self.column!r}")
+        prefix = ", ".join(where)
+        return f"{prefix}: {self.reason}" if prefix else self.reason

@@ -1,0 +1,165 @@
+"""Direction conventions and BRDF parameterisations (SPEC §1).
+
+Local shading frame with ``z`` the surface normal; both directions point *away* from the
+surface (``wi`` toward the light, ``wo`` toward the viewer).  Three ways to name a direction
+pair are used throughout the project:
+
+* **unit vectors** ``wi, wo`` of shape ``[..., 3]``;
+* **spherical angles** ``theta`` in [0°, 90°] from the normal, ``phi`` in [0°, 360°);
+* **signed in-plane angles** ``(theta_i, theta_r)`` in [-90°, 90°], the convention of the
+  report (S. Chitnis, *Simplifying BRDF Acquisition*, §4.1.2): ``wi = (sin ti, 0, cos ti)``,
+  ``wo = (-sin tr, 0, cos tr)``, so the mirror direction is ``theta_r = theta_i``.
+
+The Rusinkiewicz (1998) half/difference parameterisation gives, for any pair, the angles
+``theta_h, theta_d`` and an *in-plane equivalent* ``ti = theta_d + theta_h``,
+``tr = theta_d - theta_h`` with the same ``theta_h, theta_d`` (the bivariate approximation of
+isotropic BRDFs, Romeiro et al. 2008).  For an in-plane pair ``theta_h = |ti - tr| / 2`` and
+``theta_d = |ti + tr| / 2``.
+
+Every function is vectorised and works on NumPy arrays and PyTorch tensors alike (through the
+array API, :mod:`array_api_compat`); torch inputs keep their autograd graph.  Angles are in
+degrees at this module's boundary unless a name ends in ``_rad``.
+"""
+
+from __future__ import annotations
+
+import math
+
+from array_api_compat import array_namespace
+
+DEG = math.pi / 180.0
+
+
+def _xp(*arrays):
+    return array_namespace(*[a for a in arrays if not isinstance(a, (int, float))])
+
+
+def _stack3(xp, x, y, z):
+    return xp.stack([x, y, z], axis=-1)
+
+
+def _clip_unit(xp, c):
+    return xp.clip(c, -1.0, 1.0)
+
+
+def normalize(v):
+    """Scale vectors ``[..., 3]`` to unit length."""
+    xp = _xp(v)
+    return v / xp.linalg.vector_norm(v, axis=-1, keepdims=True)
+
+
+def dot(a, b):
+    """Row-wise dot product of ``[..., 3]`` arrays, shape ``[...]``."""
+    return (a * b).sum(-1)
+
+
+def spherical_to_vector(theta_deg, phi_deg):
+    """Unit vector ``[..., 3]`` from polar ``theta`` and azimuth ``phi`` (degrees)."""
+    xp = _xp(theta_deg, phi_deg)
+    t = theta_deg * DEG
+    p = phi_deg * DEG
+    st = xp.sin(t)
+    return _stack3(xp, st * xp.cos(p), st * xp.sin(p), xp.cos(t))
+
+
+def vector_to_spherical(v):
+    """``(theta, phi)`` in degrees of vectors ``[..., 3]``; ``phi`` in [0, 360), 0 at the pole.
+
+    Vectors need not be normalised.
+    """
+    xp = _xp(v)
+    v = normalize(v)
+    theta = xp.acos(_clip_unit(xp, v[..., 2])) / DEG
+    phi = xp.atan2(v[..., 1], v[..., 0]) / DEG
+    phi = xp.where(phi < 0, phi + 360.0, phi)
+    # atan2 can round -tiny to exactly 360 after the shift; keep the half-open range.
+    phi = xp.where(phi >= 360.0, phi - 360.0, phi)
+    return theta, phi
+
+
+def inplane_to_vectors(theta_i_deg, theta_r_deg):
+    """``(wi, wo)`` for signed in-plane angles (degrees): the report's convention, SPEC §1."""
+    xp = _xp(theta_i_deg, theta_r_deg)
+    ti = theta_i_deg * DEG
+    tr = theta_r_deg * DEG
+    zero_i = xp.zeros_like(ti)
+    zero_r = xp.zeros_like(tr)
+    wi = _stack3(xp, xp.sin(ti), zero_i, xp.cos(ti))
+    wo = _stack3(xp, -xp.sin(tr), zero_r, xp.cos(tr))
+    return wi, wo
+
+
+def inplane_to_spherical(theta_i_deg, theta_r_deg):
+    """Spherical ``(theta_i, phi_i, theta_o, phi_o)`` (degrees) of a signed in-plane pair.
+
+    The pair is rotated about the normal so that ``phi_i = 0`` (exact for isotropic BRDFs):
+    ``phi_o = 180°`` when ``theta_r`` has the sign of ``theta_i`` (a zero ``theta_i`` counts as
+    positive), else ``0°``; ``phi_o = 0`` when ``theta_r = 0``.
+    """
+    xp = _xp(theta_i_deg, theta_r_deg)
+    sign_i = xp.where(theta_i_deg >= 0, 1.0, -1.0)
+    same_side = theta_r_deg * sign_i > 0
+    theta_i = xp.abs(theta_i_deg)
+    theta_o = xp.abs(theta_r_deg)
+    phi_i = xp.zeros_like(theta_i)
+    phi_o = xp.where(same_side, 180.0, 0.0) + xp.zeros_like(theta_o)
+    return theta_i, phi_i, theta_o, phi_o
+
+
+def half_diff_vectors(wi, wo):
+    """Rusinkiewicz half vector ``h`` and difference vector ``d`` (both unit, ``[..., 3]``).
+
+    ``h = normalize(wi + wo)``; ``d`` is ``wi`` rotated by ``-phi_h`` about ``z`` and then by
+    ``-theta_h`` about ``y``, i.e. ``wi`` expressed in the frame where ``h`` is the pole.
+    """
+    xp = _xp(wi, wo)
+    h = normalize(wi + wo)
+    cos_th = _clip_unit(xp, h[..., 2])
+    sin_th = xp.sqrt(xp.clip(1.0 - cos_th * cos_th, 0.0, None))
+    phi_h = xp.atan2(h[..., 1], h[..., 0])
+    cp, sp = xp.cos(phi_h), xp.sin(phi_h)
+    # rotate wi by -phi_h about z
+    x1 = cp * wi[..., 0] + sp * wi[..., 1]
+    y1 = -sp * wi[..., 0] + cp * wi[..., 1]
+    z1 = wi[..., 2]
+    # rotate by -theta_h about y
+    dx = cos_th * x1 - sin_th * z1
+    dz = sin_th * x1 + cos_th * z1
+    return h, _stack3(xp, dx, y1, dz)
+
+
+def half_diff_angles(wi, wo):
+    """Rusinkiewicz angles ``(theta_h, phi_h, theta_d, phi_d)`` in degrees, phis in [0, 360)."""
+    h, d = half_diff_vectors(wi, wo)
+    theta_h, phi_h = vector_to_spherical(h)
+    theta_d, phi_d = vector_to_spherical(d)
+    return theta_h, phi_h, theta_d, phi_d
+
+
+def inplane_half_diff_angles(theta_i_deg, theta_r_deg):
+    """Closed form for in-plane pairs: ``theta_h = |ti - tr|/2``, ``theta_d = |ti + tr|/2``."""
+    xp = _xp(theta_i_deg, theta_r_deg)
+    return xp.abs(theta_i_deg - theta_r_deg) / 2.0, xp.abs(theta_i_deg + theta_r_deg) / 2.0
+
+
+def inplane_equivalent(wi, wo):
+    """Signed in-plane pair ``(theta_i, theta_r)`` (degrees) with the same ``theta_h, theta_d``.
+
+    ``ti = theta_d + theta_h``, ``tr = theta_d - theta_h`` (SPEC §1).  For an in-plane input this
+    is the same pair up to the isotropy/reciprocity symmetries (it returns the representative
+    with ``ti >= |tr|``).  Far out of plane ``ti`` can exceed 90°: the bivariate approximation
+    then asks the in-plane model for a configuration beyond the horizon (models should clamp).
+    """
+    theta_h, _, theta_d, _ = half_diff_angles(wi, wo)
+    return theta_d + theta_h, theta_d - theta_h
+
+
+def spherical_pair_to_vectors(theta_i, phi_i, theta_o, phi_o):
+    """``(wi, wo)`` from the four spherical angles of a BRDF sample table row (degrees)."""
+    return spherical_to_vector(theta_i, phi_i), spherical_to_vector(theta_o, phi_o)
+
+
+def reflect(w):
+    """Mirror direction of ``w`` about the normal: ``(-x, -y, z)``."""
+    xp = _xp(w)
+    return _stack3(xp, -w[..., 0], -w[..., 1], w[..., 2])
