@@ -1,0 +1,1 @@
+"""Physically based reflectance building blocks (Fresnel, microfacet lobes, thin films)."""
