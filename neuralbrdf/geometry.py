@@ -29,6 +29,9 @@ from array_api_compat import array_namespace
 
 DEG = math.pi / 180.0
 
+#: ``sin theta_h`` below which a pair counts as the mirror configuration (about 2e-4°).
+MIRROR_SIN_THETA_H = 3e-6
+
 
 def _xp(*arrays):
     return array_namespace(*[a for a in arrays if not isinstance(a, (int, float))])
@@ -111,12 +114,18 @@ def half_diff_vectors(wi, wo):
 
     ``h = normalize(wi + wo)``; ``d`` is ``wi`` rotated by ``-phi_h`` about ``z`` and then by
     ``-theta_h`` about ``y``, i.e. ``wi`` expressed in the frame where ``h`` is the pole.
+
+    At the mirror configuration (``theta_h = 0``, below :data:`MIRROR_SIN_THETA_H`) ``phi_h``
+    is undefined and ``atan2`` of rounding noise would pick it, and with it ``phi_d``; there
+    ``phi_h = phi_i`` (the limit along the plane of incidence), which keeps ``d`` invariant
+    under rotations about the normal: ``d = (sin theta_i, 0, cos theta_i)``.
     """
     xp = _xp(wi, wo)
     h = normalize(wi + wo)
     cos_th = _clip_unit(xp, h[..., 2])
     sin_th = xp.sqrt(xp.clip(1.0 - cos_th * cos_th, 0.0, None))
-    phi_h = xp.atan2(h[..., 1], h[..., 0])
+    at_mirror = xp.sqrt(h[..., 0] ** 2 + h[..., 1] ** 2) < MIRROR_SIN_THETA_H
+    phi_h = xp.where(at_mirror, xp.atan2(wi[..., 1], wi[..., 0]), xp.atan2(h[..., 1], h[..., 0]))
     cp, sp = xp.cos(phi_h), xp.sin(phi_h)
     # rotate wi by -phi_h about z
     x1 = cp * wi[..., 0] + sp * wi[..., 1]
