@@ -95,18 +95,40 @@ def inplane_to_vectors(theta_i_deg, theta_r_deg):
 def inplane_to_spherical(theta_i_deg, theta_r_deg):
     """Spherical ``(theta_i, phi_i, theta_o, phi_o)`` (degrees) of a signed in-plane pair.
 
-    The pair is rotated about the normal so that ``phi_i = 0`` (exact for isotropic BRDFs):
-    ``phi_o = 180°`` when ``theta_r`` has the sign of ``theta_i`` (a zero ``theta_i`` counts as
-    positive), else ``0°``; ``phi_o = 0`` when ``theta_r = 0``.
+    These are the exact spherical angles of :func:`inplane_to_vectors`: ``phi_i = 0`` for
+    ``theta_i >= 0`` and ``180°`` for ``theta_i < 0``; ``phi_o = 180°`` for ``theta_r > 0`` and
+    ``0`` otherwise.  So ``phi_o - phi_i = 180°`` exactly when ``theta_r`` has the sign of
+    ``theta_i``, as SPEC §1 states.  SPEC §1 also rotates every pair to ``phi_i = 0``, which is
+    equivalent for isotropic BRDFs but loses the sign of ``theta_i``; we keep it, because the
+    spectral MLP's train/test split (report Table 5.1) is asymmetric in ``theta_i``.
+    :func:`spherical_to_inplane` reads both forms.
     """
     xp = _xp(theta_i_deg, theta_r_deg)
-    sign_i = xp.where(theta_i_deg >= 0, 1.0, -1.0)
-    same_side = theta_r_deg * sign_i > 0
     theta_i = xp.abs(theta_i_deg)
     theta_o = xp.abs(theta_r_deg)
-    phi_i = xp.zeros_like(theta_i)
-    phi_o = xp.where(same_side, 180.0, 0.0) + xp.zeros_like(theta_o)
+    phi_i = xp.where(theta_i_deg < 0, 180.0, 0.0) + xp.zeros_like(theta_i)
+    phi_o = xp.where(theta_r_deg > 0, 180.0, 0.0) + xp.zeros_like(theta_o)
     return theta_i, phi_i, theta_o, phi_o
+
+
+#: Largest ``|y|`` of a unit direction still taken as lying in the plane of incidence (x-z).
+IN_PLANE_TOLERANCE = 1e-9
+
+
+def spherical_to_inplane(theta_i, phi_i, theta_o, phi_o):
+    """Signed in-plane ``(theta_i, theta_r)`` (degrees) of spherical direction pairs.
+
+    Pairs in the x-z plane (the plane of :func:`inplane_to_vectors`) are decoded exactly, sign
+    of ``theta_i`` included; any other pair gets its :func:`inplane_equivalent` (same
+    Rusinkiewicz ``theta_h, theta_d``).  Inverse of :func:`inplane_to_spherical`.
+    """
+    xp = _xp(theta_i, phi_i, theta_o, phi_o)
+    wi, wo = spherical_pair_to_vectors(theta_i, phi_i, theta_o, phi_o)
+    in_plane = (xp.abs(wi[..., 1]) < IN_PLANE_TOLERANCE) & (xp.abs(wo[..., 1]) < IN_PLANE_TOLERANCE)
+    exact_i = xp.atan2(wi[..., 0], wi[..., 2]) / DEG
+    exact_r = xp.atan2(-wo[..., 0], wo[..., 2]) / DEG
+    equiv_i, equiv_r = inplane_equivalent(wi, wo)
+    return xp.where(in_plane, exact_i, equiv_i), xp.where(in_plane, exact_r, equiv_r)
 
 
 def half_diff_vectors(wi, wo):

@@ -34,7 +34,7 @@ def test_inplane_vectors_follow_report_convention():
     np.testing.assert_allclose(wi[0], [0.5, 0.0, math.sqrt(3) / 2], atol=1e-15)
 
 
-def test_inplane_to_spherical_reproduces_the_same_angles_between_directions():
+def test_inplane_to_spherical_gives_the_vectors_back():
     ti = rng.uniform(-89, 89, 300)
     tr = rng.uniform(-89, 89, 300)
     wi, wo = g.inplane_to_vectors(ti, tr)
@@ -44,14 +44,38 @@ def test_inplane_to_spherical_reproduces_the_same_angles_between_directions():
     np.testing.assert_allclose(wi2[:, 2], wi[:, 2], atol=1e-12)
     np.testing.assert_allclose(wo2[:, 2], wo[:, 2], atol=1e-12)
     np.testing.assert_allclose(g.dot(wi2, wo2), g.dot(wi, wo), atol=1e-12)
-    np.testing.assert_allclose(sph[1], 0.0)
+    np.testing.assert_allclose(wi2, wi, atol=1e-12)  # exact vectors, not merely equivalent ones
+    np.testing.assert_allclose(wo2, wo, atol=1e-12)
 
 
 @pytest.mark.parametrize(
-    "ti, tr, phi_o", [(30, 20, 180), (30, -20, 0), (-30, -20, 180), (-30, 20, 0), (0, 10, 180), (10, 0, 0)]
+    "ti, tr, phi_i, phi_o",
+    [(30, 20, 0, 180), (30, -20, 0, 0), (-30, -20, 180, 0), (-30, 20, 180, 180), (0, 10, 0, 180), (10, 0, 0, 0)],
 )
-def test_inplane_phi_o_rule(ti, tr, phi_o):
-    assert g.inplane_to_spherical(np.array([ti * 1.0]), np.array([tr * 1.0]))[3][0] == phi_o
+def test_inplane_azimuths_are_those_of_the_vectors(ti, tr, phi_i, phi_o):
+    sph = g.inplane_to_spherical(np.array([ti * 1.0]), np.array([tr * 1.0]))
+    assert (sph[1][0], sph[3][0]) == (phi_i, phi_o)
+    # phi_o - phi_i = 180 exactly when theta_r has the sign of theta_i (SPEC §1)
+    assert (abs(phi_o - phi_i) == 180) == (tr * (1 if ti >= 0 else -1) > 0)
+
+
+def test_spherical_to_inplane_inverts_inplane_to_spherical_with_signs():
+    ti = np.concatenate([rng.uniform(-89, 89, 300), [0.0, 0.0, -45.0, 60.0]])
+    tr = np.concatenate([rng.uniform(-89, 89, 300), [0.0, -30.0, 0.0, 60.0]])
+    back = g.spherical_to_inplane(*g.inplane_to_spherical(ti, tr))
+    np.testing.assert_allclose(back[0], ti, atol=1e-9)
+    np.testing.assert_allclose(back[1], tr, atol=1e-9)
+
+
+def test_spherical_to_inplane_reads_the_rotated_spec_form_and_out_of_plane_pairs():
+    # SPEC §1's phi_i = 0 form of (-30, -20) is (30, 20): the mirror image, same BRDF value
+    back = g.spherical_to_inplane(np.array([30.0]), np.array([0.0]), np.array([20.0]), np.array([180.0]))
+    assert np.allclose(back, [[30.0], [20.0]])
+    theta_i, phi_i = random_hemisphere(100)
+    theta_o, phi_o = random_hemisphere(100)
+    back = g.spherical_to_inplane(theta_i, phi_i, theta_o, phi_o)
+    expected = g.inplane_equivalent(*g.spherical_pair_to_vectors(theta_i, phi_i, theta_o, phi_o))
+    np.testing.assert_allclose(back, expected, atol=1e-9)
 
 
 def test_half_diff_closed_form_for_inplane_pairs():

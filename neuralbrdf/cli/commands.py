@@ -1,0 +1,95 @@
+"""Implementations of the ``neuralbrdf`` subcommands (argument parsing lives in :mod:`.main`)."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from neuralbrdf.atomic import atomic_write
+from neuralbrdf.data import plans
+from neuralbrdf.data.calibration import calibrate as calibrate_measurement
+from neuralbrdf.data.gcms import read_gcms, write_gcms
+from neuralbrdf.data.loading import load_measurement
+from neuralbrdf.data.nbrdf import NbrdfNetwork, sample_plan
+from neuralbrdf.data.table import read_table, write_table
+from neuralbrdf.errors import InputError
+from neuralbrdf.plotting import DEFAULT_THETA_I_DEG, plot_inplane
+from neuralbrdf.virtual import instrument
+
+STAND_INS = ("cyan", "magenta", "gold", "gonio")
+REFERENCE_MATERIAL = "munsell_n9"
+
+
+def plan(args) -> None:
+    if args.plan == "low":
+        header = ("theta_i", "phi_i", "theta_o", "phi_o")
+        columns = plans.low_plan()
+    else:
+        header = ("theta_i", "theta_r")
+        columns = plans.in_plane_plan(args.plan)
+    with atomic_write(args.out) as handle:
+        writer = csv.writer(handle)
+        writer.writerow(header)
+        writer.writerows(np.round(np.stack(columns, axis=1), 6).tolist())
+    print(f"{args.plan}: {len(columns[0])} direction pairs -> {args.out}")
+
+
+def simulate(args) -> None:
+    theta_i, theta_r = plans.in_plane_plan(args.plan)
+    if args.truth:
+        table = instrument.VirtualGoniospectrophotometer().ground_truth(args.material, theta_i, theta_r)
+        write_table(table, args.out)
+        print(f"ground truth of {args.material} on {args.plan}: {table.n_rows} rows -> {args.out}")
+        return
+    device = instrument.VirtualGoniospectrophotometer(noise_rel=args.noise, noise_abs=args.noise_abs, seed=args.seed)
+    write_gcms(device.measure(args.material, theta_i, theta_r), args.out)
+    print(f"GCMS raw measurement of {args.material} on {args.plan} -> {args.out}")
+
+
+def calibrate(args) -> None:
+    table = calibrate_measurement(read_gcms(args.sample), read_gcms(args.reference))
+    write_table(table, args.out)
+    print(f"calibrated {table.n_rows} rows x {len(table.wavelengths)} wavelengths -> {args.out}")
+
+
+def to_rgb(args) -> None:
+    table = read_table(args.table)
+    if not table.is_spectral:
+        raise InputError("already an RGB table; expected wavelength columns", path=args.table)
+    write_table(table.to_rgb(), args.out)
+    print(f"linear sRGB table ({table.n_rows} rows) -> {args.out}")
+
+
+def sample_nbrdf(args) -> None:
+    network = NbrdfNetwork.load(args.material)
+    table = sample_plan(network, args.plan, progress=True)
+    write_table(table, args.out)
+    print(f"{network.name} on {args.plan}: {table.n_rows} rows -> {args.out}")
+
+
+def plot(args) -> None:
+    table = load_measurement(args.table, reference=args.reference)
+    plot_inplane(table, args.out, theta_i_deg=args.theta_i or DEFAULT_THETA_I_DEG)
+    print(f"plot -> {args.out}")
+
+
+def demo(args) -> None:
+    out = Path(args.out_dir)
+    materials = args.material or STAND_INS
+    reference = read_gcms(instrument.default_data_path(REFERENCE_MATERIAL))
+    for name in tqdm(materials, desc="demo", unit="material"):
+        sample = read_gcms(instrument.default_data_path(name))
+        spectral = calibrate_measurement(sample, reference)
+        write_table(spectral, out / f"{name}_DS1_spectral.csv")
+        write_table(spectral.to_rgb(), out / f"{name}_DS1_rgb.csv")
+        plot_inplane(spectral, out / f"{name}_DS1.png", title=f"virtual {name}, DS1, calibrated")
+    print(f"demo outputs for {', '.join(materials)} -> {out}/")
+
+
+def regenerate_default_data(args) -> None:
+    written = instrument.regenerate_default_data(args.out_dir, progress=True)
+    for path in written:
+        print(path)

@@ -1,0 +1,158 @@
+"""The ``neuralbrdf`` command line: measurement pipeline from plan to calibrated, plotted BRDF.
+
+Conventions (SPEC §1): angles in degrees; in-plane files use *signed* angles ``theta_i,
+theta_r`` in [-90, 90] with the mirror direction at ``theta_r = theta_i``; BRDF sample tables
+use spherical ``theta_i, phi_i, theta_o, phi_o``; BRDF values in sr⁻¹ without cosine factor;
+wavelengths in nm.  Every output is written atomically; bad input exits with status 2 and a
+one-line reason naming the file, line and column.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+
+from neuralbrdf.cli import commands
+from neuralbrdf.data.plans import PLAN_NAMES
+from neuralbrdf.errors import InputError
+
+EPILOG = (
+    "Conventions: angles in degrees. GCMS raw files hold signed in-plane angles theta_i, theta_r "
+    "in [-90, 90] (wi = (sin ti, 0, cos ti), wo = (-sin tr, 0, cos tr); mirror at theta_r = theta_i) "
+    "and the radiance factor beta at 390-730 nm every 10 nm. BRDF sample tables hold spherical "
+    "theta_i, phi_i, theta_o, phi_o (theta in [0, 90], phi in [0, 360)) and R,G,B (linear sRGB) "
+    "or one column per wavelength (nm), BRDF in 1/sr without cosine."
+)
+
+
+def _formatter(prog):
+    return argparse.RawDescriptionHelpFormatter(prog, max_help_position=32)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="neuralbrdf",
+        description=__doc__.split("\n\n")[0],
+        epilog=EPILOG,
+        formatter_class=_formatter,
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    def add(name, func, help_text, description):
+        p = sub.add_parser(name, help=help_text, description=description, epilog=EPILOG, formatter_class=_formatter)
+        p.set_defaults(func=func)
+        return p
+
+    p = add(
+        "plan",
+        commands.plan,
+        "write the angle pairs of a sampling plan",
+        "Write the direction pairs an operator measures. DS1-DS4 (report Tables 4.1, 6.1, 6.2; 1001/185/57/6 "
+        "pairs) are written as signed in-plane theta_i,theta_r (degrees); 'low' (Low et al. 2012 full set, "
+        "230 400 pairs) as spherical theta_i,phi_i,theta_o,phi_o (degrees).",
+    )
+    p.add_argument("plan", choices=PLAN_NAMES)
+    p.add_argument("--out", required=True, help="output CSV")
+
+    p = add(
+        "simulate",
+        commands.simulate,
+        "measure a virtual material with the virtual goniospectrophotometer",
+        "Run the virtual GCMS instrument (SPEC §2.5) on a stand-in material. Writes a GCMS raw file (radiance "
+        "factor beta, 390-730 nm, including the instrument's lamp/detector response, which calibration against "
+        "the munsell_n9 reference cancels), or with --truth the noiseless ground-truth spectral BRDF table "
+        "(1/sr, 400-700 nm).",
+    )
+    p.add_argument("--material", required=True, help="cyan, magenta, gold, gonio or munsell_n9")
+    p.add_argument("--plan", default="DS1", choices=[n for n in PLAN_NAMES if n != "low"])
+    p.add_argument("--noise", type=float, default=0.0, help="relative (multiplicative) noise, std dev (default 0)")
+    p.add_argument("--noise-abs", type=float, default=0.0, help="additive noise on beta, std dev (default 0)")
+    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    p.add_argument("--truth", action="store_true", help="write the noiseless ground-truth BRDF table instead")
+    p.add_argument("--out", required=True, help="output CSV")
+
+    p = add(
+        "calibrate",
+        commands.calibrate,
+        "GCMS raw sample + Munsell N9 reference -> spectral BRDF table",
+        "Calibrate a GCMS raw measurement against the Munsell N9 white measured at the same geometry "
+        "(report Eq. 2.3: f = 0.79/pi * beta_sample / beta_munsell), trim 390-730 nm to 400-700 nm and write a "
+        "spectral BRDF sample table (1/sr). Rows are matched by (theta_i, theta_r).",
+    )
+    p.add_argument("sample", help="GCMS raw CSV of the sample")
+    p.add_argument("--reference", required=True, help="GCMS raw CSV of the Munsell N9 white")
+    p.add_argument("--out", required=True, help="output BRDF table CSV")
+
+    p = add(
+        "to-rgb",
+        commands.to_rgb,
+        "spectral BRDF table -> linear sRGB BRDF table",
+        "Convert a spectral BRDF table to linear sRGB (report Eq. 2.4 without the factor 100: CIE 1931 2° "
+        "observer, D65, normalised so a flat spectrum c maps to about (c, c, c); IEC 61966-2-1 matrix).",
+    )
+    p.add_argument("table", help="spectral BRDF table CSV")
+    p.add_argument("--out", required=True, help="output RGB BRDF table CSV")
+
+    p = add(
+        "sample-nbrdf",
+        commands.sample_nbrdf,
+        "sample a MERL-proxy NBRDF network on a plan",
+        "Evaluate a MERL-proxy NBRDF network (Sztrajman et al. 2021; NAME.h5 with NAME.json beside it) on a "
+        "sampling plan and write an RGB BRDF table (1/sr).",
+    )
+    p.add_argument("material", help="NBRDF weights, NAME.h5 (or NAME.json)")
+    p.add_argument("--plan", required=True, choices=PLAN_NAMES)
+    p.add_argument("--out", required=True, help="output RGB BRDF table CSV")
+
+    p = add(
+        "plot",
+        commands.plot,
+        "plot a BRDF table's in-plane slices to PNG",
+        "Plot a BRDF table (RGB or spectral; GCMS raw files need --reference) against the signed outgoing "
+        "angle for a few incident angles, and the mirror-direction spectra of spectral tables.",
+    )
+    p.add_argument("table", help="BRDF table CSV (or GCMS raw CSV with --reference)")
+    p.add_argument("--reference", help="Munsell N9 GCMS raw CSV, when TABLE is a GCMS raw file")
+    p.add_argument("--theta-i", type=float, nargs="+", help="incident angles to show (degrees, signed)")
+    p.add_argument("--out", required=True, help="output PNG")
+
+    p = add(
+        "demo",
+        commands.demo,
+        "the main job on the embedded default data",
+        "Run the pipeline on the shipped virtual measurements: simulate (or reuse the shipped DS1 files), "
+        "calibrate against the Munsell N9 reference, convert to linear sRGB and plot, for every stand-in.",
+    )
+    p.add_argument("--out-dir", default="out/demo", help="output folder (default out/demo)")
+    p.add_argument("--material", nargs="+", default=None, help="materials (default: all four stand-ins)")
+
+    p = add(
+        "regenerate-default-data",
+        commands.regenerate_default_data,
+        "regenerate the shipped virtual DS1 measurements",
+        "Re-simulate the DS1 GCMS raw files shipped as package data (four stand-ins + munsell_n9) with the "
+        "instrument's documented default noise and seed.",
+    )
+    p.add_argument("--out-dir", default=None, help="folder (default: the package's data/default)")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("default")
+            args.func(args)
+    except InputError as err:
+        print(f"neuralbrdf {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:
+        print(f"neuralbrdf {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,226 @@
+"""Physically based stand-ins for the report's packaging materials (SPEC §2.5; report §3.2).
+
+The Gold, Gonio, Cyan and Magenta prints measured by Sole et al. (2021, *The Visual Computer*
+37(8)) are not public.  Each stand-in here is an analytic spectral BRDF with the character the
+report describes (Cyan and Magenta mostly diffuse, Gold and Gonio highly specular, Gonio
+goniochromatic), plus the Munsell N9 white reference of the calibration (report Eq. 2.3).
+
+Every material has a ``name`` and ``brdf(wi, wo, wavelengths_nm)``: unit directions ``[N, 3]``
+(local frame of :mod:`neuralbrdf.geometry`) and wavelengths ``[W]`` in nm to a float64 BRDF
+``[N, W]`` in sr⁻¹, zero when either direction is at or below the horizon.  Specular lobes are
+GGX microfacet reflection (:func:`neuralbrdf.physics.microfacet.microfacet_brdf`, Walter et al.
+2007) with Smith shadowing, so every material is reciprocal and isotropic.  Diffuse spectra are
+ColorChecker patches from colour-science (``SDS_COLOURCHECKERS['BabelColor Average']``, 380–730
+nm), resampled with colour's own (Sprague) interpolation.
+"""
+
+from __future__ import annotations
+
+import abc
+import math
+from dataclasses import dataclass
+
+import colour
+import numpy as np
+
+from neuralbrdf.errors import InputError
+from neuralbrdf.physics.fresnel import fresnel_conductor, fresnel_dielectric
+from neuralbrdf.physics.microfacet import microfacet_brdf
+from neuralbrdf.physics.optical_constants import gold_complex_index
+from neuralbrdf.physics.thin_film import thin_film_reflectance
+
+COLOURCHECKER = "BabelColor Average"
+
+
+def colourchecker_reflectance(patch: str, wavelengths_nm: np.ndarray) -> np.ndarray:
+    """Spectral reflectance ``[W]`` of a ColorChecker patch, Sprague-interpolated by colour.
+
+    Raises :class:`InputError` for wavelengths outside the patch's measured range (380–730 nm).
+    """
+    sd = colour.SDS_COLOURCHECKERS[COLOURCHECKER][patch]
+    lo, hi = float(sd.wavelengths[0]), float(sd.wavelengths[-1])
+    if np.any((wavelengths_nm < lo) | (wavelengths_nm > hi)):
+        raise InputError(
+            f"ColorChecker patch {patch!r} is tabulated on {lo:g}–{hi:g} nm; "
+            f"got wavelengths {wavelengths_nm.min():g}–{wavelengths_nm.max():g} nm"
+        )
+    return np.clip(np.asarray(sd[wavelengths_nm], dtype=np.float64), 0.0, None)
+
+
+def _checked_inputs(wi, wo, wavelengths_nm) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    wi = np.asarray(wi, dtype=np.float64)
+    wo = np.asarray(wo, dtype=np.float64)
+    wavelengths = np.asarray(wavelengths_nm, dtype=np.float64)
+    if wi.ndim != 2 or wi.shape[-1] != 3 or wi.shape != wo.shape:
+        raise InputError(f"wi and wo must both be [N, 3] arrays, got {wi.shape} and {wo.shape}")
+    if not (np.all(np.isfinite(wi)) and np.all(np.isfinite(wo))):
+        raise InputError("wi and wo must be finite unit vectors")
+    if wavelengths.ndim != 1 or not np.all(wavelengths > 0) or not np.all(np.isfinite(wavelengths)):
+        raise InputError(
+            f"wavelengths_nm must be a 1-D array of positive, finite nm; got shape {wavelengths.shape}"
+        )
+    return wi, wo, wavelengths
+
+
+def _above_horizon(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    return (wi[:, 2] > 0.0) & (wo[:, 2] > 0.0)
+
+
+@dataclass(frozen=True)
+class LambertianReference:
+    """Munsell N9 white reference: an ideal Lambertian reflector of reflectance 0.79.
+
+    The report calibrates against a Munsell N9 sheet taken to reflect 79 % of a perfect
+    reflecting diffuser at every wavelength and angle (report §2.1.1, Eq. 2.3), i.e. a constant
+    BRDF ``0.79 / π`` sr⁻¹.  Real N9 sheets are slightly glossy and not perfectly flat
+    spectrally; the stand-in is the idealisation that Eq. 2.3 assumes, so that calibration
+    against it is exact.
+    """
+
+    name: str = "munsell_n9"
+    reflectance: float = 0.79
+
+    def brdf(self, wi, wo, wavelengths_nm) -> np.ndarray:
+        wi, wo, wavelengths = _checked_inputs(wi, wo, wavelengths_nm)
+        value = np.where(_above_horizon(wi, wo), self.reflectance / math.pi, 0.0)
+        return np.broadcast_to(value[:, None], (wi.shape[0], wavelengths.size)).copy()
+
+
+class _DiffuseAndSpecular(abc.ABC):
+    """``f = rho_d(lambda) / π + w_s · F D G / (4 cos_i cos_o)``: Lambertian base plus a GGX lobe.
+
+    Subclasses provide ``name``, ``alpha`` (GGX roughness) and the two spectra, and may
+    override the lobe's weight ``specular_weight``.
+    """
+
+    name: str
+    alpha: float
+    specular_weight: float = 1.0
+
+    @abc.abstractmethod
+    def diffuse_albedo(self, wavelengths_nm: np.ndarray) -> np.ndarray:
+        """Lambertian albedo ``[W]`` of the base."""
+
+    @abc.abstractmethod
+    def fresnel(self, cos_theta_d: np.ndarray, wavelengths_nm: np.ndarray) -> np.ndarray:
+        """Fresnel reflectance ``[N, W]`` of the microfacets at ``cos_theta_d = wi·h`` ``[N]``."""
+
+    def brdf(self, wi, wo, wavelengths_nm) -> np.ndarray:
+        wi, wo, wavelengths = _checked_inputs(wi, wo, wavelengths_nm)
+        lobe = microfacet_brdf(wi, wo, self.alpha, lambda cos_d: self.fresnel(cos_d, wavelengths))
+        lambertian = np.where(_above_horizon(wi, wo), 1.0 / math.pi, 0.0)
+        return lambertian[:, None] * self.diffuse_albedo(wavelengths) + self.specular_weight * lobe
+
+
+@dataclass(frozen=True)
+class GlossyInk(_DiffuseAndSpecular):
+    """Process ink (cyan, magenta): a diffuse pigment layer under a smooth-ish clear binder.
+
+    Light scattered by the pigment gives a Lambertian base whose albedo is the ColorChecker patch
+    of the same name (BabelColor average).  The binder/air interface adds a weak rough
+    dielectric reflection: a GGX lobe (roughness ``alpha``) with the exact unpolarised dielectric
+    Fresnel term of index ``eta`` ≈ 1.5 (4 % at normal incidence, rising towards grazing), flat
+    in wavelength, so the highlight has the illuminant's colour and the chromaticity barely
+    changes with angle.  The two terms are added without energy exchange (a common, slightly
+    energy-gaining simplification that keeps the BRDF reciprocal).
+    """
+
+    name: str
+    patch: str
+    alpha: float = 0.25
+    eta: float = 1.5
+
+    def diffuse_albedo(self, wavelengths_nm):
+        return colourchecker_reflectance(self.patch, wavelengths_nm)
+
+    def fresnel(self, cos_theta_d, wavelengths_nm):
+        f = fresnel_dielectric(cos_theta_d, self.eta)
+        return np.broadcast_to(f[:, None], (f.shape[0], wavelengths_nm.size))
+
+
+@dataclass(frozen=True)
+class MetallicInk(_DiffuseAndSpecular):
+    """Gold metallic ink: gold flakes covering most of the surface, a yellow binder elsewhere.
+
+    A fraction ``metal_fraction`` of the surface is rough gold: a GGX lobe (roughness ``alpha``)
+    whose Fresnel term is the exact conductor reflectance of gold's spectral complex index
+    ``n + i k`` (Mitsuba's ``Au`` tables, luxpop / Palik), high in the red and low in the blue,
+    which gives the highlight its gold colour.  The remaining area is a diffusely reflecting
+    binder with the ColorChecker ``yellow`` spectrum.  The area-weighted mix of two
+    energy-conserving BRDFs conserves energy.
+    """
+
+    name: str = "gold"
+    alpha: float = 0.2
+    metal_fraction: float = 0.9
+    binder_patch: str = "yellow"
+
+    @property
+    def specular_weight(self) -> float:
+        return self.metal_fraction
+
+    def diffuse_albedo(self, wavelengths_nm):
+        binder = colourchecker_reflectance(self.binder_patch, wavelengths_nm)
+        return (1.0 - self.metal_fraction) * binder
+
+    def fresnel(self, cos_theta_d, wavelengths_nm):
+        n, k = gold_complex_index(wavelengths_nm)
+        return fresnel_conductor(cos_theta_d[:, None], n[None, :], k[None, :])
+
+
+@dataclass(frozen=True)
+class GoniochromaticInk(_DiffuseAndSpecular):
+    """Goniochromatic (interference) ink: thin-film coated flakes over a greenish-blue base.
+
+    Effect pigments are platelets of mica (index ≈ 1.58) coated with a thin layer of titanium
+    dioxide (≈ 2.4).  Light reflected at the top and bottom of the coating interferes, so the
+    flakes' reflectance is the Airy reflectance of the film
+    (:func:`neuralbrdf.physics.thin_film.thin_film_reflectance`), whose peaks move to shorter
+    wavelengths as the angle inside the film grows.  With a 260 nm film the specular highlight
+    is greenish-blue near normal incidence and turns blue-violet towards 60°.  The flakes lie
+    roughly parallel to the surface (a GGX lobe of roughness ``alpha`` with the film reflectance
+    as its Fresnel term); the ink underneath scatters diffusely with a darkened ColorChecker
+    ``bluish green`` spectrum.  Dispersion of the indices is ignored.
+    """
+
+    name: str = "gonio"
+    alpha: float = 0.15
+    film_index: float = 2.4
+    film_thickness_nm: float = 260.0
+    substrate_index: float = 1.58
+    base_patch: str = "bluish green"
+    base_scale: float = 0.4
+
+    def diffuse_albedo(self, wavelengths_nm):
+        return self.base_scale * colourchecker_reflectance(self.base_patch, wavelengths_nm)
+
+    def fresnel(self, cos_theta_d, wavelengths_nm):
+        return thin_film_reflectance(
+            cos_theta_d[:, None], wavelengths_nm[None, :],
+            self.film_index, self.film_thickness_nm, self.substrate_index,
+        )
+
+
+MATERIALS = {
+    material.name: material
+    for material in (
+        LambertianReference(),
+        GlossyInk(name="cyan", patch="cyan"),
+        GlossyInk(name="magenta", patch="magenta"),
+        MetallicInk(),
+        GoniochromaticInk(),
+    )
+}
+
+#: The white reference every measurement session is calibrated against.
+REFERENCE_MATERIAL = "munsell_n9"
+
+
+def get_material(name: str):
+    """The stand-in called ``name``; :class:`InputError` listing the valid names otherwise."""
+    try:
+        return MATERIALS[name]
+    except (KeyError, TypeError):
+        raise InputError(
+            f"unknown virtual material {name!r}; expected one of {', '.join(MATERIALS)}"
+        ) from None

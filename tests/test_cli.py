@@ -1,0 +1,105 @@
+"""The ``neuralbrdf`` command line end to end: outputs, help, exit codes, atomic writes."""
+
+import csv
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from neuralbrdf.cli.main import main
+from neuralbrdf.data.gcms import read_gcms
+from neuralbrdf.data.table import read_table
+
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+NBRDF_DIR = SHARED_DATA / "merl-nbrdf"
+
+
+def run(*args):
+    return main([str(a) for a in args])
+
+
+def test_console_script_help_explains_conventions():
+    out = subprocess.run(
+        [sys.executable, "-m", "neuralbrdf", "calibrate", "--help"], capture_output=True, text=True, check=True
+    ).stdout
+    assert "0.79" in out and "degrees" in out and "1/sr" in out
+
+
+@pytest.mark.parametrize("name, count", [("DS1", 1001), ("DS4", 6), ("low", 230_400)])
+def test_plan_writes_the_pairs(tmp_path, name, count):
+    out = tmp_path / "plan.csv"
+    assert run("plan", name, "--out", out) == 0
+    with open(out) as handle:
+        rows = list(csv.reader(handle))
+    assert len(rows) == count + 1
+
+
+def test_noiseless_simulation_calibrates_back_to_the_truth(tmp_path):
+    """Instrument response and the Munsell factor cancel exactly (SPEC §2.5)."""
+    for material in ("gold", "munsell_n9"):
+        assert run("simulate", "--material", material, "--plan", "DS2", "--out", tmp_path / f"{material}.csv") == 0
+    assert run("simulate", "--material", "gold", "--plan", "DS2", "--truth", "--out", tmp_path / "truth.csv") == 0
+    cal = tmp_path / "cal.csv"
+    assert run("calibrate", tmp_path / "gold.csv", "--reference", tmp_path / "munsell_n9.csv", "--out", cal) == 0
+    got, truth = read_table(cal), read_table(tmp_path / "truth.csv")
+    np.testing.assert_allclose(got.wavelengths, truth.wavelengths)
+    order_got = np.lexsort((got.theta_o, got.phi_o, got.theta_i))
+    order_truth = np.lexsort((truth.theta_o, truth.phi_o, truth.theta_i))
+    np.testing.assert_allclose(got.values[order_got], truth.values[order_truth], rtol=1e-6, atol=1e-12)
+
+
+def test_noisy_simulation_is_seeded(tmp_path):
+    for name, seed in (("a", 1), ("b", 1), ("c", 2)):
+        run("simulate", "--material", "cyan", "--plan", "DS3", "--noise", "0.02", "--seed", seed, "--out", tmp_path / f"{name}.csv")
+    a, b, c = (read_gcms(tmp_path / f"{n}.csv").beta for n in "abc")
+    np.testing.assert_array_equal(a, b)
+    assert not np.allclose(a, c)
+
+
+def test_to_rgb_and_plot(tmp_path):
+    run("simulate", "--material", "gonio", "--plan", "DS2", "--truth", "--out", tmp_path / "truth.csv")
+    assert run("to-rgb", tmp_path / "truth.csv", "--out", tmp_path / "rgb.csv") == 0
+    rgb = read_table(tmp_path / "rgb.csv")
+    assert not rgb.is_spectral and rgb.n_rows == 185
+    assert run("plot", tmp_path / "rgb.csv", "--out", tmp_path / "p.png") == 0
+    assert (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_demo_runs_on_the_shipped_data(tmp_path):
+    assert run("demo", "--out-dir", tmp_path, "--material", "gold") == 0
+    for suffix in ("_spectral.csv", "_rgb.csv", ".png"):
+        assert (tmp_path / f"gold_DS1{suffix}").stat().st_size > 0
+
+
+@pytest.mark.skipif(not NBRDF_DIR.is_dir(), reason="../shared/data/merl-nbrdf is absent")
+def test_sample_nbrdf(tmp_path):
+    out = tmp_path / "brass.csv"
+    assert run("sample-nbrdf", NBRDF_DIR / "brass.h5", "--plan", "DS3", "--out", out) == 0
+    table = read_table(out)
+    assert table.n_rows == 57 and np.all(table.values >= 0)
+
+
+def _write(path, text):
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize(
+    "argv_builder, expected",
+    [
+        (lambda d: ["calibrate", d / "missing.csv", "--reference", d / "missing.csv"], "missing.csv"),
+        (lambda d: ["to-rgb", _write(d / "empty.csv", "")], "empty.csv"),
+        (lambda d: ["simulate", "--material", "unobtainium", "--plan", "DS1"], "unobtainium"),
+        (lambda d: ["sample-nbrdf", _write(d / "x.h5", "not hdf5"), "--plan", "DS1"], "x.json"),
+        (lambda d: ["to-rgb", _write(d / "t.csv", "theta_i,phi_i,theta_o,phi_o,R,G,B\n10,0,95,0,1,1,1\n")], "line 2"),
+    ],
+)
+def test_bad_input_exits_2_with_one_line_and_no_output(tmp_path, capsys, argv_builder, expected):
+    out = tmp_path / "out.csv"
+    assert run(*argv_builder(tmp_path), "--out", out) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and expected in err
+    assert not out.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out")]
