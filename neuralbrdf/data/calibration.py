@@ -22,7 +22,8 @@ import warnings
 import numpy as np
 
 from neuralbrdf.data.gcms import GCMS_HEADER, GCMS_WAVELENGTHS_NM, GcmsMeasurement, pair_keys
-from neuralbrdf.data.table import BrdfTable, CellProblem, first_flagged_cell
+from neuralbrdf.data.csvio import CellProblem, first_flagged_cell
+from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.geometry import inplane_to_spherical
 
 #: Reflectance of the Munsell N9 reference relative to a perfect diffuser (report §2.1.1).

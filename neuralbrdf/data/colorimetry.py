@@ -24,7 +24,7 @@ from array_api_compat import array_namespace
 from array_api_compat import device as array_device
 from colour.colorimetry import reshape_msds, reshape_sd
 
-from neuralbrdf.data.table import wavelength_grid_problem
+from neuralbrdf.data.csvio import wavelength_grid_problem
 from neuralbrdf.errors import InputError
 
 CMFS_NAME = "CIE 1931 2 Degree Standard Observer"

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from neuralbrdf.data.table import (
+from neuralbrdf.data.csvio import (
     CellProblem,
     NumericCsv,
     as_float_array,

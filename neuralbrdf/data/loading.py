@@ -12,7 +12,8 @@ import os
 
 from neuralbrdf.data.calibration import calibrate
 from neuralbrdf.data.gcms import GCMS_ANGLE_COLUMNS, gcms_from_csv, read_gcms
-from neuralbrdf.data.table import BrdfTable, read_csv_header, read_numeric_csv, table_from_csv
+from neuralbrdf.data.csvio import read_csv_header, read_numeric_csv
+from neuralbrdf.data.table import BrdfTable, table_from_csv
 from neuralbrdf.errors import InputError
 
 
