@@ -86,6 +86,28 @@ def _write(path, text):
     return path
 
 
+GCMS_HEADER = "theta_i,theta_r," + ",".join(str(w) for w in range(390, 731, 10))
+
+
+def _gcms(path, rows):
+    """A GCMS raw file with the given rows (each: theta_i, theta_r, then one value repeated)."""
+    lines = [GCMS_HEADER] + [f"{ti},{tr}," + ",".join([str(v)] * 35) for ti, tr, v in rows]
+    return _write(path, "\n".join(lines) + "\n")
+
+
+def _good_reference(d):
+    return _gcms(d / "ref.csv", [(30, 30, 0.79), (30, 0, 0.79)])
+
+
+def _wrong_h5_layout(d):
+    import h5py
+
+    with h5py.File(d / "net.h5", "w") as handle:
+        handle["dense_1/kernel"] = np.zeros((6, 21))
+    _write(d / "net.json", "{}")
+    return d / "net.h5"
+
+
 @pytest.mark.parametrize(
     "argv_builder, expected",
     [
@@ -94,6 +116,15 @@ def _write(path, text):
         (lambda d: ["simulate", "--material", "unobtainium", "--plan", "DS1"], "unobtainium"),
         (lambda d: ["sample-nbrdf", _write(d / "x.h5", "not hdf5"), "--plan", "DS1"], "x.json"),
         (lambda d: ["to-rgb", _write(d / "t.csv", "theta_i,phi_i,theta_o,phi_o,R,G,B\n10,0,95,0,1,1,1\n")], "line 2"),
+        (lambda d: ["to-rgb", _write(d / "t.csv", "theta_i,phi_i,theta_o,400,410\n10,0,5,1,1\n")], "phi_o"),
+        (lambda d: ["to-rgb", _write(d / "t.csv", "theta_i,phi_i,theta_o,phi_o,400,410\n10,0,5,0,1,1\n10,0,5\n")], "line 3"),
+        (lambda d: ["to-rgb", _write(d / "t.csv", "theta_i,phi_i,theta_o,phi_o,400,420,430\n10,0,5,0,1,1,1\n")], "regular"),
+        (lambda d: ["calibrate", _gcms(d / "s.csv", [(30, 30, "nan")]), "--reference", _good_reference(d)], "line 2"),
+        (lambda d: ["calibrate", _gcms(d / "s.csv", [(30, 30, 1)]), "--reference", _gcms(d / "r.csv", [(30, 30, -0.2)])], "r.csv"),
+        (lambda d: ["calibrate", _gcms(d / "s.csv", [(95, 30, 1)]), "--reference", _good_reference(d)], "theta_i"),
+        (lambda d: ["calibrate", _gcms(d / "s.csv", [(30, 10, 1)]), "--reference", _good_reference(d)], "s.csv"),
+        (lambda d: ["calibrate", _write(d / "s.csv", "theta_i,theta_r,400,410\n30,30,1,1\n"), "--reference", _good_reference(d)], "390"),
+        (lambda d: ["sample-nbrdf", _wrong_h5_layout(d), "--plan", "DS1"], "net."),
     ],
 )
 def test_bad_input_exits_2_with_one_line_and_no_output(tmp_path, capsys, argv_builder, expected):
