@@ -17,13 +17,12 @@ hence ``f``, slightly negative: those values are clipped to 0 with a warning giv
 from __future__ import annotations
 
 import math
-import warnings
 
 import numpy as np
 
 from neuralbrdf.data.gcms import GCMS_HEADER, GCMS_WAVELENGTHS_NM, GcmsMeasurement, pair_keys
 from neuralbrdf.data.csvio import CellProblem, first_flagged_cell
-from neuralbrdf.data.table import BrdfTable
+from neuralbrdf.data.table import BrdfTable, clip_negatives
 from neuralbrdf.geometry import inplane_to_spherical
 
 #: Reflectance of the Munsell N9 reference relative to a perfect diffuser (report §2.1.1).
@@ -74,14 +73,10 @@ def calibrate(sample: GcmsMeasurement, reference: GcmsMeasurement) -> BrdfTable:
         raise CellProblem(int(rows[problem.row]), problem.column, problem.message).to_error(
             reference.source, reference.lines
         )
-    brdf = MUNSELL_N9_REFLECTANCE / math.pi * sample.beta[:, bands] / beta_reference
-    negative = brdf < 0
-    if negative.any():
-        warnings.warn(
-            f"{sample.source}: clipped {int(negative.sum())} negative calibrated BRDF value(s) "
-            f"(sensor noise, down to {brdf.min():.3g} sr^-1) to 0",
-            stacklevel=2,
-        )
-        brdf = np.where(negative, 0.0, brdf)
+    brdf = clip_negatives(
+        MUNSELL_N9_REFLECTANCE / math.pi * sample.beta[:, bands] / beta_reference,
+        sample.source,
+        "calibrated BRDF value(s) (sensor noise, sr^-1)",
+    )
     angles = inplane_to_spherical(sample.theta_i, sample.theta_r)
     return BrdfTable(*angles, brdf, CALIBRATED_WAVELENGTHS_NM.copy(), source=sample.source)

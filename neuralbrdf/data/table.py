@@ -52,6 +52,18 @@ def negative_noise_tolerance(values: np.ndarray) -> float:
     return max(NEGATIVE_RTOL * scale, NEGATIVE_ATOL)
 
 
+def clip_negatives(values: np.ndarray, source: str, what: str) -> np.ndarray:
+    """``values`` with negatives set to 0, warning with their count and minimum if any."""
+    negative = values < 0
+    if not negative.any():
+        return values
+    warnings.warn(
+        f"{source}: clipped {int(negative.sum())} negative {what}, down to {values.min():.3g}, to 0",
+        stacklevel=3,
+    )
+    return np.where(negative, 0.0, values)
+
+
 def _table_cell_problem(angles, values, channel_names, weight) -> CellProblem | None:
     """First non-finite cell, angle out of range, value below the noise tolerance or bad weight.
 
@@ -224,15 +236,11 @@ class BrdfTable:
 
         if not self.is_spectral:
             return self
-        rgb = spectral_to_linear_srgb(self.values, self.wavelengths)
-        negative = rgb < 0
-        if negative.any():
-            warnings.warn(
-                f"{self.source}: clipped {int(negative.sum())} negative linear-sRGB value(s) "
-                f"(spectra outside the sRGB gamut, down to {rgb.min():.3g}) to 0",
-                stacklevel=2,
-            )
-            rgb = np.where(negative, 0.0, rgb)
+        rgb = clip_negatives(
+            spectral_to_linear_srgb(self.values, self.wavelengths),
+            self.source,
+            "linear-sRGB value(s) (spectra outside the sRGB gamut)",
+        )
         weight = None if self.weight is None else self.weight.copy()
         return BrdfTable(
             self.theta_i.copy(), self.phi_i.copy(), self.theta_o.copy(), self.phi_o.copy(),
