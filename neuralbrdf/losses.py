@@ -1,0 +1,99 @@
+"""Training and fitting losses of the report (S. Chitnis, *Simplifying BRDF Acquisition*).
+
+* :func:`log_cosine_loss` (and its per-element :func:`log_cosine_terms`) — Eq. 4.2, the ABC fit's loss (after Löw et al. 2012)::
+
+      L_cus = mean((ln(1 + cos ti f_mea) - ln(1 + cos ti f_pred))² · sin to)
+
+* :func:`exp_weighted_mse` — Eq. 5.1, the spectral MLP's loss::
+
+      L = mean(exp(-gamma |theta_i - theta_r|) · (f_mea - f_pred)²)
+
+  with the angle difference in radians by default (SPEC §4.4: in degrees, gamma = 3 gives
+  weights below 1e-13 ten degrees off specular, so the diffuse region gets no gradient).
+* :func:`l1_loss` — mean absolute error (Fan et al. 2022, the NLB latent fits).
+
+Every function takes ``pred`` and ``target`` of the same shape, ``[N]`` or ``[N, C]`` (one
+column per channel or wavelength), and per-sample angles ``[N]`` in degrees that broadcast over
+the channels; the mean runs over every element.  They work on torch tensors (autograd flows
+through ``pred``) and NumPy arrays alike, and return a 0-d array of the input's kind.
+"""
+
+from __future__ import annotations
+
+import math
+
+from array_api_compat import array_namespace
+
+DEG = math.pi / 180.0
+
+#: Angle units accepted by :func:`exp_weighted_mse`.
+ANGLE_UNITS = ("radians", "degrees")
+
+
+def _check_pair(pred, target) -> None:
+    if tuple(pred.shape) != tuple(target.shape):
+        raise ValueError(f"pred has shape {tuple(pred.shape)} but target has {tuple(target.shape)}")
+    if pred.ndim not in (1, 2):
+        raise ValueError(f"pred and target must be [N] or [N, C], got shape {tuple(pred.shape)}")
+
+
+def _per_sample(weight, like):
+    """Broadcast a per-sample ``[N]`` weight against ``[N]`` or ``[N, C]`` values."""
+    if tuple(weight.shape) != tuple(like.shape[:1]):
+        raise ValueError(f"angles have shape {tuple(weight.shape)}, expected ({like.shape[0]},)")
+    return weight if like.ndim == 1 else weight[:, None]
+
+
+def exp_weighted_mse(pred, target, theta_i_deg, theta_r_deg, gamma: float = 3.0, angle_unit: str = "radians"):
+    """Exponentially weighted MSE (report Eq. 5.1), weighting samples near the mirror direction.
+
+    ``theta_i_deg, theta_r_deg`` are signed in-plane angles in degrees (SPEC §1: the mirror
+    direction is ``theta_r = theta_i``).  ``angle_unit`` is the unit in which ``|theta_i -
+    theta_r|`` enters the exponent: ``"radians"`` (default, SPEC §4.4) or ``"degrees"`` (the
+    report's literal form).
+    """
+    if angle_unit not in ANGLE_UNITS:
+        raise ValueError(f"angle_unit must be one of {', '.join(ANGLE_UNITS)}, got {angle_unit!r}")
+    _check_pair(pred, target)
+    xp = array_namespace(pred, target, theta_i_deg, theta_r_deg)
+    difference = xp.abs(theta_i_deg - theta_r_deg)
+    if angle_unit == "radians":
+        difference = difference * DEG
+    weight = _per_sample(xp.exp(-gamma * difference), pred)
+    return xp.mean(weight * (target - pred) ** 2)
+
+
+def log_cosine_terms(pred, target, theta_i_deg, theta_o_deg):
+    """Per-element terms ``(ln(1 + cos ti f_mea) - ln(1 + cos ti f_pred))² · sin to`` of Eq. 4.2.
+
+    Same shape as ``pred``; :func:`log_cosine_loss` is their mean.
+    """
+    _check_pair(pred, target)
+    xp = array_namespace(pred, target, theta_i_deg, theta_o_deg)
+    cos_i = _per_sample(xp.cos(theta_i_deg * DEG), pred)
+    sin_o = _per_sample(xp.sin(xp.abs(theta_o_deg) * DEG), pred)
+    residual = xp.log1p(cos_i * target) - xp.log1p(cos_i * pred)
+    return residual * residual * sin_o
+
+
+def log_cosine_loss(pred, target, theta_i_deg, theta_o_deg, weight=None):
+    """Log-cosine loss ``L_cus`` (report Eq. 4.2, Löw et al. 2012) of BRDF values in sr⁻¹.
+
+    ``theta_i_deg`` is the incident polar angle; ``theta_o_deg`` the outgoing one.  Signed
+    in-plane angles are accepted too: the weight is ``sin |theta_o|`` (the polar angle, >= 0)
+    and ``cos theta_i`` is even.  An optional non-negative per-sample ``weight`` ``[N]`` (e.g.
+    a table's weight column) turns the mean into ``Σ w · term / Σ w`` over samples (a plain mean
+    over channels); ``weight=None`` is Eq. 4.2 as written.
+    """
+    xp = array_namespace(pred, target, theta_i_deg, theta_o_deg)
+    terms = log_cosine_terms(pred, target, theta_i_deg, theta_o_deg)
+    if weight is None:
+        return xp.mean(terms)
+    return xp.mean(_per_sample(weight, pred) * terms) / xp.mean(weight)
+
+
+def l1_loss(pred, target):
+    """Mean absolute error over every element."""
+    _check_pair(pred, target)
+    xp = array_namespace(pred, target)
+    return xp.mean(xp.abs(pred - target))
