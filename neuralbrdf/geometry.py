@@ -115,6 +115,12 @@ def inplane_to_spherical(theta_i_deg, theta_r_deg):
 IN_PLANE_TOLERANCE = 1e-9
 
 
+def in_plane_of_incidence(wi, wo):
+    """True where ``wi``, ``wo`` and the normal are coplanar: ``|n · (wi × wo)| <= 1e-9``."""
+    xp = _xp(wi, wo)
+    return xp.abs(wi[..., 0] * wo[..., 1] - wi[..., 1] * wo[..., 0]) <= IN_PLANE_TOLERANCE
+
+
 def spherical_to_inplane(theta_i, phi_i, theta_o, phi_o):
     """Signed in-plane ``(theta_i, theta_r)`` (degrees) of spherical direction pairs.
 
@@ -125,8 +131,9 @@ def spherical_to_inplane(theta_i, phi_i, theta_o, phi_o):
     xp = _xp(theta_i, phi_i, theta_o, phi_o)
     wi, wo = spherical_pair_to_vectors(theta_i, phi_i, theta_o, phi_o)
     in_plane = (xp.abs(wi[..., 1]) < IN_PLANE_TOLERANCE) & (xp.abs(wo[..., 1]) < IN_PLANE_TOLERANCE)
-    exact_i = xp.atan2(wi[..., 0], wi[..., 2]) / DEG
-    exact_r = xp.atan2(-wo[..., 0], wo[..., 2]) / DEG
+    # wi = (sin ti, 0, cos ti), wo = (-sin tr, 0, cos tr): the polar angles carry the magnitudes
+    exact_i = xp.where(wi[..., 0] < 0, -theta_i, theta_i)
+    exact_r = xp.where(wo[..., 0] > 0, -theta_o, theta_o)
     equiv_i, equiv_r = inplane_equivalent(wi, wo)
     return xp.where(in_plane, exact_i, equiv_i), xp.where(in_plane, exact_r, equiv_r)
 

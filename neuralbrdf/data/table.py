@@ -32,7 +32,7 @@ from neuralbrdf.data.csvio import (
     write_numeric_csv,
 )
 from neuralbrdf.errors import InputError
-from neuralbrdf.geometry import spherical_to_inplane, spherical_pair_to_vectors
+from neuralbrdf.geometry import in_plane_of_incidence, spherical_pair_to_vectors, spherical_to_inplane
 
 RGB_CHANNELS = ("R", "G", "B")
 ANGLE_COLUMNS = ("theta_i", "phi_i", "theta_o", "phi_o")
@@ -224,6 +224,10 @@ class BrdfTable:
         of plane ``theta_i`` can exceed 90°.
         """
         return spherical_to_inplane(self.theta_i, self.phi_i, self.theta_o, self.phi_o)
+
+    def in_plane_mask(self) -> np.ndarray:
+        """True for rows whose directions are coplanar with the normal (any azimuth of the plane)."""
+        return in_plane_of_incidence(*self.vectors())
 
     def to_rgb(self) -> BrdfTable:
         """Linear-sRGB version of a spectral table (SPEC §2.3); an RGB table is returned as is.

@@ -1,0 +1,206 @@
+"""Measured in-plane spectral BRDF samples for training (report §5.1, Table 5.1; SPEC §3, §4.4).
+
+A measurement — a spectral BRDF table (SPEC §2.1) or a GCMS raw file with its Munsell N9
+reference (SPEC §2.2) — becomes one sample per direction pair and wavelength: the triplets
+``(theta_i, theta_r, lambda)`` of the report's MLP with the measured BRDF ``f`` (sr⁻¹).
+
+**Signed angles.** Table 5.1 splits by the *signed* incident angle (test ``theta_i`` in {-50,
+-35, -20, -5, 10, 25, 40, 55}).  Tables keep that sign (:func:`neuralbrdf.geometry.
+inplane_to_spherical` stores the vectors' own azimuths) and
+:meth:`~neuralbrdf.data.table.BrdfTable.inplane_angles` decodes it, so GCMS raw files and
+tables split alike.  Out-of-plane rows are rejected: the model is trained on in-plane data only.
+
+**Splits.** ``train`` is Table 5.1's training set; ``val`` and ``test`` are both its test set:
+the report picks the checkpoint on the test split (§5.1.1, "This helps us choose the
+best-performing checkpoint"), so validation runs on it too.  The numbers it reports, and those
+logged here, are therefore not from data unseen by model selection.
+
+The whole measurement (DS1: 1001 pairs × 31 wavelengths) is held in memory as tensors; a
+training batch is one random index set gathered in a single indexing operation, not a
+per-sample collation.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import NamedTuple
+
+import numpy as np
+import pytorch_lightning as pl
+import torch
+from torch.utils.data import BatchSampler, DataLoader, Dataset, RandomSampler, SequentialSampler
+
+from neuralbrdf.data.loading import load_measurement
+from neuralbrdf.data.plans import SPECTRAL_MLP_TEST_THETA_I, spectral_mlp_split
+from neuralbrdf.data.table import BrdfTable
+from neuralbrdf.errors import InputError
+from neuralbrdf.virtual.instrument import default_data_path
+
+#: The Munsell N9 white of the shipped measurements.
+SHIPPED_REFERENCE = "munsell_n9"
+
+
+class SpectralSamples(NamedTuple):
+    """Flat spectral samples, all ``[M]``.
+
+    Angles in degrees, wavelength in nm and BRDF in sr⁻¹ are float32; ``pair_index`` (int64) is
+    the row of the measurement each sample comes from — two measured rows may share their
+    angles (a table's folded mirror twins), so the angles alone do not identify a row.
+    """
+
+    theta_i_deg: torch.Tensor
+    theta_r_deg: torch.Tensor
+    wavelength_nm: torch.Tensor
+    brdf: torch.Tensor
+    pair_index: torch.Tensor
+
+
+class InMemorySamples(Dataset):
+    """:class:`SpectralSamples` as a dataset indexed by *lists* of sample indices (one batch each)."""
+
+    def __init__(self, samples: SpectralSamples) -> None:
+        self.samples = samples
+
+    def __len__(self) -> int:
+        return len(self.samples.brdf)
+
+    def __getitem__(self, indices) -> SpectralSamples:
+        index = torch.as_tensor(indices, dtype=torch.long)
+        return SpectralSamples(*(column[index] for column in self.samples))
+
+
+def load_inplane_spectral(path, reference=None) -> tuple[BrdfTable, np.ndarray, np.ndarray]:
+    """A spectral measurement and its signed in-plane angles ``(table, theta_i, theta_r)``.
+
+    ``path`` is a spectral BRDF table or a GCMS raw file (then ``reference`` is its Munsell N9
+    file, see :func:`~neuralbrdf.data.loading.load_measurement`).
+    """
+    table = load_measurement(path, reference)
+    if not table.is_spectral:
+        raise InputError("is an RGB table; the spectral MLP needs one column per wavelength (nm)", path=path)
+    out_of_plane = np.flatnonzero(~table.in_plane_mask())
+    if out_of_plane.size:
+        row = int(out_of_plane[0])
+        raise InputError(
+            f"row {row}: out of plane (phi_o - phi_i = {table.phi_o[row] - table.phi_i[row]:g}°); the spectral "
+            f"MLP trains on in-plane samples only ({out_of_plane.size} out-of-plane rows)",
+            path=path,
+        )
+    return (table, *table.inplane_angles())
+
+
+def flatten_samples(table: BrdfTable, theta_i: np.ndarray, theta_r: np.ndarray) -> SpectralSamples:
+    """One sample per (row, wavelength), row-major."""
+    n_rows, n_wavelengths = table.values.shape
+    columns = (
+        np.repeat(theta_i, n_wavelengths),
+        np.repeat(theta_r, n_wavelengths),
+        np.tile(table.wavelengths, n_rows),
+        table.values.reshape(-1),
+    )
+    return SpectralSamples(
+        *(torch.as_tensor(c, dtype=torch.float32) for c in columns),
+        torch.arange(n_rows).repeat_interleave(n_wavelengths),
+    )
+
+
+class MeasurementDataModule(pl.LightningDataModule):
+    """Table 5.1 train/test split of one spectral in-plane measurement (module docstring).
+
+    Parameters
+    ----------
+    path:
+        Spectral BRDF table or GCMS raw file.  ``None``: the shipped virtual DS1 measurement of
+        ``virtual_material`` with the shipped Munsell N9 reference.
+    reference:
+        Munsell N9 GCMS raw file for a GCMS raw ``path``; must be ``None`` for a table.
+    virtual_material:
+        Shipped stand-in used when ``path`` is ``None``: cyan, magenta, gold or gonio.
+    batch_size:
+        Training samples per step (drawn without replacement, reshuffled every epoch).
+    eval_batch_size:
+        Samples per validation/test step, rounded up to whole direction pairs (every wavelength
+        of a pair in one batch, so an evaluation cut short by ``limit_val_batches`` or the
+        sanity check still scores whole pairs); ``None``: the whole split in one batch.
+    num_workers:
+        DataLoader worker processes (0: load in the main process; the data is in memory).
+    """
+
+    def __init__(
+        self,
+        path: str | None = None,
+        reference: str | None = None,
+        virtual_material: str = "gold",
+        batch_size: int = 512,
+        eval_batch_size: int | None = None,
+        num_workers: int = 0,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()  # recorded in checkpoints: where the model's data came from
+        if batch_size < 1 or (eval_batch_size is not None and eval_batch_size < 1):
+            raise InputError(f"batch_size and eval_batch_size must be >= 1, got {batch_size} and {eval_batch_size}")
+        if path is None:
+            path = str(default_data_path(virtual_material))
+            reference = str(default_data_path(SHIPPED_REFERENCE)) if reference is None else reference
+        self.path = os.fspath(path)
+        self.reference = None if reference is None else os.fspath(reference)
+        self.batch_size = batch_size
+        self.eval_batch_size = eval_batch_size
+        self.num_workers = num_workers
+        self._measurement: tuple[BrdfTable, np.ndarray, np.ndarray] | None = None
+        self.train_samples: SpectralSamples | None = None
+        self.test_samples: SpectralSamples | None = None
+        self.n_wavelengths = 0
+
+    def measurement(self) -> tuple[BrdfTable, np.ndarray, np.ndarray]:
+        """The table and its signed in-plane angles, read once (:func:`load_inplane_spectral`)."""
+        if self._measurement is None:
+            self._measurement = load_inplane_spectral(self.path, self.reference)
+        return self._measurement
+
+    def prepare_data(self) -> None:
+        # Runs before the trainer creates its log directory: bad input fails before any output.
+        self.measurement()
+
+    def setup(self, stage: str | None = None) -> None:
+        if self.train_samples is not None:
+            return
+        table, theta_i, theta_r = self.measurement()
+        samples = flatten_samples(table, theta_i, theta_r)
+        is_test = torch.as_tensor(np.repeat(spectral_mlp_split(theta_i), len(table.wavelengths)))
+        if bool(is_test.all()) or not bool(is_test.any()):
+            which = "every" if bool(is_test.all()) else "no"
+            raise InputError(
+                f"{which} row falls in the Table 5.1 test split (test theta_i in "
+                f"{', '.join(f'{a:g}' for a in SPECTRAL_MLP_TEST_THETA_I)}°, train: the rest of the 5° grid); "
+                f"incident angles found: {', '.join(f'{a:g}' for a in np.unique(theta_i))}",
+                path=self.path,
+            )
+        self.train_samples = SpectralSamples(*(column[~is_test] for column in samples))
+        self.test_samples = SpectralSamples(*(column[is_test] for column in samples))
+        self.n_wavelengths = len(table.wavelengths)
+
+    def _loader(self, samples: SpectralSamples, batch_size: int, shuffle: bool) -> DataLoader:
+        dataset = InMemorySamples(samples)
+        order = RandomSampler(dataset) if shuffle else SequentialSampler(dataset)
+        return DataLoader(
+            dataset,
+            sampler=BatchSampler(order, batch_size, drop_last=False),
+            batch_size=None,
+            num_workers=self.num_workers,
+            persistent_workers=self.num_workers > 0,
+        )
+
+    def _eval_loader(self) -> DataLoader:
+        size = self.eval_batch_size or len(self.test_samples.brdf)
+        whole_pairs = -(-size // self.n_wavelengths) * self.n_wavelengths
+        return self._loader(self.test_samples, whole_pairs, shuffle=False)
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader(self.train_samples, self.batch_size, shuffle=True)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._eval_loader()
+
+    def test_dataloader(self) -> DataLoader:
+        return self._eval_loader()
