@@ -1,0 +1,460 @@
+"""The ``neuralbrdf`` Mitsuba 3 BSDF: render any model file of the ONNX contract (SPEC §6, §7).
+
+Usage from a user's own script::
+
+    import mitsuba as mi
+    mi.set_variant("llvm_ad_rgb")          # or llvm_ad_spectral, cuda_ad_rgb, cuda_ad_spectral
+    from neuralbrdf.render import register
+    register()                              # once per variant; idempotent
+    bsdf = mi.load_dict({"type": "neuralbrdf", "filename": "gold.onnx", "backend": "drjit"})
+
+Properties
+----------
+``filename``
+    The ``.onnx`` model (resolved through Mitsuba's file resolver, so relative to the scene file).
+    It is validated (:func:`~neuralbrdf.render.onnx_contract.load_model`) when the scene loads.
+``backend``
+    ``drjit`` (default): the graph is interpreted as Dr.Jit arithmetic
+    (:mod:`~neuralbrdf.render.drjit_onnx`) and fuses into the render kernel; works in Mitsuba's
+    default symbolic mode.  ``onnxruntime``: one ``InferenceSession.run`` per wavefront call of
+    ``eval``/``eval_pdf``/``sample``, which needs Dr.Jit's wavefront mode::
+
+        dr.set_flag(dr.JitFlag.SymbolicLoops, False)
+        dr.set_flag(dr.JitFlag.SymbolicCalls, False)
+
+    (checked at every call, with an error saying so).  Not differentiable.
+
+Any other property fails loading (Mitsuba reports unreferenced properties).
+
+Methods: ``eval`` returns ``f · cos θo``; ``sample`` draws from the fitted lobe mixture of
+:mod:`~neuralbrdf.render.sampling` and returns ``f cos θo / pdf``; ``pdf`` is that mixture's
+density; ``eval_pdf`` evaluates the network once for both.  Everything is 0 unless ``wi`` and
+``wo`` are above the horizon (a one-sided reflector: flags ``GlossyReflection | FrontSide``).
+
+Colour
+------
+=========================  ==============================================================
+model / variant            what the BSDF returns
+=========================  ==============================================================
+RGB model, RGB variant     the model's linear sRGB values
+spectral, spectral         the model at the ray's own wavelengths (``si.wavelengths``),
+                           clamped to the model's wavelength range
+RGB model, spectral        upsampled per sample like Mitsuba's unbounded RGB textures:
+                           ``s = 2 max(rgb)``, coefficients of ``rgb / s`` from Mitsuba's
+                           ``data/srgb.coeff`` (Jakob & Hanika 2019), value ``× s``
+spectral model, RGB        integrated to linear sRGB as SPEC §2.3 does for measurements:
+                           CIE 1931 2° observer × D65 on 400–700 nm at 10 nm (model clamped
+                           to its range), IEC 61966-2-1 matrix, negatives clipped to 0
+=========================  ==============================================================
+
+The last row makes a flat spectrum ``c`` render as about ``(c, c, c)`` and keeps RGB renders of
+spectral models consistent with the project's own sRGB conversion
+(:mod:`neuralbrdf.data.colorimetry`); it costs 31 network evaluations per query (a Dr.Jit loop,
+compiled once, in the drjit backend; part of the one batched run in onnxruntime).
+
+The sampling proposal is fitted when the scene loads, by probing the model with onnxruntime
+(:func:`~neuralbrdf.render.sampling.fit_neural_mixture`; ABC models keep their analytic lobe,
+:func:`~neuralbrdf.render.sampling.fit_abc_mixture`).
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import onnxruntime
+
+from neuralbrdf.data.colorimetry import XYZ_TO_LINEAR_SRGB, xyz_weights
+from neuralbrdf.errors import InputError
+from neuralbrdf.render.drjit_onnx import DrJitGraph
+from neuralbrdf.render.onnx_contract import (
+    INPUT_WAVELENGTH,
+    INPUT_WI,
+    INPUT_WO,
+    OUTPUT_F,
+    OnnxModel,
+    load_model,
+)
+from neuralbrdf.render.sampling import LobeMixture, fit_abc_mixture, fit_neural_mixture
+
+PLUGIN_NAME = "neuralbrdf"
+BACKENDS = ("drjit", "onnxruntime")
+DEFAULT_BACKEND = "drjit"
+
+#: Wavelengths (nm) at which a spectral model is integrated to sRGB in RGB variants (SPEC §2.3).
+SPECTRAL_TO_RGB_GRID_NM = np.arange(400.0, 701.0, 10.0)
+
+#: Unrolled size (multiply-adds) above which the drjit backend warns that it compiles slowly.
+LARGE_GRAPH_MULTIPLY_ADDS = 100_000
+
+#: Wavelengths (nm, spread over the model's range) averaged when probing a spectral model.
+_PROBE_WAVELENGTH_COUNT = 5
+
+_REGISTERED_VARIANTS: set[str] = set()
+_BSDF_CLASSES: dict[str, type] = {}
+_UPSAMPLERS: dict[str, _SrgbUpsampler] = {}
+
+
+def register() -> None:
+    """Register the ``neuralbrdf`` BSDF plugin for the current Mitsuba variant (idempotent).
+
+    Supported: JIT variants (``llvm_*``, ``cuda_*``) with RGB or spectral colour, unpolarised.
+    """
+    variant = mi.variant()
+    if variant is None:
+        raise RuntimeError("select a Mitsuba variant (mi.set_variant) before registering 'neuralbrdf'")
+    if variant in _REGISTERED_VARIANTS:
+        return
+    jit = variant.startswith(("llvm_", "cuda_"))
+    if not jit or "polarized" in variant or not ("_rgb" in variant or "_spectral" in variant):
+        raise RuntimeError(
+            f"the neuralbrdf BSDF does not support Mitsuba variant {variant!r}; use an unpolarised "
+            "RGB or spectral JIT variant (llvm_ad_rgb, llvm_ad_spectral, cuda_ad_rgb, cuda_ad_spectral)"
+        )
+    cls = _bsdf_class(variant)
+    mi.register_bsdf(PLUGIN_NAME, lambda props: cls(props))
+    _REGISTERED_VARIANTS.add(variant)
+
+
+# --------------------------------------------------------------------------- backends
+
+
+def _check_wavefront_mode() -> None:
+    if (
+        dr.flag(dr.JitFlag.SymbolicLoops)
+        or dr.flag(dr.JitFlag.SymbolicCalls)
+        or dr.flag(dr.JitFlag.SymbolicScope)
+    ):
+        raise RuntimeError(
+            "the neuralbrdf backend 'onnxruntime' runs the network outside Dr.Jit, once per "
+            "wavefront, so Dr.Jit must render in wavefront mode: call "
+            "dr.set_flag(dr.JitFlag.SymbolicLoops, False) and "
+            "dr.set_flag(dr.JitFlag.SymbolicCalls, False) before rendering, or use backend 'drjit'"
+        )
+
+
+def _lane_count(*arrays) -> int:
+    return max(dr.width(a) for a in arrays)
+
+
+def _rows(vector: mi.Vector3f, n: int) -> np.ndarray:
+    """``[n, 3]`` float32 rows of a Dr.Jit 3-vector (broadcasting a width-1 vector)."""
+    return np.ascontiguousarray(np.broadcast_to(vector.numpy().T, (n, 3)), dtype=np.float32)
+
+
+def _column(values, n: int) -> np.ndarray:
+    if isinstance(values, (int, float)):
+        return np.full(n, values, dtype=np.float32)
+    return np.broadcast_to(values.numpy(), (n,)).astype(np.float32)
+
+
+class _OnnxRuntimeBackend:
+    """One ``InferenceSession.run`` per call, all lanes and wavelengths stacked in one batch."""
+
+    name = "onnxruntime"
+
+    def __init__(self, session: onnxruntime.InferenceSession) -> None:
+        self.session = session
+
+    def rgb(self, wi: mi.Vector3f, wo: mi.Vector3f) -> list[mi.Float]:
+        _check_wavefront_mode()
+        n = _lane_count(wi, wo)
+        (f,) = self.session.run([OUTPUT_F], {INPUT_WI: _rows(wi, n), INPUT_WO: _rows(wo, n)})
+        return [mi.Float(np.ascontiguousarray(f[:, c])) for c in range(3)]
+
+    def _spectral_values(self, wi: mi.Vector3f, wo: mi.Vector3f, wavelengths: list) -> np.ndarray:
+        """``[k, n]`` values at ``k`` wavelength columns (Dr.Jit arrays or floats, nm)."""
+        _check_wavefront_mode()
+        n = _lane_count(wi, wo, *[w for w in wavelengths if not isinstance(w, float)])
+        k = len(wavelengths)
+        feeds = {
+            INPUT_WI: np.tile(_rows(wi, n), (k, 1)),
+            INPUT_WO: np.tile(_rows(wo, n), (k, 1)),
+            INPUT_WAVELENGTH: np.concatenate([_column(w, n) for w in wavelengths]),
+        }
+        (f,) = self.session.run([OUTPUT_F], feeds)
+        return f.reshape(k, n)
+
+    def spectral(self, wi: mi.Vector3f, wo: mi.Vector3f, wavelengths: list) -> list[mi.Float]:
+        return [mi.Float(np.ascontiguousarray(v)) for v in self._spectral_values(wi, wo, wavelengths)]
+
+    def integrated(self, wi: mi.Vector3f, wo: mi.Vector3f, wavelengths, weights) -> list[mi.Float]:
+        """``Σ_k f(λ_k) weights[k, c]`` for ``c`` = 0, 1, 2, from one run over all ``λ_k``."""
+        values = self._spectral_values(wi, wo, [float(w) for w in wavelengths])
+        channels = np.asarray(weights, dtype=np.float64).T @ values.astype(np.float64)
+        return [mi.Float(channels[c].astype(np.float32)) for c in range(3)]
+
+
+class _DrJitBackend:
+    """The graph as Dr.Jit arithmetic inside the kernel (see :mod:`~neuralbrdf.render.drjit_onnx`)."""
+
+    name = "drjit"
+
+    def __init__(self, graph: DrJitGraph) -> None:
+        self.graph = graph
+        if graph.multiply_adds > LARGE_GRAPH_MULTIPLY_ADDS:
+            warnings.warn(
+                f"{graph.source}: the network unrolls to {graph.multiply_adds} multiply-adds per "
+                "evaluation; the drjit backend will compile slowly, consider backend 'onnxruntime'",
+                stacklevel=2,
+            )
+
+    def rgb(self, wi: mi.Vector3f, wo: mi.Vector3f) -> list:
+        return self.graph(wi, wo)
+
+    def spectral(self, wi: mi.Vector3f, wo: mi.Vector3f, wavelengths: list) -> list:
+        # One evaluation per wavelength; Dr.Jit shares the parts that depend on wi, wo only.
+        return [self.graph(wi, wo, w)[0] for w in wavelengths]
+
+    def integrated(self, wi: mi.Vector3f, wo: mi.Vector3f, wavelengths, weights) -> list:
+        """``Σ_k f(λ_k) weights[k, c]`` in a Dr.Jit loop, so the network is compiled once."""
+        grid = mi.Float(np.asarray(wavelengths, dtype=np.float32))
+        table = mi.Float(np.asarray(weights, dtype=np.float32).ravel())
+        zero = dr.zeros(mi.Float, dr.width(wi))
+
+        def body(k, r, g, b):
+            f = self.graph(wi, wo, dr.gather(mi.Float, grid, k))[0]
+            r = dr.fma(f, dr.gather(mi.Float, table, 3 * k), r)
+            g = dr.fma(f, dr.gather(mi.Float, table, 3 * k + 1), g)
+            b = dr.fma(f, dr.gather(mi.Float, table, 3 * k + 2), b)
+            return k + 1, r, g, b
+
+        state = (dr.zeros(mi.UInt32, dr.width(wi)), zero, zero, zero)
+        _, r, g, b = dr.while_loop(state, lambda k, *_: k < len(wavelengths), body)
+        return [r, g, b]
+
+
+def _probe_function(model: OnnxModel, session: onnxruntime.InferenceSession):
+    """Channel- (or wavelength-) averaged ``f`` through onnxruntime, for fitting the sampler."""
+
+    def brdf(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+        if not model.is_spectral:
+            (f,) = session.run([OUTPUT_F], {INPUT_WI: wi, INPUT_WO: wo})
+            return f.mean(axis=1)
+        wavelengths = np.linspace(*model.wavelength_range_nm, _PROBE_WAVELENGTH_COUNT)
+        feeds = {
+            INPUT_WI: np.tile(wi, (len(wavelengths), 1)),
+            INPUT_WO: np.tile(wo, (len(wavelengths), 1)),
+            INPUT_WAVELENGTH: np.repeat(wavelengths, len(wi)).astype(np.float32),
+        }
+        (f,) = session.run([OUTPUT_F], feeds)
+        return f.reshape(len(wavelengths), len(wi)).mean(axis=0)
+
+    return brdf
+
+
+# --------------------------------------------------------------------------- colour
+
+
+class _SrgbUpsampler:
+    """Mitsuba's RGB → spectrum model (Jakob & Hanika 2019), vectorised over lanes.
+
+    ``mi.srgb_model_fetch`` only takes one scalar colour; this is the same trilinear lookup in
+    Mitsuba's ``data/srgb.coeff`` table (``rgb2spec_fetch``) written with Dr.Jit gathers, so that
+    a BRDF value that varies per ray can be upsampled inside the kernel.  Exact greys get the
+    flat spectrum in closed form, ``c = (0, 0, (g - 1/2) / sqrt(g (1 - g)))``, as Mitsuba 3.9's
+    own fetch does (the table is 2e-4 off there).
+    """
+
+    def __init__(self) -> None:
+        path = Path(str(mi.file_resolver().resolve("data/srgb.coeff")))
+        raw = path.read_bytes()
+        if raw[:4] != b"SPEC":
+            raise InputError("not an RGB2Spec coefficient table", path=path)
+        res = int(np.frombuffer(raw, dtype=np.uint32, count=1, offset=4)[0])
+        scale = np.frombuffer(raw, dtype=np.float32, count=res, offset=8)
+        data = np.frombuffer(raw, dtype=np.float32, count=3 * res**3 * 3, offset=8 + 4 * res)
+        self.res = res
+        self.scale = mi.Float(np.array(scale))
+        self.data = mi.Float(np.array(data))
+
+    def coefficients(self, rgb: mi.Color3f) -> mi.Vector3f:
+        """Model coefficients of colours in [0, 1] (clamped), as ``rgb2spec_fetch``."""
+        res = self.res
+        rgb = dr.clip(rgb, 0.0, 1.0)
+        r, g, b = rgb.x, rgb.y, rgb.z
+        # Largest component; later channels win ties, as in rgb2spec_fetch.
+        g_wins = g >= r
+        i = dr.select(g_wins, mi.UInt32(1), mi.UInt32(0))
+        z = dr.select(g_wins, g, r)
+        b_wins = b >= z
+        i = dr.select(b_wins, mi.UInt32(2), i)
+        z = dr.select(b_wins, b, z)
+        x_src = dr.select(i == 0, g, dr.select(i == 1, b, r))  # rgb[(i + 1) % 3]
+        y_src = dr.select(i == 0, b, dr.select(i == 1, r, g))  # rgb[(i + 2) % 3]
+        inv = (res - 1) / dr.maximum(z, 1e-30)
+        x, y = x_src * inv, y_src * inv
+        xi = dr.minimum(mi.UInt32(x), res - 2)
+        yi = dr.minimum(mi.UInt32(y), res - 2)
+        first_above = dr.binary_search(
+            0, res - 1, lambda idx: dr.gather(mi.Float, self.scale, idx) <= z
+        )
+        zi = mi.UInt32(dr.clip(mi.Int32(first_above) - 1, 0, res - 2))
+        x1, y1 = x - mi.Float(xi), y - mi.Float(yi)
+        s0 = dr.gather(mi.Float, self.scale, zi)
+        s1 = dr.gather(mi.Float, self.scale, zi + 1)
+        z1 = (z - s0) / (s1 - s0)
+        base = ((i * res + zi) * res + yi) * res + xi
+
+        def corner(dz, dy, dx):
+            return dr.gather(mi.Vector3f, self.data, base + dz * res * res + dy * res + dx)
+
+        def lerp(a, b_, t):
+            return dr.fma(b_ - a, t, a)
+
+        c00 = lerp(corner(0, 0, 0), corner(0, 0, 1), x1)
+        c01 = lerp(corner(0, 1, 0), corner(0, 1, 1), x1)
+        c10 = lerp(corner(1, 0, 0), corner(1, 0, 1), x1)
+        c11 = lerp(corner(1, 1, 0), corner(1, 1, 1), x1)
+        coeff = lerp(lerp(c00, c01, y1), lerp(c10, c11, y1), z1)
+        black = dr.gather(mi.Vector3f, self.data, mi.UInt32(0))
+        coeff = dr.select(z > 0, coeff, black)
+        # 1/2 + x / (2 sqrt(1 + x²)) = g for x = (g - 1/2) / sqrt(g (1 - g)); ±inf at 0 and 1.
+        flat = mi.Vector3f(0.0, 0.0, (g - 0.5) / dr.sqrt(g * (1.0 - g)))
+        return dr.select((r == g) & (g == b), flat, coeff)
+
+    def spectrum(self, rgb: mi.Color3f, wavelengths: mi.Spectrum) -> mi.Spectrum:
+        """Unbounded RGB upsampled like Mitsuba's bitmap textures: scale to max 0.5, rescale."""
+        scale = 2.0 * dr.max(rgb, axis=0)
+        coeff = self.coefficients(rgb / dr.maximum(scale, 1e-8))
+        return mi.srgb_model_eval(mi.Array3f(coeff), wavelengths) * scale
+
+
+def _upsampler() -> _SrgbUpsampler:
+    variant = mi.variant()
+    if variant not in _UPSAMPLERS:
+        _UPSAMPLERS[variant] = _SrgbUpsampler()
+    return _UPSAMPLERS[variant]
+
+
+def _spectral_to_srgb_weights() -> np.ndarray:
+    """``[W, 3]`` weights from values on :data:`SPECTRAL_TO_RGB_GRID_NM` to linear sRGB."""
+    return xyz_weights(SPECTRAL_TO_RGB_GRID_NM) @ XYZ_TO_LINEAR_SRGB.T
+
+
+# --------------------------------------------------------------------------- the BSDF
+
+
+def _read_properties(props: mi.Properties) -> tuple[Path, str]:
+    if "filename" not in props:
+        raise InputError("the neuralbrdf BSDF needs a 'filename' property (the .onnx model)")
+    filename = str(props.get("filename"))
+    backend = str(props.get("backend", DEFAULT_BACKEND))
+    if backend not in BACKENDS:
+        raise InputError(
+            f"unknown backend {backend!r}; expected one of {list(BACKENDS)}", column="backend"
+        )
+    return Path(str(mi.file_resolver().resolve(filename))), backend
+
+
+def _bsdf_class(variant: str) -> type:
+    """The BSDF class for ``variant`` (a Python BSDF derives from that variant's ``mi.BSDF``)."""
+    if variant in _BSDF_CLASSES:
+        return _BSDF_CLASSES[variant]
+
+    class NeuralBSDF(mi.BSDF):
+        """Mitsuba BSDF evaluating an ONNX BRDF model (module docstring)."""
+
+        def __init__(self, props: mi.Properties) -> None:
+            mi.BSDF.__init__(self, props)
+            path, backend = _read_properties(props)
+            self.model = load_model(path)
+            session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+            if backend == "onnxruntime":
+                self.backend = _OnnxRuntimeBackend(session)
+            else:
+                self.backend = _DrJitBackend(DrJitGraph.from_model(self.model))
+            probe = _probe_function(self.model, session)
+            if self.model.abc is not None:
+                self.mixture: LobeMixture = fit_abc_mixture(probe, self.model.abc)
+            else:
+                self.mixture = fit_neural_mixture(probe)
+            self._spectral_variant = mi.is_spectral
+            if self.model.is_spectral and not mi.is_spectral:
+                low, high = self.model.wavelength_range_nm
+                self._rgb_grid = [float(w) for w in np.clip(SPECTRAL_TO_RGB_GRID_NM, low, high)]
+                self._rgb_weights = _spectral_to_srgb_weights()
+            self.m_flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
+            self.m_components = [self.m_flags]
+
+        # -- the BRDF value in the variant's colour representation
+
+        def _brdf(self, si: mi.SurfaceInteraction3f, wo: mi.Vector3f) -> mi.Spectrum:
+            """``f`` (no cosine, not masked) as a ``mi.Spectrum``, one network evaluation."""
+            model, backend = self.model, self.backend
+            if self._spectral_variant:
+                if model.is_spectral:
+                    low, high = model.wavelength_range_nm
+                    n = dr.size_v(mi.Spectrum)
+                    wavelengths = [dr.clip(si.wavelengths[k], low, high) for k in range(n)]
+                    return mi.Spectrum(*backend.spectral(si.wi, wo, wavelengths))
+                rgb = mi.Color3f(*backend.rgb(si.wi, wo))
+                return _upsampler().spectrum(rgb, si.wavelengths)
+            if model.is_spectral:
+                channels = backend.integrated(si.wi, wo, self._rgb_grid, self._rgb_weights)
+                return mi.Spectrum(*[dr.maximum(c, 0.0) for c in channels])
+            return mi.Spectrum(*backend.rgb(si.wi, wo))
+
+        @staticmethod
+        def _enabled(ctx: mi.BSDFContext) -> bool:
+            return ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0)
+
+        def _above(self, si, wo, active):
+            cos_o = mi.Frame3f.cos_theta(wo)
+            return active & (mi.Frame3f.cos_theta(si.wi) > 0) & (cos_o > 0), cos_o
+
+        # -- the BSDF interface
+
+        def eval(self, ctx, si, wo, active=True):
+            if not self._enabled(ctx):
+                return mi.Spectrum(0.0)
+            valid, cos_o = self._above(si, wo, active)
+            return dr.select(valid, self._brdf(si, wo) * cos_o, 0.0)
+
+        def pdf(self, ctx, si, wo, active=True):
+            if not self._enabled(ctx):
+                return mi.Float(0.0)
+            return dr.select(active, self.mixture.pdf(si.wi, wo), 0.0)
+
+        def eval_pdf(self, ctx, si, wo, active=True):
+            if not self._enabled(ctx):
+                return mi.Spectrum(0.0), mi.Float(0.0)
+            valid, cos_o = self._above(si, wo, active)
+            value = dr.select(valid, self._brdf(si, wo) * cos_o, 0.0)
+            return value, dr.select(active, self.mixture.pdf(si.wi, wo), 0.0)
+
+        def sample(self, ctx, si, sample1, sample2, active=True):
+            bs = dr.zeros(mi.BSDFSample3f)
+            if not self._enabled(ctx):
+                return bs, mi.Spectrum(0.0)
+            wo, pdf, valid = self.mixture.sample(si.wi, sample1, sample2)
+            valid &= active
+            value = self._brdf(si, wo) * mi.Frame3f.cos_theta(wo) / pdf
+            bs.wo = wo
+            bs.pdf = dr.select(valid, pdf, 0.0)
+            bs.eta = 1.0
+            bs.sampled_type = mi.UInt32(+mi.BSDFFlags.GlossyReflection)
+            bs.sampled_component = mi.UInt32(0)
+            return bs, dr.select(valid, value, 0.0)
+
+        def to_string(self):
+            model = self.model
+            spectral = (
+                f"spectral {model.wavelength_range_nm[0]:g}-{model.wavelength_range_nm[1]:g} nm"
+                if model.is_spectral
+                else "RGB"
+            )
+            return (
+                "NeuralBRDF[\n"
+                f"  filename = {str(model.path)!r},\n"
+                f"  kind = {model.kind}, material = {model.material!r}, {spectral},\n"
+                f"  backend = {self.backend.name},\n"
+                f"  proposal = {self.mixture.describe()}\n"
+                "]"
+            )
+
+    _BSDF_CLASSES[variant] = NeuralBSDF
+    return NeuralBSDF

@@ -1,0 +1,464 @@
+"""The ONNX file contract between exported models and the renderers (SPEC §6).
+
+Every trained model (spectral MLP, NLB, ABC) exports to one self-contained ``.onnx`` file that
+:func:`load_model` validates at scene load, so that a bad file fails with one clear
+:class:`~neuralbrdf.errors.InputError` naming the file and what is wrong, never mid-render.
+
+Graph interface
+---------------
+* inputs ``wi`` and ``wo``: ``float32 [N, 3]``, unit vectors in the local shading frame (``z`` the
+  normal), both pointing away from the surface (SPEC §1); spectral models add ``wavelength``:
+  ``float32 [N]`` in nm.  ``N`` is dynamic (a named or unnamed dimension, never a number).
+* output ``f``: ``float32 [N, 3]`` (RGB models, linear sRGB) or ``float32 [N]`` (spectral
+  models), in sr⁻¹, without the cosine factor, and 0 when either direction is below the horizon.
+* everything needed to evaluate is inside the graph (input normalisation, in-plane mapping,
+  baked latent, output activation); initialisers must be finite.
+
+Metadata (``ModelProto.metadata_props``, all values strings)
+------------------------------------------------------------
+=================================  ===========================================================
+key                                value
+=================================  ===========================================================
+``neuralbrdf.kind``                ``spectral_mlp``, ``nlb`` or ``abc``
+``neuralbrdf.format_version``      ``1`` (:data:`FORMAT_VERSION`)
+``neuralbrdf.material``            material name, non-empty
+``neuralbrdf.provenance``          short free text: config, data plan, training run
+``neuralbrdf.wavelength_min``      spectral models only: lowest valid wavelength, nm
+``neuralbrdf.wavelength_max``      spectral models only: highest valid wavelength, nm (> min)
+``neuralbrdf.abc.kd``              ABC only: JSON list, diffuse albedo per channel (>= 0)
+``neuralbrdf.abc.A``               ABC only: JSON list, specular scale per channel (>= 0)
+``neuralbrdf.abc.B``               ABC only: distribution width B (>= 0)
+``neuralbrdf.abc.C``               ABC only: fall-off exponent C (>= 0)
+``neuralbrdf.abc.eta``             ABC only: index of refraction (> 0)
+=================================  ===========================================================
+
+The ABC keys are the parameters of SPEC §4.1 that the graph itself implements; the renderer
+reads them to build the analytic importance sampler (:mod:`neuralbrdf.render.sampling`).
+``kd`` and ``A`` have one entry per RGB channel (3) for an RGB model, or one per wavelength of
+the fit's grid for a spectral one (the sampler only uses their means).  Spectral models are
+those with a ``wavelength`` input; the kind ``spectral_mlp`` must be spectral, ``nlb`` and
+``abc`` may be either.  Exporters should build the metadata with :func:`contract_metadata`,
+which writes exactly what :func:`load_model` reads.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import onnx
+import onnxruntime
+from onnx import numpy_helper
+
+from neuralbrdf.errors import InputError
+
+#: Version of this contract written to and required in ``neuralbrdf.format_version``.
+FORMAT_VERSION = "1"
+
+KIND_KEY = "neuralbrdf.kind"
+FORMAT_VERSION_KEY = "neuralbrdf.format_version"
+MATERIAL_KEY = "neuralbrdf.material"
+PROVENANCE_KEY = "neuralbrdf.provenance"
+WAVELENGTH_MIN_KEY = "neuralbrdf.wavelength_min"
+WAVELENGTH_MAX_KEY = "neuralbrdf.wavelength_max"
+ABC_KD_KEY = "neuralbrdf.abc.kd"
+ABC_A_KEY = "neuralbrdf.abc.A"
+ABC_B_KEY = "neuralbrdf.abc.B"
+ABC_C_KEY = "neuralbrdf.abc.C"
+ABC_ETA_KEY = "neuralbrdf.abc.eta"
+
+KINDS = ("spectral_mlp", "nlb", "abc")
+REQUIRED_KEYS = (KIND_KEY, FORMAT_VERSION_KEY, MATERIAL_KEY, PROVENANCE_KEY)
+
+INPUT_WI = "wi"
+INPUT_WO = "wo"
+INPUT_WAVELENGTH = "wavelength"
+OUTPUT_F = "f"
+
+
+@dataclass(frozen=True)
+class AbcMetadata:
+    """ABC parameters stored beside an ABC graph (SPEC §4.1), used by its analytic sampler."""
+
+    kd: tuple[float, ...]
+    A: tuple[float, ...]
+    B: float
+    C: float
+    eta: float
+
+
+@dataclass(frozen=True)
+class OnnxModel:
+    """A validated model file.
+
+    Attributes
+    ----------
+    path:
+        The ``.onnx`` file.
+    kind:
+        ``spectral_mlp``, ``nlb`` or ``abc``.
+    is_spectral:
+        ``True`` when the graph takes ``wavelength`` and returns ``f`` of shape ``[N]``.
+    wavelength_range_nm:
+        ``(min, max)`` valid wavelengths in nm for spectral models, else ``None``.
+    material, provenance:
+        The metadata strings of the same names.
+    metadata:
+        Every ``metadata_props`` entry.
+    proto:
+        The loaded ``onnx.ModelProto``.
+    abc:
+        The ABC parameters for ``kind == "abc"``, else ``None``.
+    """
+
+    path: Path
+    kind: str
+    is_spectral: bool
+    wavelength_range_nm: tuple[float, float] | None
+    material: str
+    provenance: str
+    metadata: dict[str, str]
+    proto: onnx.ModelProto
+    abc: AbcMetadata | None = None
+
+    @property
+    def n_channels(self) -> int:
+        """3 for RGB models, 1 for spectral ones (one value per wavelength)."""
+        return 1 if self.is_spectral else 3
+
+
+def contract_metadata(
+    kind: str,
+    material: str,
+    provenance: str,
+    *,
+    wavelength_range_nm: tuple[float, float] | None = None,
+    abc: AbcMetadata | None = None,
+) -> dict[str, str]:
+    """The ``metadata_props`` entries of the contract, validated like :func:`load_model` does."""
+    metadata = {
+        KIND_KEY: kind,
+        FORMAT_VERSION_KEY: FORMAT_VERSION,
+        MATERIAL_KEY: material,
+        PROVENANCE_KEY: provenance,
+    }
+    if wavelength_range_nm is not None:
+        metadata[WAVELENGTH_MIN_KEY] = repr(float(wavelength_range_nm[0]))
+        metadata[WAVELENGTH_MAX_KEY] = repr(float(wavelength_range_nm[1]))
+    if abc is not None:
+        metadata[ABC_KD_KEY] = json.dumps([float(v) for v in abc.kd])
+        metadata[ABC_A_KEY] = json.dumps([float(v) for v in abc.A])
+        metadata[ABC_B_KEY] = repr(float(abc.B))
+        metadata[ABC_C_KEY] = repr(float(abc.C))
+        metadata[ABC_ETA_KEY] = repr(float(abc.eta))
+    _check_metadata(metadata, "<metadata>", is_spectral=wavelength_range_nm is not None)
+    return metadata
+
+
+def load_model(path: str | os.PathLike[str]) -> OnnxModel:
+    """Load ``path`` and check it against the contract of SPEC §6 (see the module docstring).
+
+    Raises :class:`InputError` naming the file for a missing or unreadable file, a file that is
+    not ONNX or fails the ONNX checker, wrong input or output names, dtypes or ranks, a fixed
+    batch size, missing or malformed metadata, non-finite initialisers or constants, and a graph
+    that onnxruntime cannot run or whose trial evaluation breaks the output contract (shape,
+    finite, non-negative, zero below the horizon; :func:`probe_directions`).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("no such ONNX model file", path=path)
+    try:
+        proto = onnx.load(str(path))
+    except Exception as error:  # onnx raises protobuf DecodeError, OSError, ...
+        raise InputError(f"not an ONNX model ({type(error).__name__}: {error})", path=path) from None
+    if not proto.graph.node and not proto.graph.output:
+        raise InputError("not an ONNX model (no graph)", path=path)
+    try:
+        onnx.checker.check_model(proto)
+    except onnx.checker.ValidationError as error:
+        raise InputError(f"invalid ONNX graph: {error}", path=path) from None
+
+    is_spectral = _check_interface(proto.graph, path)
+    metadata = {entry.key: entry.value for entry in proto.metadata_props}
+    kind, wavelength_range, abc = _check_metadata(metadata, path, is_spectral)
+    _check_finite_constants(proto.graph, path)
+    _check_trial_evaluation(proto, path, wavelength_range)
+    return OnnxModel(
+        path=path,
+        kind=kind,
+        is_spectral=is_spectral,
+        wavelength_range_nm=wavelength_range,
+        material=metadata[MATERIAL_KEY],
+        provenance=metadata[PROVENANCE_KEY],
+        metadata=metadata,
+        proto=proto,
+        abc=abc,
+    )
+
+
+# --------------------------------------------------------------------------- interface
+
+
+def _dims(value_info) -> list[int | None] | None:
+    """Static dims of a tensor value (``None`` for a dynamic one), or ``None`` without a shape."""
+    tensor_type = value_info.type.tensor_type
+    if not tensor_type.HasField("shape"):
+        return None
+    return [d.dim_value if d.HasField("dim_value") else None for d in tensor_type.shape.dim]
+
+
+def _check_tensor(value_info, expected_dims: Sequence[int | None], role: str, path) -> None:
+    """Check dtype float32 and the shape ``[N, *expected_dims[1:]]`` with ``N`` dynamic."""
+    name = value_info.name
+    elem_type = value_info.type.tensor_type.elem_type
+    if elem_type != onnx.TensorProto.FLOAT:
+        dtype = onnx.TensorProto.DataType.Name(elem_type) if elem_type else "no type"
+        raise InputError(f"{role} {name!r} must be float32, found {dtype}", path=path)
+    dims = _dims(value_info)
+    expected = "[N" + "".join(f", {d}" for d in expected_dims[1:]) + "]"
+    if dims is None:
+        raise InputError(f"{role} {name!r} declares no shape; expected {expected}", path=path)
+    if len(dims) != len(expected_dims):
+        raise InputError(
+            f"{role} {name!r} has rank {len(dims)}, expected {expected} (rank {len(expected_dims)})",
+            path=path,
+        )
+    if dims[0] is not None:
+        raise InputError(
+            f"{role} {name!r} has a fixed batch size {dims[0]}; the first dimension must be "
+            f"dynamic ({expected})",
+            path=path,
+        )
+    # A symbolic inner dimension (torch exports some) is checked by the trial evaluation.
+    for axis, (got, want) in enumerate(zip(dims[1:], expected_dims[1:]), start=1):
+        if got is not None and got != want:
+            raise InputError(
+                f"{role} {name!r} has dimension {axis} = {got}, expected {expected}", path=path
+            )
+
+
+def _check_interface(graph: onnx.GraphProto, path) -> bool:
+    """Validate the inputs and output; return whether the model is spectral."""
+    initializer_names = {init.name for init in graph.initializer}
+    inputs = {vi.name: vi for vi in graph.input if vi.name not in initializer_names}
+    names = sorted(inputs)
+    allowed = ({INPUT_WI, INPUT_WO}, {INPUT_WI, INPUT_WO, INPUT_WAVELENGTH})
+    if set(names) not in allowed:
+        raise InputError(
+            f"graph inputs are {names}; expected ['wi', 'wo'] (RGB models) or "
+            "['wavelength', 'wi', 'wo'] (spectral models)",
+            path=path,
+        )
+    is_spectral = INPUT_WAVELENGTH in inputs
+    _check_tensor(inputs[INPUT_WI], (None, 3), "input", path)
+    _check_tensor(inputs[INPUT_WO], (None, 3), "input", path)
+    if is_spectral:
+        _check_tensor(inputs[INPUT_WAVELENGTH], (None,), "input", path)
+
+    outputs = [vi.name for vi in graph.output]
+    if outputs != [OUTPUT_F]:
+        raise InputError(f"graph outputs are {outputs}; expected exactly ['f']", path=path)
+    expected = (None,) if is_spectral else (None, 3)
+    _check_tensor(graph.output[0], expected, "output", path)
+    return is_spectral
+
+
+# --------------------------------------------------------------------------- metadata
+
+
+def _finite_float(metadata: Mapping[str, str], key: str, path) -> float:
+    text = metadata[key]
+    try:
+        value = float(text)
+    except ValueError:
+        raise InputError(f"metadata value {text!r} is not a number", path=path, column=key) from None
+    if not math.isfinite(value):
+        raise InputError(f"metadata value {text!r} is not finite", path=path, column=key)
+    return value
+
+
+def _float_list(metadata: Mapping[str, str], key: str, path) -> tuple[float, ...]:
+    text = metadata[key]
+    try:
+        values = json.loads(text)
+    except json.JSONDecodeError:
+        raise InputError(f"metadata value {text!r} is not JSON", path=path, column=key) from None
+    if (
+        not isinstance(values, list)
+        or not values
+        or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
+    ):
+        raise InputError(
+            f"metadata value {text!r} must be a non-empty JSON list of numbers", path=path, column=key
+        )
+    values = tuple(float(v) for v in values)
+    if not all(math.isfinite(v) and v >= 0.0 for v in values):
+        raise InputError(f"metadata value {text!r} must be finite and >= 0", path=path, column=key)
+    return values
+
+
+def _check_abc(metadata: Mapping[str, str], path, is_spectral: bool) -> AbcMetadata:
+    keys = (ABC_KD_KEY, ABC_A_KEY, ABC_B_KEY, ABC_C_KEY, ABC_ETA_KEY)
+    missing = [key for key in keys if key not in metadata]
+    if missing:
+        raise InputError(f"ABC model lacks metadata keys {missing}", path=path)
+    kd = _float_list(metadata, ABC_KD_KEY, path)
+    A = _float_list(metadata, ABC_A_KEY, path)
+    if not is_spectral:
+        for key, values in ((ABC_KD_KEY, kd), (ABC_A_KEY, A)):
+            if len(values) != 3:
+                raise InputError(
+                    f"an RGB ABC model needs 3 values, found {len(values)}", path=path, column=key
+                )
+    if len(kd) != len(A):
+        raise InputError(
+            f"ABC kd has {len(kd)} channels but A has {len(A)}", path=path, column=ABC_A_KEY
+        )
+    B = _finite_float(metadata, ABC_B_KEY, path)
+    C = _finite_float(metadata, ABC_C_KEY, path)
+    eta = _finite_float(metadata, ABC_ETA_KEY, path)
+    for key, value, ok, rule in (
+        (ABC_B_KEY, B, B >= 0.0, ">= 0"),
+        (ABC_C_KEY, C, C >= 0.0, ">= 0"),
+        (ABC_ETA_KEY, eta, eta > 0.0, "> 0"),
+    ):
+        if not ok:
+            raise InputError(f"metadata value {value!r} must be {rule}", path=path, column=key)
+    return AbcMetadata(kd=kd, A=A, B=B, C=C, eta=eta)
+
+
+def _check_metadata(metadata: Mapping[str, str], path, is_spectral: bool):
+    """Return ``(kind, wavelength_range_nm, abc)`` or raise :class:`InputError`."""
+    missing = [key for key in REQUIRED_KEYS if key not in metadata]
+    if missing:
+        raise InputError(f"missing metadata keys {missing} (SPEC §6)", path=path)
+    kind = metadata[KIND_KEY]
+    if kind not in KINDS:
+        raise InputError(
+            f"unknown model kind {kind!r}; expected one of {list(KINDS)}", path=path, column=KIND_KEY
+        )
+    version = metadata[FORMAT_VERSION_KEY]
+    if version != FORMAT_VERSION:
+        raise InputError(
+            f"format version {version!r} is not supported (this library reads {FORMAT_VERSION!r})",
+            path=path,
+            column=FORMAT_VERSION_KEY,
+        )
+    if not metadata[MATERIAL_KEY].strip():
+        raise InputError("material name is empty", path=path, column=MATERIAL_KEY)
+    if kind == "spectral_mlp" and not is_spectral:
+        raise InputError("a spectral_mlp model must take a 'wavelength' input", path=path)
+
+    wavelength_keys = [k for k in (WAVELENGTH_MIN_KEY, WAVELENGTH_MAX_KEY) if k in metadata]
+    wavelength_range = None
+    if is_spectral:
+        missing = [k for k in (WAVELENGTH_MIN_KEY, WAVELENGTH_MAX_KEY) if k not in metadata]
+        if missing:
+            raise InputError(f"spectral model lacks metadata keys {missing}", path=path)
+        low = _finite_float(metadata, WAVELENGTH_MIN_KEY, path)
+        high = _finite_float(metadata, WAVELENGTH_MAX_KEY, path)
+        if not 0.0 < low < high:
+            raise InputError(
+                f"wavelength range {low:g}..{high:g} nm is empty or not positive",
+                path=path,
+                column=WAVELENGTH_MAX_KEY,
+            )
+        wavelength_range = (low, high)
+    elif wavelength_keys:
+        raise InputError(
+            f"RGB model (no 'wavelength' input) carries spectral metadata {wavelength_keys}",
+            path=path,
+        )
+    abc = _check_abc(metadata, path, is_spectral) if kind == "abc" else None
+    return kind, wavelength_range, abc
+
+
+# --------------------------------------------------------------------------- weights
+
+
+def _constant_tensors(graph: onnx.GraphProto):
+    """``(name, array)`` of every initialiser and ``Constant`` node value, subgraphs included."""
+    for init in graph.initializer:
+        yield init.name, numpy_helper.to_array(init)
+    for node in graph.node:
+        for attribute in node.attribute:
+            name = f"{node.name or node.op_type}.{attribute.name}"
+            if attribute.type == onnx.AttributeProto.TENSOR:
+                yield name, numpy_helper.to_array(attribute.t)
+            elif attribute.type == onnx.AttributeProto.FLOAT:
+                yield name, np.asarray([attribute.f])
+            elif attribute.type == onnx.AttributeProto.FLOATS:
+                yield name, np.asarray(attribute.floats)
+            elif attribute.type == onnx.AttributeProto.GRAPH:
+                yield from _constant_tensors(attribute.g)
+
+
+def _check_finite_constants(graph: onnx.GraphProto, path) -> None:
+    for name, array in _constant_tensors(graph):
+        if np.issubdtype(array.dtype, np.floating) and not np.all(np.isfinite(array)):
+            bad = int(np.size(array) - np.count_nonzero(np.isfinite(array)))
+            raise InputError(
+                f"weight tensor {name!r} holds {bad} non-finite value(s) (NaN or inf)", path=path
+            )
+
+
+# --------------------------------------------------------------------------- trial evaluation
+
+
+def probe_directions(n_above: int = 64, n_below: int = 16, seed: int = 0):
+    """Deterministic probe pairs ``(wi, wo, below)``: ``n_above`` pairs with both directions
+    above the horizon, then ``n_below`` pairs with one of them below (``below`` marks those)."""
+    rng = np.random.default_rng(seed)
+    n = n_above + n_below
+    wi = rng.normal(size=(n, 3))
+    wo = rng.normal(size=(n, 3))
+    wi[:, 2] = np.abs(wi[:, 2]) + 0.05
+    wo[:, 2] = np.abs(wo[:, 2]) + 0.05
+    below = np.arange(n) >= n_above
+    flip_wi = below & (np.arange(n) % 2 == 0)
+    wi[flip_wi, 2] *= -1.0
+    wo[below & ~flip_wi, 2] *= -1.0
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    return wi.astype(np.float32), wo.astype(np.float32), below
+
+
+def _check_trial_evaluation(proto: onnx.ModelProto, path, wavelength_range) -> None:
+    """Run the graph on :func:`probe_directions` with onnxruntime and check its output."""
+    try:
+        session = onnxruntime.InferenceSession(
+            proto.SerializeToString(), providers=["CPUExecutionProvider"]
+        )
+    except Exception as error:  # onnxruntime raises its own Fail/InvalidGraph types
+        raise InputError(f"onnxruntime cannot load the graph: {error}", path=path) from None
+    wi, wo, below = probe_directions()
+    feeds = {INPUT_WI: wi, INPUT_WO: wo}
+    expected_shape: tuple[int, ...] = (len(wi), 3)
+    if wavelength_range is not None:
+        feeds[INPUT_WAVELENGTH] = np.linspace(*wavelength_range, len(wi)).astype(np.float32)
+        expected_shape = (len(wi),)
+    try:
+        (f,) = session.run([OUTPUT_F], feeds)
+    except Exception as error:
+        raise InputError(f"onnxruntime fails to evaluate the graph: {error}", path=path) from None
+    if f.shape != expected_shape:
+        raise InputError(
+            f"output 'f' has shape {list(f.shape)} for {len(wi)} direction pairs, expected "
+            f"{list(expected_shape)}",
+            path=path,
+        )
+    if not np.all(np.isfinite(f)):
+        raise InputError("output 'f' is not finite at some probe directions", path=path)
+    if np.any(f < 0):
+        raise InputError(
+            f"output 'f' is negative (min {f.min():g} sr^-1) at some probe directions", path=path
+        )
+    if np.any(f[below] != 0):
+        raise InputError(
+            "output 'f' is not 0 when a direction is below the horizon (SPEC §6)", path=path
+        )

@@ -1,0 +1,203 @@
+"""The ONNX contract (SPEC §6): valid files load, every kind of broken file fails at load time
+with an InputError that names the file and the problem."""
+
+import math
+
+import numpy as np
+import onnx
+import pytest
+from onnx import TensorProto
+
+import onnx_fixtures as fx
+from neuralbrdf.errors import InputError
+from neuralbrdf.render.onnx_contract import (
+    ABC_A_KEY,
+    ABC_B_KEY,
+    ABC_KD_KEY,
+    FORMAT_VERSION,
+    FORMAT_VERSION_KEY,
+    KIND_KEY,
+    MATERIAL_KEY,
+    WAVELENGTH_MAX_KEY,
+    AbcMetadata,
+    contract_metadata,
+    load_model,
+    probe_directions,
+)
+
+ABC = AbcMetadata(kd=(0.1, 0.2, 0.3), A=(1.0, 0.9, 0.8), B=40.0, C=1.5, eta=1.5)
+
+
+def expect_error(path, *fragments):
+    with pytest.raises(InputError) as info:
+        load_model(path)
+    message = str(info.value)
+    assert str(path) in message
+    for fragment in fragments:
+        assert fragment in message, message
+    return message
+
+
+# --------------------------------------------------------------------------- valid files
+
+
+def test_valid_rgb_model_loads_with_its_metadata(tmp_path):
+    path = fx.save(fx.tiny_rgb_model(fx.rgb_metadata("nlb", "brass")), tmp_path / "m.onnx")
+    model = load_model(path)
+    assert model.path == path
+    assert (model.kind, model.material, model.is_spectral, model.n_channels) == ("nlb", "brass", False, 3)
+    assert model.wavelength_range_nm is None and model.abc is None
+    assert model.provenance == "tests/onnx_fixtures.py"
+    assert model.metadata[FORMAT_VERSION_KEY] == FORMAT_VERSION
+    assert isinstance(model.proto, onnx.ModelProto)
+
+
+def test_valid_spectral_model_loads_with_its_wavelength_range(tmp_path):
+    path = fx.write_spectral_lambert(tmp_path / "s.onnx", wavelength_range=(410.0, 690.0))
+    model = load_model(path)
+    assert model.is_spectral and model.n_channels == 1
+    assert model.kind == "spectral_mlp"
+    assert model.wavelength_range_nm == (410.0, 690.0)
+
+
+def test_abc_parameters_round_trip_through_metadata(tmp_path):
+    path = fx.write_abc_like(tmp_path / "abc.onnx", ABC)
+    model = load_model(path)
+    assert model.kind == "abc"
+    assert model.abc == ABC
+
+
+def test_torch_exports_with_symbolic_inner_dims_are_accepted(tmp_path):
+    # torch declares f as [N, dynamic] for expand(N, 3); the trial evaluation checks it is 3.
+    path = fx.write_lambert(tmp_path / "lambert.onnx")
+    declared = onnx.load(str(path)).graph.output[0].type.tensor_type.shape.dim
+    assert not declared[1].HasField("dim_value")
+    assert load_model(path).n_channels == 3
+
+
+def test_probe_directions_are_unit_and_mark_the_below_horizon_pairs():
+    wi, wo, below = probe_directions(n_above=10, n_below=6)
+    np.testing.assert_allclose(np.linalg.norm(wi, axis=1), 1.0, rtol=1e-6)
+    np.testing.assert_allclose(np.linalg.norm(wo, axis=1), 1.0, rtol=1e-6)
+    assert below.sum() == 6
+    assert np.all((wi[~below, 2] > 0) & (wo[~below, 2] > 0))
+    assert np.all((wi[below, 2] < 0) | (wo[below, 2] < 0))
+
+
+# --------------------------------------------------------------------------- broken files
+
+
+def test_missing_file(tmp_path):
+    expect_error(tmp_path / "absent.onnx", "no such ONNX model file")
+
+
+def test_not_onnx(tmp_path):
+    path = tmp_path / "notes.onnx"
+    path.write_text("theta_i,theta_r\n1,2\n")
+    expect_error(path, "not an ONNX model")
+
+
+@pytest.mark.parametrize(
+    ("changes", "fragment"),
+    [
+        ({"wi_name": "w_in"}, "graph inputs are ['w_in', 'wo']"),
+        ({"input_dtype": TensorProto.DOUBLE}, "input 'wi' must be float32, found DOUBLE"),
+        ({"wi_dims": ["N", 3, 1]}, "input 'wi' has rank 3, expected [N, 3]"),
+        ({"wi_dims": ["N", 4]}, "input 'wi' has dimension 1 = 4, expected [N, 3]"),
+        ({"wi_dims": [8, 3]}, "fixed batch size 8"),
+        ({"output_name": "brdf"}, "graph outputs are ['brdf']; expected exactly ['f']"),
+    ],
+)
+def test_wrong_interface(tmp_path, changes, fragment):
+    path = fx.save(fx.tiny_rgb_model(**changes), tmp_path / "bad.onnx")
+    expect_error(path, fragment)
+
+
+def test_missing_metadata(tmp_path):
+    path = fx.save(fx.tiny_rgb_model(metadata={}), tmp_path / "bare.onnx")
+    message = expect_error(path, "missing metadata keys")
+    for key in (KIND_KEY, FORMAT_VERSION_KEY, MATERIAL_KEY):
+        assert key in message
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "fragment"),
+    [
+        (KIND_KEY, "gan", "unknown model kind 'gan'"),
+        (FORMAT_VERSION_KEY, "2", "format version '2' is not supported"),
+        (MATERIAL_KEY, "  ", "material name is empty"),
+    ],
+)
+def test_bad_metadata_value_names_the_key(tmp_path, key, value, fragment):
+    metadata = {**fx.rgb_metadata(), key: value}
+    path = fx.save(fx.tiny_rgb_model(metadata), tmp_path / "m.onnx")
+    message = expect_error(path, fragment)
+    assert key in message
+
+
+def test_spectral_model_without_wavelength_range(tmp_path):
+    path = fx.write_spectral_lambert(tmp_path / "s.onnx")
+    model = onnx.load(str(path))
+    kept = [p for p in model.metadata_props if p.key != WAVELENGTH_MAX_KEY]
+    del model.metadata_props[:]
+    model.metadata_props.extend(kept)
+    expect_error(fx.save(model, path), "spectral model lacks metadata keys", WAVELENGTH_MAX_KEY)
+
+
+def test_rgb_model_with_spectral_kind(tmp_path):
+    metadata = {**fx.rgb_metadata(), KIND_KEY: "spectral_mlp"}
+    path = fx.save(fx.tiny_rgb_model(metadata), tmp_path / "m.onnx")
+    expect_error(path, "spectral_mlp model must take a 'wavelength' input")
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "fragment"),
+    [
+        (ABC_KD_KEY, "[0.1, 0.2", "is not JSON"),
+        (ABC_KD_KEY, "[0.1, 0.2]", "needs 3 values, found 2"),
+        (ABC_A_KEY, "[1, -1, 1]", "must be finite and >= 0"),
+        (ABC_B_KEY, "wide", "is not a number"),
+        (ABC_B_KEY, "-3", "must be >= 0"),
+    ],
+)
+def test_bad_abc_metadata(tmp_path, key, value, fragment):
+    metadata = {**contract_metadata("abc", "m", "p", abc=ABC), key: value}
+    path = fx.save(fx.tiny_rgb_model(metadata), tmp_path / "abc.onnx")
+    message = expect_error(path, fragment)
+    assert key in message
+
+
+def test_abc_without_parameters(tmp_path):
+    metadata = {**fx.rgb_metadata(), KIND_KEY: "abc"}
+    path = fx.save(fx.tiny_rgb_model(metadata), tmp_path / "abc.onnx")
+    expect_error(path, "ABC model lacks metadata keys", ABC_KD_KEY)
+
+
+def test_nan_weights(tmp_path):
+    weight = np.full((6, 3), 0.1, dtype=np.float32)
+    weight[2, 1] = math.nan
+    path = fx.save(fx.tiny_rgb_model(weight=weight), tmp_path / "nan.onnx")
+    expect_error(path, "weight tensor 'W' holds 1 non-finite value")
+
+
+def test_negative_output_is_refused(tmp_path):
+    model = fx.tiny_rgb_model(weight=np.full((6, 3), -0.1, dtype=np.float32), op="Identity")
+    expect_error(fx.save(model, tmp_path / "neg.onnx"), "output 'f' is negative")
+
+
+def test_output_must_vanish_below_the_horizon(tmp_path):
+    path = fx.save(fx.tiny_rgb_model(mask=False), tmp_path / "unmasked.onnx")
+    expect_error(path, "not 0 when a direction is below the horizon")
+
+
+def test_graph_onnxruntime_cannot_run(tmp_path):
+    # A wrong inner dimension that only shows when the graph runs: W is [5, 3] for 6 inputs.
+    path = fx.save(fx.tiny_rgb_model(weight=np.ones((5, 3))), tmp_path / "shape.onnx")
+    expect_error(path, "onnxruntime")
+
+
+def test_contract_metadata_refuses_what_load_model_refuses():
+    with pytest.raises(InputError, match="unknown model kind"):
+        contract_metadata("gan", "m", "p")
+    with pytest.raises(InputError, match="wavelength range"):
+        contract_metadata("spectral_mlp", "m", "p", wavelength_range_nm=(700.0, 400.0))
