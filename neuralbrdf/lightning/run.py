@@ -58,7 +58,8 @@ class MetricsJson(pl.Callback):
     Keys are ``<stage>/<metric>``.  After ``fit``: every logged metric as ``fit/<name>``
     (``fit/train/loss``, ``fit/val/rel_rmse_glossy_median`` of the last epoch) plus
     ``fit/best_model_score``, ``fit/best_model_path`` (relative to the run directory if inside it),
-    ``fit/epochs`` and ``fit/wall_time_s``; ``fit`` starts a new file (a new model makes earlier
+    ``fit/epochs``, ``fit/wall_time_s`` and whatever the module's optional
+    ``metrics_json_extras()`` returns (non-scalar results such as fitted parameters); ``fit`` starts a new file (a new model makes earlier
     evaluations stale).  After ``validate``/``test``: the logged ``val/x``/``test/x`` as
     ``validate/x``/``test/x``, merged into the existing file.  Writes are atomic.
     """
@@ -91,6 +92,9 @@ class MetricsJson(pl.Callback):
     def on_fit_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
         metrics = {f"fit/{name}": _number(value) for name, value in trainer.callback_metrics.items()}
         metrics["fit/epochs"] = trainer.current_epoch
+        extras = getattr(pl_module, "metrics_json_extras", None)
+        if extras is not None:
+            metrics.update({f"fit/{name}": value for name, value in extras().items()})
         metrics["fit/wall_time_s"] = time.perf_counter() - self._fit_started
         checkpoint = trainer.checkpoint_callback
         if checkpoint is not None and checkpoint.best_model_path:
@@ -193,6 +197,8 @@ def main(args: list[str] | None = None) -> int:
     # validate/test restore a checkpoint whose ModelCheckpoint state names the fit's folder; the
     # evaluation stages write no checkpoints, so the "dirpath has changed" notice is noise.
     warnings.filterwarnings("ignore", message=r"The dirpath has changed from")
+    # The ABC fit runs its own bounded optimiser (SciPy), not a torch one.
+    warnings.filterwarnings("ignore", message=r".*configure_optimizers` returned `None`")
     try:
         NeuralBrdfCLI(args=args)
     except Exception as exc:

@@ -1,0 +1,78 @@
+"""A material to fit, from any source a user has (SPEC §4.3: "any plan, any source").
+
+One material comes from exactly one of:
+
+* ``path`` — the user's measurement: a BRDF sample table (SPEC §2.1) or a GCMS raw file with
+  its Munsell N9 ``reference`` (SPEC §2.2);
+* ``nbrdf`` — a MERL-proxy NBRDF network (SPEC §2.4) sampled on ``plan``;
+* ``virtual`` — a stand-in of the virtual goniospectrophotometer (SPEC §2.5): its shipped DS1
+  measurement, calibrated against the shipped Munsell N9 reference.
+
+Proxies and virtual materials are continuous, so they also give a dense ``truth`` on
+``eval_plan`` (default the Löw et al. set) for the hemisphere log-cosine RMSE (SPEC §5); a
+user's measurement has none.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from neuralbrdf.data.loading import load_measurement
+from neuralbrdf.data.nbrdf import NbrdfNetwork, sample_plan
+from neuralbrdf.data.plans import PLAN_NAMES, plan_spherical
+from neuralbrdf.data.table import BrdfTable
+from neuralbrdf.errors import InputError
+from neuralbrdf.geometry import spherical_pair_to_vectors
+from neuralbrdf.virtual.instrument import GROUND_TRUTH_WAVELENGTHS_NM, default_data_path
+from neuralbrdf.virtual.materials import REFERENCE_MATERIAL, get_material
+
+
+@dataclass(frozen=True)
+class MaterialData:
+    """Samples of one material: ``fit`` to fit on, ``truth`` (or ``None``) to evaluate on."""
+
+    name: str
+    fit: BrdfTable
+    truth: BrdfTable | None
+
+
+def _check_plan(plan: str | None, key: str) -> None:
+    if plan is not None and plan not in PLAN_NAMES:
+        raise InputError(f"unknown plan {plan!r}; expected one of {', '.join(PLAN_NAMES)}", column=key)
+
+
+def virtual_truth(material: str, plan: str) -> BrdfTable:
+    """Noiseless spectral BRDF of a virtual stand-in on any plan (400–700 nm, sr⁻¹)."""
+    angles = plan_spherical(plan)
+    values = get_material(material).brdf(*spherical_pair_to_vectors(*angles), GROUND_TRUTH_WAVELENGTHS_NM)
+    return BrdfTable(*angles, values, GROUND_TRUTH_WAVELENGTHS_NM.copy(), source=f"virtual {material} on {plan}")
+
+
+def load_material(
+    *,
+    path: str | None = None,
+    reference: str | None = None,
+    nbrdf: str | None = None,
+    virtual: str | None = None,
+    plan: str = "DS1",
+    eval_plan: str | None = "low",
+    name: str | None = None,
+) -> MaterialData:
+    """Load one material from exactly one source (module docstring); ``plan`` applies to NBRDF."""
+    given = [key for key, value in (("path", path), ("nbrdf", nbrdf), ("virtual", virtual)) if value is not None]
+    if len(given) != 1:
+        raise InputError(f"give exactly one of data.path, data.nbrdf, data.virtual; got {given or 'none'}")
+    if reference is not None and path is None:
+        raise InputError("data.reference goes with a GCMS raw data.path", column="data.reference")
+    _check_plan(plan, "data.plan")
+    _check_plan(eval_plan, "data.eval_plan")
+    if path is not None:
+        return MaterialData(name or Path(path).stem, load_measurement(path, reference), None)
+    if nbrdf is not None:
+        network = NbrdfNetwork.load(nbrdf)
+        truth = None if eval_plan is None else sample_plan(network, eval_plan)
+        return MaterialData(name or network.name, sample_plan(network, plan), truth)
+    fit = load_measurement(default_data_path(virtual), default_data_path(REFERENCE_MATERIAL))
+    truth = None if eval_plan is None else virtual_truth(virtual, eval_plan)
+    return MaterialData(name or virtual, fit, truth)

@@ -1,0 +1,163 @@
+"""The ABC fit run (SPEC §4.1; report §4.1.1) as a Lightning module for ``train.py``.
+
+The fit itself is :func:`neuralbrdf.fitting.abc_fit.fit_abc` (bounded multi-start
+minimisation of ``L_cus``, Eq. 4.2); this module runs it once on the material of
+:class:`SingleMaterialData`, logs its outcome and, where the source has a dense ground truth
+(NBRDF proxies, virtual stand-ins), the hemisphere log-cosine RMSE on ``eval_plan``.
+
+``metrics.json`` gets ``fit/abc/parameters`` (kd, A per channel; B, C, eta), ``fit/abc/success``
+and ``fit/abc/failure_reason``: a failed fit is reported as failed (and warned about), never
+passed off as a result.  Checkpoints carry ``neuralbrdf_kind = "abc"``, ``abc_parameters`` and
+``material`` for ``export/to_onnx.py``.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytorch_lightning as pl
+from pytorch_lightning.utilities import rank_zero_warn
+from torch.utils.data import DataLoader
+
+from neuralbrdf.data.sources import MaterialData, load_material
+from neuralbrdf.fitting.abc_fit import AbcBounds, AbcFitResult, fit_abc
+from neuralbrdf.metrics import hemisphere_logcos_rmse
+from neuralbrdf.models.abc import ABCParameters
+
+
+def _identity(item):
+    return item
+
+
+class SingleMaterialData(pl.LightningDataModule):
+    """One material from any source (:func:`neuralbrdf.data.sources.load_material`).
+
+    With no ``path``, ``nbrdf`` or ``virtual`` given, the shipped virtual ``gold`` DS1
+    measurement is used.  Every stage sees the same single item: the whole material.
+    """
+
+    def __init__(
+        self,
+        path: str | None = None,
+        reference: str | None = None,
+        nbrdf: str | None = None,
+        virtual: str | None = None,
+        plan: str = "DS1",
+        eval_plan: str | None = "low",
+        name: str | None = None,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        if path is None and nbrdf is None and virtual is None:
+            virtual = "gold"
+        self._kwargs = dict(
+            path=path, reference=reference, nbrdf=nbrdf, virtual=virtual, plan=plan, eval_plan=eval_plan, name=name
+        )
+        self.material: MaterialData | None = None
+
+    def prepare_data(self) -> None:
+        # before the trainer writes anything: bad input fails with no output
+        self.setup()
+
+    def setup(self, stage: str | None = None) -> None:
+        if self.material is None:
+            self.material = load_material(**self._kwargs)
+
+    def transfer_batch_to_device(self, batch, device, dataloader_idx):
+        return batch  # a MaterialData of NumPy tables, used on the CPU as it is
+
+    def _loader(self) -> DataLoader:
+        return DataLoader([self.material], batch_size=None, collate_fn=_identity)
+
+    train_dataloader = val_dataloader = test_dataloader = _loader
+
+
+class AbcFitModule(pl.LightningModule):
+    """Fits ABC parameters once (first training step); evaluates them in val/test.
+
+    Parameters mirror :func:`~neuralbrdf.fitting.abc_fit.fit_abc`; ``bounds`` overrides fields
+    of :class:`~neuralbrdf.fitting.abc_fit.AbcBounds` (e.g. ``{eta: [1.01, 10]}``).
+    """
+
+    def __init__(
+        self, n_starts: int = 8, seed: int = 0, max_evaluations: int = 500, bounds: dict | None = None
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        self.automatic_optimization = False
+        self.bounds = AbcBounds(**{k: tuple(v) for k, v in (bounds or {}).items()})
+        self.result: AbcFitResult | None = None
+        self.parameters_: ABCParameters | None = None
+        self.material_name: str | None = None
+
+    def configure_optimizers(self):
+        return None  # the fit runs its own bounded optimiser (SciPy TNC)
+
+    def training_step(self, material: MaterialData, batch_idx: int) -> None:
+        if self.result is None:
+            self.result = fit_abc(
+                material.fit,
+                n_starts=self.hparams.n_starts,
+                seed=self.hparams.seed,
+                bounds=self.bounds,
+                max_evaluations=self.hparams.max_evaluations,
+            )
+            self.parameters_ = self.result.parameters
+            self.material_name = material.name
+            if not self.result.success:
+                rank_zero_warn(f"ABC fit of {material.name} FAILED: {self.result.failure_reason}")
+        self.log("train/loss", self.result.loss, batch_size=1)
+        self.log("train/success", float(self.result.success), batch_size=1)
+        self.log("train/wall_time_s", self.result.wall_time_s, batch_size=1)
+
+    def _evaluate(self, material: MaterialData, stage: str) -> None:
+        if self.parameters_ is None:
+            return  # sanity check before the fit
+        fit = material.fit
+        pred = self.parameters_.evaluate(*fit.vectors())
+        self.log(f"{stage}/fit_logcos_rmse", hemisphere_logcos_rmse(pred, fit.values, fit.theta_i), batch_size=1)
+        if material.truth is not None:
+            truth = material.truth
+            pred = self.parameters_.evaluate(*truth.vectors())
+            if truth.is_spectral != fit.is_spectral:
+                raise ValueError(f"{material.name}: truth and fit data differ in channels")
+            rmse = hemisphere_logcos_rmse(pred, truth.values, truth.theta_i)
+            self.log(f"{stage}/hemisphere_logcos_rmse", rmse, batch_size=1)
+
+    def validation_step(self, material: MaterialData, batch_idx: int) -> None:
+        self._evaluate(material, "val")
+
+    def test_step(self, material: MaterialData, batch_idx: int) -> None:
+        self._evaluate(material, "test")
+
+    def on_train_end(self) -> None:
+        # One deterministic fit and no optimiser step: ModelCheckpoint, which saves per global
+        # step, never writes "best"; the single fit is both best and last.
+        callback = self.trainer.checkpoint_callback
+        if callback is not None and callback.dirpath is not None:
+            self.trainer.save_checkpoint(os.path.join(callback.dirpath, f"{callback.filename or 'best'}.ckpt"))
+
+    def metrics_json_extras(self) -> dict:
+        """Non-scalar results for ``metrics.json`` (read by :class:`~neuralbrdf.lightning.run.MetricsJson`)."""
+        if self.result is None:
+            return {}
+        return {
+            "abc/material": self.material_name,
+            "abc/parameters": self.result.parameters.to_dict(),
+            "abc/success": bool(self.result.success),
+            "abc/failure_reason": self.result.failure_reason,
+            "abc/start_losses": [None if not np.isfinite(x) else float(x) for x in self.result.start_losses],
+        }
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        checkpoint["neuralbrdf_kind"] = "abc"
+        if self.parameters_ is not None:
+            checkpoint["abc_parameters"] = self.parameters_.to_dict()
+            checkpoint["material"] = self.material_name
+            checkpoint["abc_fit"] = {"success": self.result.success, "failure_reason": self.result.failure_reason}
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        if "abc_parameters" in checkpoint:
+            self.parameters_ = ABCParameters.from_dict(checkpoint["abc_parameters"], source="checkpoint")
+            self.material_name = checkpoint.get("material")
