@@ -13,7 +13,7 @@ is how Mitsuba reads them. Values are linearly interpolated onto the requested w
 from __future__ import annotations
 
 import functools
-import importlib.util
+import importlib.metadata
 from pathlib import Path
 
 import numpy as np
@@ -26,16 +26,16 @@ GOLD = "Au"
 def mitsuba_ior_dir() -> Path:
     """Folder of Mitsuba's optical-constant tables (``<mitsuba package>/data/ior``).
 
-    Found through the import system without importing Mitsuba itself.
+    Found through the installed distribution's files, without importing Mitsuba (whose module
+    object replaces itself once a variant is set, so import-system look-ups are unreliable).
     """
-    spec = importlib.util.find_spec("mitsuba")
-    if spec is None or not spec.submodule_search_locations:
-        raise InputError("the mitsuba package is not installed; its data/ior tables are needed")
-    for location in spec.submodule_search_locations:
-        folder = Path(location) / "data" / "ior"
-        if folder.is_dir():
-            return folder
-    raise InputError("the installed mitsuba package has no data/ior folder of optical constants")
+    try:
+        folder = Path(importlib.metadata.distribution("mitsuba").locate_file("mitsuba/data/ior"))
+    except importlib.metadata.PackageNotFoundError:
+        raise InputError("the mitsuba package is not installed; its data/ior tables are needed") from None
+    if not folder.is_dir():
+        raise InputError(f"the installed mitsuba package has no optical-constant folder {folder}")
+    return folder
 
 
 @functools.lru_cache(maxsize=None)
