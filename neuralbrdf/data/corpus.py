@@ -324,8 +324,15 @@ def _abc_shape(rng, alpha):
     return b, c, width / GGX_HALF_WIDTH
 
 
+def _white(n):
+    return np.ones((n, 3))
+
+
 def _fill_lobe(rng, params, rows, slot, kinds, alpha, conductor, weight):
-    """Write lobe ``slot`` of materials ``rows``: kind, Fresnel, width and RGB weight."""
+    """Write lobe ``slot`` of materials ``rows``: kind, Fresnel, width and RGB weight.
+
+    Returns the lobes' (first-channel) Fresnel index, the coat index of coated diffuse bases.
+    """
     n = rows.size
     kind = rng.choice(np.asarray(kinds), size=n)
     kind = np.where(conductor, np.where(kind == LOBE_ABC, LOBE_GGX, kind), kind)  # ABC is dielectric
@@ -354,7 +361,8 @@ def generate_materials(n_materials: int, seed: int, archetype_weights=DEFAULT_AR
     if not isinstance(n_materials, int) or n_materials < 1:
         raise InputError(f"n_materials must be a positive integer, got {n_materials!r}", column="n_materials")
     weights = np.asarray(archetype_weights, dtype=np.float64)
-    if weights.shape != (len(ARCHETYPES),) or not np.all(np.isfinite(weights)) or np.any(weights < 0) or weights.sum() <= 0:
+    valid = weights.shape == (len(ARCHETYPES),) and np.all(np.isfinite(weights)) and np.all(weights >= 0)
+    if not valid or weights.sum() <= 0:
         raise InputError(
             f"archetype_weights must be {len(ARCHETYPES)} non-negative numbers ({', '.join(ARCHETYPES)}) "
             f"with a positive sum, got {list(archetype_weights)}",
@@ -376,23 +384,22 @@ def generate_materials(n_materials: int, seed: int, archetype_weights=DEFAULT_AR
     albedo = _colour(rng, _log_uniform(rng, *ALBEDO_RANGE, m), m)
     coat_eta = np.zeros(m)
     all_kinds = (LOBE_GGX, LOBE_BECKMANN, LOBE_ABC)
-    white = lambda n: np.ones((n, 3))  # noqa: E731
 
     plastic = np.flatnonzero(archetype == ARCHETYPES.index("plastic"))
     eta = _fill_lobe(rng, params, plastic, 0, all_kinds, _log_uniform(rng, *ALPHA_RANGE, plastic.size),
-                     np.zeros(plastic.size, bool), white(plastic.size))
+                     np.zeros(plastic.size, bool), _white(plastic.size))
     coat_eta[plastic] = eta
 
     metal = np.flatnonzero(archetype == ARCHETYPES.index("metal"))
     _fill_lobe(rng, params, metal, 0, (LOBE_GGX, LOBE_BECKMANN), _log_uniform(rng, *ALPHA_RANGE, metal.size),
-               np.ones(metal.size, bool), white(metal.size) * rng.uniform(0.7, 1.0, size=(metal.size, 1)))
+               np.ones(metal.size, bool), _white(metal.size) * rng.uniform(0.7, 1.0, size=(metal.size, 1)))
     faint = rng.random(metal.size) < 0.5
     albedo[metal] = np.where(faint[:, None], albedo[metal] * 0.03, 0.0)
 
     layered = np.flatnonzero(archetype == ARCHETYPES.index("layered"))
     n = layered.size
     eta = _fill_lobe(rng, params, layered, 0, all_kinds, _log_uniform(rng, *COAT_ALPHA_RANGE, n),
-                     np.zeros(n, bool), white(n))
+                     np.zeros(n, bool), _white(n))
     coat_eta[layered] = eta
     metallic = rng.random(n) < 0.5
     base_weight = np.where(metallic[:, None], _colour(rng, rng.uniform(0.1, 0.5, size=n), n), 1.0)
@@ -415,7 +422,9 @@ class CorpusBatch:
     f: np.ndarray
 
 
-def sample_batch(materials: CorpusMaterials, size: int, rng: np.random.Generator, uniform_fraction: float = 0.5) -> CorpusBatch:
+def sample_batch(
+    materials: CorpusMaterials, size: int, rng: np.random.Generator, uniform_fraction: float = 0.5
+) -> CorpusBatch:
     """``size`` samples: materials uniform at random, directions by :meth:`~CorpusMaterials.sample_directions`."""
     if not 0.0 <= uniform_fraction <= 1.0:
         raise InputError(f"uniform_fraction must lie in [0, 1], got {uniform_fraction}", column="uniform_fraction")

@@ -1,0 +1,408 @@
+"""Latent-only fitting of new materials on a frozen NLB network (SPEC §4.3; report §4.2).
+
+As in Fan et al. (2022) and the report: load the pretrained network
+(:func:`~neuralbrdf.lightning.nlb_module.load_pretrained`), freeze every weight, and optimise
+only one latent per material with an L1 loss, Adam and an exponentially decaying learning rate
+(config ``optimizer``/``lr_scheduler``, stepped every step).  Many materials are fitted at once:
+one latent table, every material's samples in one full batch per step (or, for very large
+plans, a random subset of ``data.batch_size`` samples per step).
+
+The L1 is taken on ``ln(1 + f cos θi)`` by default (``loss_domain``, as in pretraining,
+:mod:`~neuralbrdf.lightning.nlb_module`): on a short-run checkpoint, latents fitted to eight
+MERL proxies on DS1 reached a mean hemisphere log-cosine RMSE of 0.022 that way and 0.028 with
+the raw L1.  Latents start at the centroid of the pretrained ones (0.022 against 0.023 from 0).
+
+**Sources** (:class:`LatentFitData`, ``sources`` entries, one per material):
+
+* ``{table: FILE}`` — a BRDF sample table (SPEC §2.1), RGB or spectral (converted to linear
+  sRGB, SPEC §2.3);
+* ``{gcms: FILE, reference: MUNSELL}`` — a GCMS raw file and its Munsell N9 reference (SPEC §2.2);
+* ``{virtual: NAME}`` — a shipped virtual-instrument measurement (``cyan``, ``magenta``,
+  ``gold``, ``gonio``) with the shipped reference;
+* ``{nbrdf: FILE.h5}`` — an NBRDF proxy (SPEC §2.4) sampled on ``plan`` (the entry's own
+  ``plan`` key, else the data module's).
+
+Each may carry ``name`` (default: the file stem or virtual material).
+
+**Metrics** (logged at every validation, so ``metrics.json`` holds the final values under
+``fit/``):
+
+* ``fit_logcos_rmse/<name>`` — the hemisphere log-cosine RMSE (SPEC §5) of the fit on the
+  material's own fitting samples;
+* for NBRDF sources, ``hemisphere_logcos_rmse/<name>`` — the same metric against the proxy on
+  ``eval_plan`` (default the Löw et al. set, SPEC §3): how well the fit generalises;
+* and, when ``low2012_abc`` lists the proxy's material, ``abc_low2012/hemisphere_logcos_rmse/<name>``
+  — Löw et al.'s published full-data ABC fit (SPEC §2.4) on the same plan, the reference to beat;
+* ``hemisphere_logcos_rmse/mean`` over the NBRDF sources.
+
+The frozen weights are checked bit for bit against the checkpoint at the end of every fit
+(:meth:`LatentFitModule.on_fit_end`).  A checkpoint of this module is a self-contained fitted
+material set — the network, the latents and their names — read back by :func:`load_fitted`
+(e.g. for export).
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import pytorch_lightning as pl
+import torch
+from pytorch_lightning.cli import LRSchedulerCallable, OptimizerCallable
+from torch.utils.data import DataLoader, Dataset
+
+from neuralbrdf import metrics
+from neuralbrdf.data.loading import load_measurement
+from neuralbrdf.data.nbrdf import NbrdfNetwork, sample_plan
+from neuralbrdf.data.plans import PLAN_NAMES
+from neuralbrdf.data.table import BrdfTable
+from neuralbrdf.errors import InputError
+from neuralbrdf.lightning.nlb_module import check_loss_domain, load_pretrained, nlb_loss, scheduled_optimizer
+from neuralbrdf.models.abc import load_low2012_parameters
+from neuralbrdf.models.nlb import LatentTable, NLBNetwork
+from neuralbrdf.virtual.instrument import default_data_path
+
+#: The shipped pretrained compact network (SPEC §4.2), the default ``checkpoint``.
+PRETRAINED_COMPACT = Path(__file__).resolve().parents[1] / "pretrained" / "nlb_compact.ckpt"
+#: How the shipped checkpoint is made (for the error message when it is missing).
+PRETRAIN_COMMAND = "python train.py fit --config configs/nlb_pretrain.yaml"
+SHIPPED_REFERENCE = "munsell_n9"
+
+SOURCE_KINDS = ("table", "gcms", "virtual", "nbrdf")
+SOURCE_KEYS = (*SOURCE_KINDS, "name", "reference", "plan")
+
+
+class FitSamples(NamedTuple):
+    """Samples of one or more materials: ``material`` ``[N]`` int64, ``wi, wo, f`` ``[N, 3]`` float32."""
+
+    material: torch.Tensor
+    wi: torch.Tensor
+    wo: torch.Tensor
+    f: torch.Tensor
+
+
+class EvalSet(NamedTuple):
+    """One material's evaluation: its fitting samples, and (NBRDF) the proxy on the eval plan."""
+
+    name: str
+    fit: FitSamples
+    truth: FitSamples | None
+    abc: torch.Tensor | None  # Löw et al.'s ABC on truth's directions, [N, 3]
+
+
+def _tensors(index: int, wi, wo, f) -> FitSamples:
+    n = len(f)
+    return FitSamples(
+        torch.full((n,), index, dtype=torch.long),
+        *(torch.as_tensor(np.asarray(a), dtype=torch.float32) for a in (wi, wo, f)),
+    )
+
+
+def _table_samples(index: int, table: BrdfTable) -> FitSamples:
+    table = table.to_rgb()
+    return _tensors(index, *table.vectors(), table.values)
+
+
+class _Steps(Dataset):
+    """One batch per step: all ``samples``, or ``batch_size`` of them, a fresh random subset per
+    request from a stream seeded by ``seed`` (reproducible in a single data-loading process)."""
+
+    def __init__(self, samples: FitSamples, steps: int, batch_size: int | None, seed: int) -> None:
+        self.samples, self.steps, self.batch_size = samples, steps, batch_size
+        self.rng = np.random.default_rng(seed)
+
+    def __len__(self) -> int:
+        return self.steps
+
+    def __getitem__(self, index: int) -> FitSamples:
+        if not 0 <= index < self.steps:
+            raise IndexError(index)
+        n = len(self.samples.f)
+        if self.batch_size is None or self.batch_size >= n:
+            return self.samples
+        rows = torch.from_numpy(self.rng.choice(n, self.batch_size, replace=False))
+        return FitSamples(*(column[rows] for column in self.samples))
+
+
+class _Items(Dataset):
+    def __init__(self, items: Sequence) -> None:
+        self.items = list(items)
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def __getitem__(self, index):
+        return self.items[index]
+
+
+class LatentFitData(pl.LightningDataModule):
+    """Materials to fit, all in one batch (module docstring for ``sources``).
+
+    Parameters
+    ----------
+    sources:
+        One mapping per material.
+    plan:
+        Sampling plan (SPEC §3) of NBRDF sources without their own ``plan``.
+    eval_plan:
+        Plan on which NBRDF sources are compared with the fit; ``None``: no such evaluation.
+    low2012_abc:
+        Löw et al.'s published ABC fits (``abc-low2012/low2012_abc_merl.csv``) for the
+        comparison; ``None``: no comparison; a missing file: a warning and no comparison.
+    steps_per_epoch:
+        Optimisation steps per epoch.
+    batch_size:
+        ``None`` (default): every step sees every sample of every material (one full batch).
+        Else each step sees this many samples drawn at random from all of them: for plans too
+        large for full-batch steps, such as five materials on the Löw et al. set (1.15 M pairs).
+    seed:
+        Seed of those draws.
+    """
+
+    def __init__(
+        self,
+        sources: list[dict[str, str]],
+        plan: str = "DS1",
+        eval_plan: str | None = "low",
+        low2012_abc: str | None = None,
+        steps_per_epoch: int = 100,
+        batch_size: int | None = None,
+        seed: int = 0,
+    ) -> None:
+        super().__init__()
+        if not sources:
+            raise InputError("at least one source is needed", column="data.sources")
+        for plan_name, key in ((plan, "data.plan"), (eval_plan, "data.eval_plan")):
+            if plan_name is not None and plan_name not in PLAN_NAMES:
+                raise InputError(f"unknown plan {plan_name!r}; expected one of {', '.join(PLAN_NAMES)}", column=key)
+        if not isinstance(steps_per_epoch, int) or steps_per_epoch < 1:
+            raise InputError(f"must be a positive integer, got {steps_per_epoch!r}", column="data.steps_per_epoch")
+        self.sources = [self._check_source(i, s) for i, s in enumerate(sources)]
+        self.material_names = [self._name(s) for s in self.sources]
+        duplicates = sorted({n for n in self.material_names if self.material_names.count(n) > 1})
+        if duplicates:
+            raise InputError(
+                f"material names must be unique, {duplicates} repeat (set 'name')", column="data.sources"
+            )
+        self.plan, self.eval_plan, self.low2012_abc = plan, eval_plan, low2012_abc
+        if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
+            raise InputError(f"must be a positive integer or null, got {batch_size!r}", column="data.batch_size")
+        self.steps_per_epoch, self.batch_size, self.seed = steps_per_epoch, batch_size, seed
+        self._steps: _Steps | None = None
+        self.train_samples: FitSamples | None = None
+        self.eval_sets: list[EvalSet] = []
+
+    @staticmethod
+    def _check_source(i: int, source) -> dict[str, str]:
+        where = f"data.sources[{i}]"
+        if not isinstance(source, dict):
+            raise InputError(f"expected a mapping such as {{nbrdf: FILE.h5}}, got {source!r}", column=where)
+        for key in source:
+            if key not in SOURCE_KEYS:
+                raise InputError(f"unknown key {key!r}; expected {', '.join(SOURCE_KEYS)}", column=where)
+        kinds = [k for k in SOURCE_KINDS if k in source]
+        if len(kinds) != 1:
+            raise InputError(f"needs exactly one of {', '.join(SOURCE_KINDS)}, got {kinds or 'none'}", column=where)
+        kind = kinds[0]
+        if ("reference" in source) != (kind == "gcms"):
+            raise InputError("'reference' goes with 'gcms' (and a gcms source needs it)", column=where)
+        if "plan" in source and (kind != "nbrdf" or source["plan"] not in PLAN_NAMES):
+            raise InputError(
+                f"'plan' is for nbrdf sources, one of {', '.join(PLAN_NAMES)}; got {source['plan']!r}", column=where
+            )
+        return {k: str(v) for k, v in source.items()}
+
+    @staticmethod
+    def _name(source: dict[str, str]) -> str:
+        if "name" in source:
+            return source["name"]
+        kind = next(k for k in SOURCE_KINDS if k in source)
+        return source[kind] if kind == "virtual" else Path(source[kind]).stem
+
+    def _load(self, index: int, source: dict[str, str], abc_fits) -> EvalSet:
+        name = self.material_names[index]
+        if "nbrdf" in source:
+            network = NbrdfNetwork.load(source["nbrdf"])
+            fit = _table_samples(index, sample_plan(network, source.get("plan", self.plan)))
+            if self.eval_plan is None:
+                return EvalSet(name, fit, None, None)
+            truth_table = sample_plan(network, self.eval_plan)
+            truth = _table_samples(index, truth_table)
+            abc = None
+            if network.name in abc_fits:
+                abc = torch.as_tensor(abc_fits[network.name].evaluate(*truth_table.vectors()), dtype=torch.float32)
+            return EvalSet(name, fit, truth, abc)
+        if "virtual" in source:
+            path, reference = default_data_path(source["virtual"]), default_data_path(SHIPPED_REFERENCE)
+        else:
+            path, reference = source.get("table") or source["gcms"], source.get("reference")
+        return EvalSet(name, _table_samples(index, load_measurement(path, reference)), None, None)
+
+    def setup(self, stage: str | None = None) -> None:
+        if self.train_samples is not None:
+            return
+        abc_fits = {}
+        if self.low2012_abc is not None:
+            if os.path.isfile(self.low2012_abc):
+                abc_fits = load_low2012_parameters(self.low2012_abc)
+            else:
+                warnings.warn(f"{self.low2012_abc}: Löw et al. ABC fits not found; no ABC comparison", stacklevel=2)
+        self.eval_sets = [self._load(i, s, abc_fits) for i, s in enumerate(self.sources)]
+        self.train_samples = FitSamples(*(torch.cat(c) for c in zip(*(e.fit for e in self.eval_sets))))
+
+    def train_dataloader(self) -> DataLoader:
+        if self._steps is None:  # one stream of random subsets for the whole fit
+            self._steps = _Steps(self.train_samples, self.steps_per_epoch, self.batch_size, self.seed)
+        return DataLoader(self._steps, batch_size=None)
+
+    def val_dataloader(self) -> DataLoader:
+        return DataLoader(_Items(self.eval_sets), batch_size=None, collate_fn=_identity)
+
+
+def _identity(item):
+    return item
+
+
+def _theta_i_deg(wi: torch.Tensor) -> torch.Tensor:
+    return torch.rad2deg(torch.acos(wi[:, 2].clamp(-1.0, 1.0)))
+
+
+class LatentFitModule(pl.LightningModule):
+    """Optimises one latent per material on a frozen pretrained NLB network (module docstring).
+
+    Parameters
+    ----------
+    checkpoint:
+        :class:`~neuralbrdf.lightning.nlb_module.NLBPretrainModule` checkpoint; ``None``: the
+        shipped ``neuralbrdf/pretrained/nlb_compact.ckpt``.
+    latent_init:
+        Constant every latent starts from; ``None``: the centroid of the pretrained corpus
+        latents.
+    loss_domain:
+        ``"log_cosine"`` (L1 of ``ln(1 + f cos θi)``) or ``"linear"`` (raw L1, as Fan et al.).
+    optimizer, lr_scheduler:
+        Factories from the config; the scheduler steps every step.
+    """
+
+    def __init__(
+        self,
+        checkpoint: str | None = None,
+        latent_init: float | None = None,
+        loss_domain: str = "log_cosine",
+        optimizer: OptimizerCallable = torch.optim.Adam,
+        lr_scheduler: LRSchedulerCallable | None = None,
+    ) -> None:
+        super().__init__()
+        check_loss_domain(loss_domain, "model.loss_domain")
+        path = PRETRAINED_COMPACT if checkpoint is None else Path(checkpoint)
+        if checkpoint is None and not path.is_file():
+            raise InputError(f"the shipped pretrained NLB checkpoint is missing; make it with `{PRETRAIN_COMMAND}` "
+                             "and copy its checkpoints/best.ckpt there, or set model.checkpoint", path=path)
+        self.save_hyperparameters(ignore=["optimizer", "lr_scheduler"])
+        pretrained = load_pretrained(path)
+        # Frozen by requires_grad alone: nothing in the network depends on train/eval mode.
+        self.network = pretrained.network.requires_grad_(False).train()
+        self._frozen_reference = {k: v.clone() for k, v in self.network.state_dict().items()}
+        start = pretrained.latent_mean
+        self._start = start if latent_init is None else torch.full_like(start, latent_init)
+        self.latents: LatentTable | None = None
+        self.optimizer_factory = optimizer
+        self.lr_scheduler_factory = lr_scheduler
+        self.material_names: list[str] = []
+
+    def build_latents(self, names: Sequence[str]) -> None:
+        """One latent per material, all at the starting point."""
+        self.material_names = list(names)
+        self.latents = LatentTable(len(names), self.network.latent_dim, 0.0, names)
+        with torch.no_grad():
+            self.latents.latents.copy_(self._start.expand(len(names), -1))
+
+    def setup(self, stage: str) -> None:
+        if self.latents is None:
+            data = getattr(self.trainer, "datamodule", None)
+            if data is None or not hasattr(data, "material_names"):
+                raise InputError("the latent fit needs a LatentFitData data module (data.class_path)", column="data")
+            self.build_latents(data.material_names)
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        checkpoint["material_names"] = self.material_names
+        checkpoint["nlb_config"] = asdict(self.network.config)
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        self.build_latents(checkpoint["material_names"])
+
+    def predict(self, samples: FitSamples) -> torch.Tensor:
+        return self.network(samples.wi, samples.wo, self.latents(samples.material))
+
+    def training_step(self, batch: FitSamples, batch_idx: int) -> torch.Tensor:
+        loss = nlb_loss(self.predict(batch), batch.f, batch.wi, self.hparams.loss_domain)
+        self.log("train/loss", loss, on_step=False, on_epoch=True, batch_size=len(batch.f))
+        return loss
+
+    def validation_step(self, item: EvalSet, batch_idx: int) -> None:
+        fit_pred = self.predict(item.fit)
+        fit_rmse = metrics.hemisphere_logcos_rmse(fit_pred, item.fit.f, _theta_i_deg(item.fit.wi))
+        self.log(f"fit_logcos_rmse/{item.name}", fit_rmse, batch_size=1)
+        if item.truth is None:
+            return
+        theta_i = _theta_i_deg(item.truth.wi)
+        rmse = metrics.hemisphere_logcos_rmse(self.predict(item.truth), item.truth.f, theta_i)
+        self.log(f"hemisphere_logcos_rmse/{item.name}", rmse, batch_size=1)
+        self._eval_rmse.append(rmse)
+        if item.abc is not None:
+            abc_rmse = metrics.hemisphere_logcos_rmse(item.abc, item.truth.f, theta_i)
+            self.log(f"abc_low2012/hemisphere_logcos_rmse/{item.name}", abc_rmse, batch_size=1)
+
+    def on_validation_epoch_start(self) -> None:
+        self._eval_rmse: list[float] = []
+
+    def on_validation_epoch_end(self) -> None:
+        if self._eval_rmse:
+            self.log("hemisphere_logcos_rmse/mean", float(np.mean(self._eval_rmse)))
+
+    def on_fit_end(self) -> None:
+        for key, value in self.network.state_dict().items():
+            if not torch.equal(value.cpu(), self._frozen_reference[key]):
+                raise RuntimeError(f"frozen NLB weight {key} changed during the latent fit")
+
+    def configure_optimizers(self):
+        groups = [(self.latents.parameters(), 1.0)]
+        return scheduled_optimizer(groups, self.optimizer_factory, self.lr_scheduler_factory, "step")
+
+
+@dataclass(frozen=True)
+class FittedNLB:
+    """Fitted materials: the frozen ``network`` and one latent ``[latent_dim]`` per material name."""
+
+    network: NLBNetwork
+    latents: dict[str, torch.Tensor]
+    source: str
+
+
+def load_fitted(path: str | os.PathLike[str]) -> FittedNLB:
+    """The network and named latents of a :class:`LatentFitModule` checkpoint.
+
+    Raises :class:`InputError` when the file is missing or is not such a checkpoint.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("fitted NLB checkpoint not found", path=path)
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many kinds for a corrupt or foreign file
+        raise InputError(f"not a readable PyTorch checkpoint ({type(exc).__name__}: {exc})", path=path) from None
+    try:
+        names, state = checkpoint["material_names"], checkpoint["state_dict"]
+        network = NLBNetwork(**checkpoint["nlb_config"])
+        latents = state["latents.latents"].float()
+    except (KeyError, TypeError) as exc:
+        raise InputError(f"not a latent-fit checkpoint (LatentFitModule): missing {exc}", path=path) from None
+    prefix = "network."
+    network.load_state_dict({k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)})
+    network.requires_grad_(False).eval()
+    return FittedNLB(network, dict(zip(names, latents)), str(path))

@@ -1,0 +1,487 @@
+"""NLB representation network, pretraining and latent-only fitting (SPEC §4.2, §4.3, §5).
+
+Tiny networks and checkpoints are made here so that nothing needs the shipped checkpoint;
+tests that use the MERL proxies skip when ``../shared/data`` is absent.
+"""
+
+import json
+import math
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+from unittest import mock
+
+import numpy as np
+import pytest
+import pytorch_lightning as pl
+import torch
+
+from neuralbrdf.data.loading import load_measurement
+from neuralbrdf.data.plans import plan_spherical
+from neuralbrdf.data.table import BrdfTable, write_table
+from neuralbrdf.errors import InputError
+from neuralbrdf.geometry import normalize, spherical_pair_to_vectors
+from neuralbrdf.lightning.latent_fit_module import PRETRAINED_COMPACT, LatentFitData, LatentFitModule, load_fitted
+from neuralbrdf.lightning.nlb_module import NLBPretrainModule, load_pretrained, nlb_loss
+from neuralbrdf.lightning.run import main as train_main
+from neuralbrdf.models.nlb import COMPACT, LOG1P_F_MAX, PAPER, PRE_ACTIVATION_MIN, LatentTable, NLBNetwork
+from neuralbrdf.virtual.instrument import default_data_path
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIGS = ROOT / "configs"
+DATA = ROOT.parent / "shared" / "data"
+NBRDF = DATA / "merl-nbrdf"
+LOW2012 = DATA / "abc-low2012" / "low2012_abc_merl.csv"
+needs_merl = pytest.mark.skipif(not NBRDF.is_dir(), reason=f"MERL NBRDF proxies not found at {NBRDF} (SPEC §2.4)")
+
+
+def hemisphere_directions(n_theta=91, n_phi=24, upper=True):
+    """Grid over the whole hemisphere, theta from 0 to 90° (the last row 1e-7 rad above the horizon)."""
+    theta = np.linspace(0.0, math.pi / 2, n_theta)
+    theta[-1] = math.pi / 2 - 1e-7
+    phi = np.linspace(0.0, 2 * math.pi, n_phi, endpoint=False)
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    v = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1).reshape(-1, 3)
+    return torch.as_tensor(v if upper else v * [1, 1, -1], dtype=torch.float32)
+
+
+def all_pairs(a, b):
+    return a[:, None, :].expand(-1, len(b), -1).reshape(-1, 3), b[None, :, :].expand(len(a), -1, -1).reshape(-1, 3)
+
+
+def randomised(network, std=0.5):
+    """``network`` with random output weights: a fresh one outputs the constant 0.05 sr⁻¹."""
+    with torch.no_grad():
+        network.output_layer.weight.normal_(0.0, std)
+    return network
+
+
+def tiny_module(n_materials=6, **kwargs):
+    """A small "pretrained" module: random weights and latents."""
+    torch.manual_seed(0)
+    module = NLBPretrainModule(n_materials=n_materials, latent_dim=4, width=16, depth=2, **kwargs)
+    randomised(module.network)
+    with torch.no_grad():
+        module.latents.latents.normal_(0.0, 0.5)
+    return module
+
+
+def save_checkpoint(module, path):
+    torch.save({"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams)}, path)
+    return path
+
+
+# ------------------------------------------------------------------------------- network
+
+
+@pytest.mark.parametrize("config, grid", [(COMPACT, (31, 8)), (PAPER, (11, 6))], ids=["compact", "paper"])
+def test_network_is_finite_and_non_negative_on_the_whole_hemisphere(config, grid):
+    torch.manual_seed(1)
+    network = randomised(NLBNetwork(**config.__dict__), std=1.0)
+    wi, wo = all_pairs(hemisphere_directions(*grid), hemisphere_directions(*grid))
+    for scale in (1.0, 30.0, 1e4):  # ordinary, large and absurd latents: still finite (capped)
+        latent = scale * torch.randn(len(wi), config.latent_dim)
+        with torch.no_grad():
+            f = network(wi, wo, latent)
+        assert f.shape == (len(wi), 3)
+        assert torch.isfinite(f).all() and (f >= 0).all()
+        assert f.max() <= math.expm1(LOG1P_F_MAX) * (1 + 1e-6)
+
+
+def test_network_is_zero_below_and_on_the_horizon():
+    torch.manual_seed(2)
+    network = NLBNetwork()
+    up, down = hemisphere_directions(10, 6), hemisphere_directions(10, 6, upper=False)
+    horizon = up.clone()
+    horizon[:, 2] = 0.0
+    latent = torch.randn(COMPACT.latent_dim)
+    for a, b in ((up, down), (down, up), (down, down), (up, horizon), (horizon, up)):
+        wi, wo = all_pairs(a, b)
+        assert (network(wi, wo, latent) == 0).all()
+    wi, wo = all_pairs(up[:-6], up[:-6])  # the last theta row is within 1e-7 of the horizon
+    assert (network(wi, wo, latent) > 0).all()
+
+
+def test_output_stays_trainable_beyond_its_bounds():
+    # Pre-activations far below the floor (-15) or above the cap (16) give the bound's value
+    # but still a gradient (straight-through clip): e^y would be exactly 0 at y = -120.
+    wi, wo = all_pairs(hemisphere_directions(5, 4)[:-4], hemisphere_directions(5, 4)[:-4])
+    floor = math.expm1(math.log1p(math.exp(PRE_ACTIVATION_MIN)))
+    for bias, value in ((-120.0, floor), (120.0, math.expm1(LOG1P_F_MAX))):
+        network = randomised(NLBNetwork(latent_dim=4, width=8, depth=2), std=0.1)
+        with torch.no_grad():
+            network.output_layer.bias.fill_(bias)
+        latent = torch.zeros(4, requires_grad=True)
+        f = network(wi, wo, latent)
+        torch.testing.assert_close(f, torch.full_like(f, value), rtol=1e-5, atol=0)
+        f.sum().backward()
+        assert network.output_layer.bias.grad.abs().min() > 0
+        assert latent.grad.abs().sum() > 0
+
+
+def test_initial_output_is_a_constant_diffuse_level():
+    network = NLBNetwork()
+    wi, wo = all_pairs(hemisphere_directions(6, 5)[:-5], hemisphere_directions(6, 5)[:-5])
+    f = network(wi, wo, torch.randn(len(wi), COMPACT.latent_dim))
+    torch.testing.assert_close(f, torch.full_like(f, 0.05))
+
+
+def test_half_vector_features_and_shared_latent():
+    network = randomised(NLBNetwork(latent_dim=3, width=8, depth=3, half_vector=True))
+    wi, wo = all_pairs(hemisphere_directions(6, 5), hemisphere_directions(6, 5))
+    features = network.features(wi, wo)
+    torch.testing.assert_close(features[:, 6:], normalize(wi + wo))
+    torch.testing.assert_close(features[:, :6], torch.cat([wi, wo], 1))
+    latent = torch.tensor([0.3, -1.0, 2.0])
+    torch.testing.assert_close(network(wi, wo, latent), network(wi, wo, latent.expand(len(wi), 3)))
+    assert NLBNetwork(latent_dim=3, width=8, depth=3, half_vector=False).features(wi, wo).shape == (len(wi), 6)
+
+
+def test_paper_network_size():
+    # Fan et al.: 256 wide, an input layer then 16 residual 256x256 layers, ~1.07 M weights.
+    expected = (6 + 32) * 256 + 256 + 16 * (256 * 256 + 256) + 256 * 3 + 3
+    assert NLBNetwork(**PAPER.__dict__).parameter_count() == expected
+    assert 1.0e6 < expected < 1.1e6
+
+
+def test_residual_layers_add_their_input():
+    network = randomised(NLBNetwork(latent_dim=2, width=8, depth=2, residual=True, half_vector=False))
+    with torch.no_grad():
+        network.hidden_layers[0].weight.zero_()
+        network.hidden_layers[0].bias.fill_(-1.0)  # relu(...) = 0: the block is the identity
+    plain = NLBNetwork(latent_dim=2, width=8, depth=1, residual=False, half_vector=False)
+    plain.load_state_dict({k: v for k, v in network.state_dict().items() if not k.startswith("hidden")})
+    wi, wo = all_pairs(hemisphere_directions(4, 3), hemisphere_directions(4, 3))
+    latent = torch.tensor([0.5, -0.5])
+    torch.testing.assert_close(network(wi, wo, latent), plain(wi, wo, latent))
+
+
+@pytest.mark.parametrize("kwargs", [{"width": 0}, {"depth": 0}, {"latent_dim": -1}, {"width": 2.5}])
+def test_bad_network_config_raises(kwargs):
+    with pytest.raises(InputError):
+        NLBNetwork(**kwargs)
+
+
+def test_bad_network_inputs_raise():
+    network = NLBNetwork(latent_dim=4)
+    with pytest.raises(InputError):
+        network(torch.zeros(5, 3), torch.zeros(4, 3), torch.zeros(4))
+    with pytest.raises(InputError):
+        network(torch.zeros(5, 3), torch.zeros(5, 3), torch.zeros(5))
+
+
+def test_latent_table():
+    table = LatentTable(3, 4, 0.25, names=["a", "b", "c"])
+    assert len(table) == 3
+    assert (table.latents == 0.25).all()
+    assert table(torch.tensor([[2, 0]])).shape == (1, 2, 4)
+    torch.testing.assert_close(table.latent("b"), table.latents[1])
+    for bad in ({"names": ["a", "a", "b"]}, {"names": ["a"]}, {"init_value": float("nan")}):
+        with pytest.raises(InputError):
+            LatentTable(3, 4, **bad)
+    with pytest.raises(InputError):
+        table.latent("z")
+
+
+# ------------------------------------------------------------------------------- losses
+
+
+def test_loss_domains_against_numpy():
+    rng = np.random.default_rng(0)
+    pred, target = rng.gamma(0.5, 10.0, (100, 3)), rng.gamma(0.5, 10.0, (100, 3))
+    wi = normalize(torch.as_tensor(rng.normal(size=(100, 3)) * [1, 1, 0] + [0, 0, 0.5]))
+    cos = wi[:, 2].numpy()[:, None]
+    expected = np.mean(np.abs(np.log(1 + pred * cos) - np.log(1 + target * cos)))
+    got = nlb_loss(torch.as_tensor(pred), torch.as_tensor(target), wi, "log_cosine")
+    assert float(got) == pytest.approx(expected, rel=1e-12)
+    linear = nlb_loss(torch.as_tensor(pred), torch.as_tensor(target), wi, "linear")
+    assert float(linear) == pytest.approx(np.mean(np.abs(pred - target)))
+    with pytest.raises(InputError):
+        nlb_loss(torch.as_tensor(pred), torch.as_tensor(target), wi, "log")
+
+
+# ------------------------------------------------------------------------------- checkpoints
+
+
+def test_load_pretrained_round_trip(tmp_path):
+    module = tiny_module()
+    pretrained = load_pretrained(save_checkpoint(module, tmp_path / "tiny.ckpt"))
+    torch.testing.assert_close(pretrained.latents, module.latents.latents.detach(), rtol=0, atol=0)
+    wi, wo = all_pairs(hemisphere_directions(5, 4), hemisphere_directions(5, 4))
+    latent = module.latents.latents[2].detach()
+    torch.testing.assert_close(pretrained.network(wi, wo, latent), module.network(wi, wo, latent), rtol=0, atol=0)
+
+
+def test_load_pretrained_rejects_bad_files(tmp_path):
+    with pytest.raises(InputError, match="not found"):
+        load_pretrained(tmp_path / "missing.ckpt")
+    (tmp_path / "text.ckpt").write_text("not a checkpoint")
+    with pytest.raises(InputError, match="not a readable"):
+        load_pretrained(tmp_path / "text.ckpt")
+    torch.save({"state_dict": {}, "hyper_parameters": {}}, tmp_path / "empty.ckpt")
+    with pytest.raises(InputError, match="not an NLB"):
+        load_pretrained(tmp_path / "empty.ckpt")
+
+
+def test_latent_fit_defaults_to_the_shipped_checkpoint():
+    if PRETRAINED_COMPACT.is_file():
+        pretrained = load_pretrained(PRETRAINED_COMPACT)
+        assert pretrained.network.config == COMPACT
+        assert torch.isfinite(pretrained.latents).all()
+        assert LatentFitModule().network.config == COMPACT
+    else:
+        with pytest.raises(InputError, match="nlb_pretrain.yaml"):
+            LatentFitModule()
+
+
+# ------------------------------------------------------------------------------- latent fit
+
+
+def network_table(module, material, plan, path):
+    """A BRDF table of the tiny network with corpus latent ``material`` on ``plan``: a known target."""
+    angles = plan_spherical(plan)
+    wi, wo = (torch.as_tensor(v, dtype=torch.float32) for v in spherical_pair_to_vectors(*angles))
+    with torch.no_grad():
+        values = module.network(wi, wo, module.latents.latents[material]).double().numpy()
+    write_table(BrdfTable(*angles, values=values), path)
+    return path
+
+
+def test_latent_fit_leaves_every_network_weight_bit_identical(tmp_path):
+    module = tiny_module()
+    checkpoint = save_checkpoint(module, tmp_path / "tiny.ckpt")
+    sources = [{"table": str(network_table(module, k, "DS2", tmp_path / f"m{k}.csv"))} for k in (1, 4)]
+    data = LatentFitData(sources, eval_plan=None, steps_per_epoch=40)
+    fit = LatentFitModule(str(checkpoint), optimizer=lambda p: torch.optim.Adam(p, lr=0.05))
+    trainer = pl.Trainer(accelerator="cpu", max_epochs=2, logger=False, enable_checkpointing=False,
+                         enable_progress_bar=False, enable_model_summary=False)
+    trainer.fit(fit, data)
+    stored = torch.load(checkpoint, weights_only=True)["state_dict"]
+    for key, value in fit.network.state_dict().items():
+        assert torch.equal(value, stored[f"network.{key}"]), key
+    assert not any(p.requires_grad for p in fit.network.parameters())
+    # ... while the latents moved from the centroid towards the materials' own
+    start = stored["latents.latents"].mean(0)
+    fitted = fit.latents.latents.detach()
+    assert not torch.equal(fitted[0], start)
+    data.setup()
+    samples = data.train_samples
+    with torch.no_grad():
+        before = nlb_loss(fit.network(samples.wi, samples.wo, start), samples.f, samples.wi, "log_cosine")
+        after = nlb_loss(fit.predict(samples), samples.f, samples.wi, "log_cosine")
+    assert after < 0.2 * before
+    assert fit.material_names == ["m1", "m4"]
+
+
+def test_latent_fit_detects_a_changed_weight(tmp_path):
+    fit = LatentFitModule(str(save_checkpoint(tiny_module(), tmp_path / "tiny.ckpt")))
+    with torch.no_grad():
+        fit.network.output_layer.bias[0] += 1e-6
+    with pytest.raises(RuntimeError, match="changed"):
+        fit.on_fit_end()
+
+
+@pytest.mark.parametrize(
+    "sources",
+    [
+        [],
+        [{"tabel": "x.csv"}],
+        [{"table": "a.csv", "gcms": "b.csv"}],
+        [{"gcms": "b.csv"}],
+        [{"table": "a.csv", "plan": "DS1"}],
+        [{"nbrdf": "a.h5", "plan": "DS9"}],
+        [{"virtual": "gold"}, {"virtual": "gold"}],
+        ["gold"],
+    ],
+)
+def test_bad_latent_sources_raise(sources):
+    with pytest.raises(InputError) as info:
+        LatentFitData(sources)
+    assert info.value.column.startswith("data.sources")
+
+
+def test_latent_sources_of_the_same_measurement_agree(tmp_path):
+    gcms, reference = default_data_path("gold"), default_data_path("munsell_n9")
+    write_table(load_measurement(gcms, reference), tmp_path / "gold.csv")
+    sources = [{"virtual": "gold"}, {"gcms": str(gcms), "reference": str(reference), "name": "raw"},
+               {"table": str(tmp_path / "gold.csv"), "name": "table"}]
+    data = LatentFitData(sources, eval_plan=None)
+    data.setup()
+    assert data.material_names == ["gold", "raw", "table"]
+    samples = [item.fit for item in data.eval_sets]
+    assert len(samples[0].f) == 1001  # DS1
+    for other in samples[1:]:
+        torch.testing.assert_close(other.f, samples[0].f)
+        torch.testing.assert_close(other.wi, samples[0].wi)
+    assert data.train_samples.material.tolist() == [0] * 1001 + [1] * 1001 + [2] * 1001
+
+
+def test_a_missing_abc_reference_warns(tmp_path):
+    data = LatentFitData([{"virtual": "gold"}], low2012_abc=str(tmp_path / "missing.csv"))
+    with pytest.warns(UserWarning, match="no ABC comparison"):
+        data.setup()
+
+
+def test_bad_plans_raise():
+    with pytest.raises(InputError):
+        LatentFitData([{"virtual": "gold"}], plan="DS7")
+    with pytest.raises(InputError):
+        LatentFitData([{"virtual": "gold"}], eval_plan="lowe")
+
+
+# ------------------------------------------------------------------------------- DDP
+
+DDP_SCRIPT = textwrap.dedent(
+    """
+    import json, sys
+    import pytorch_lightning as pl
+    import torch
+    from neuralbrdf.lightning.corpus_data import CorpusDataModule
+    from neuralbrdf.lightning.nlb_module import NLBPretrainModule
+
+    class FirstBatch(pl.Callback):
+        def on_train_batch_start(self, trainer, module, batch, batch_idx):
+            if batch_idx == 0:
+                self.materials = batch.material[:16].tolist()
+
+    if __name__ == "__main__":
+        out = sys.argv[1]
+        torch.set_num_threads(1)
+        pl.seed_everything(0)
+        data = CorpusDataModule(n_materials=8, batch_size=64, batches_per_epoch=4, val_batches=2)
+        model = NLBPretrainModule(n_materials=8, latent_dim=4, width=8, depth=2)
+        first = FirstBatch()
+        trainer = pl.Trainer(accelerator="cpu", devices=2, strategy="ddp", max_steps=2, logger=False,
+                             enable_checkpointing=False, enable_progress_bar=False,
+                             enable_model_summary=False, limit_val_batches=1, callbacks=[first])
+        trainer.fit(model, data)
+        state = {k: v.tolist() for k, v in model.state_dict().items()}
+        backend = torch.distributed.get_backend() if torch.distributed.is_initialized() else None
+        report = {"step": trainer.global_step, "world": trainer.world_size, "backend": backend,
+                  "first": first.materials, "state": state,
+                  "val": float(trainer.callback_metrics["val/logcos_rmse"])}
+        with open(f"{out}/rank{trainer.global_rank}.json", "w") as handle:
+            json.dump(report, handle)
+    """
+)
+
+
+def test_pretraining_runs_under_two_process_ddp(tmp_path):
+    script = tmp_path / "ddp_step.py"
+    script.write_text(DDP_SCRIPT)
+    result = subprocess.run([sys.executable, str(script), str(tmp_path)], cwd=tmp_path, capture_output=True,
+                            text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    ranks = [json.loads((tmp_path / f"rank{r}.json").read_text()) for r in (0, 1)]
+    for rank in ranks:
+        assert rank["step"] == 2 and rank["world"] == 2 and rank["backend"] == "gloo"
+    assert ranks[0]["first"] != ranks[1]["first"]  # each process drew its own batches
+    assert ranks[0]["state"] == ranks[1]["state"]  # ... and the gradients were all-reduced
+    assert ranks[0]["val"] == ranks[1]["val"]
+    initial = NLBPretrainModule(n_materials=8, latent_dim=4, width=8, depth=2)
+    assert ranks[0]["state"]["latents.latents"] != initial.latents.latents.tolist()  # training moved the latents
+
+
+# ------------------------------------------------------------------------------- configs through train.py
+
+
+def train(*args):
+    """``train.py fit ARGS`` in this process (one thread); returns the exit status."""
+    with mock.patch.object(sys, "argv", ["train.py"]):
+        status = train_main(["fit", *args, "--num_threads", "1"])
+    torch.set_num_threads(1)
+    return status
+
+
+def run_train(*args):
+    assert train(*args) == 0
+
+
+@pytest.fixture(scope="module")
+def pretrained_run(tmp_path_factory):
+    run_dir = tmp_path_factory.mktemp("nlb_pretrain")
+    run_train("--config", str(CONFIGS / "nlb_pretrain.yaml"), "--run_dir", str(run_dir),
+              "--trainer.max_epochs", "2", "--trainer.log_every_n_steps", "1",
+              "--data.batches_per_epoch", "3", "--data.val_batches", "1", "--data.num_workers", "0",
+              "--data.batch_size", "256", "--data.n_materials", "16", "--model.n_materials", "16")
+    return run_dir
+
+
+def test_compact_pretrain_config_runs(pretrained_run):
+    metrics = json.loads((pretrained_run / "metrics.json").read_text())
+    assert metrics["fit/epochs"] == 2
+    assert math.isfinite(metrics["fit/val/logcos_rmse"]) and math.isfinite(metrics["fit/train/loss_epoch"])
+    pretrained = load_pretrained(pretrained_run / "checkpoints" / "last.ckpt")
+    assert pretrained.network.config == COMPACT and pretrained.latents.shape == (16, COMPACT.latent_dim)
+
+
+def test_paper_pretrain_config_runs(tmp_path):
+    run_train("--config", str(CONFIGS / "nlb_pretrain_paper.yaml"), "--run_dir", str(tmp_path),
+              "--trainer.max_epochs", "1", "--trainer.log_every_n_steps", "1",
+              "--data.batches_per_epoch", "2", "--data.val_batches", "1", "--data.num_workers", "0",
+              "--data.batch_size", "64", "--data.n_materials", "8", "--model.n_materials", "8")
+    pretrained = load_pretrained(tmp_path / "checkpoints" / "last.ckpt")
+    assert pretrained.network.config == PAPER
+    assert math.isfinite(json.loads((tmp_path / "metrics.json").read_text())["fit/val/logcos_rmse"])
+
+
+def test_pretrain_rejects_a_latent_table_of_the_wrong_size(tmp_path):
+    status = train("--config", str(CONFIGS / "nlb_pretrain.yaml"), "--run_dir", str(tmp_path),
+                   "--data.n_materials", "16", "--model.n_materials", "17")
+    assert status == 2
+
+
+def latent_run(pretrained_run, tmp_path, sources, *extra):
+    run_train("--config", str(CONFIGS / "nlb_latent.yaml"), "--run_dir", str(tmp_path),
+              "--model.checkpoint", str(pretrained_run / "checkpoints" / "last.ckpt"),
+              "--trainer.max_epochs", "1", "--trainer.check_val_every_n_epoch", "1",
+              "--trainer.log_every_n_steps", "1", "--data.steps_per_epoch", "3",
+              "--data.sources", json.dumps(sources), *extra)
+    return json.loads((tmp_path / "metrics.json").read_text())
+
+
+@pytest.mark.filterwarnings("ignore:.*negative linear-sRGB value")  # cyan lies partly outside sRGB
+def test_latent_config_runs_on_a_shipped_measurement(pretrained_run, tmp_path):
+    metrics = latent_run(pretrained_run, tmp_path, [{"virtual": "gold"}, {"virtual": "cyan", "name": "ink"}])
+    assert math.isfinite(metrics["fit/fit_logcos_rmse/gold"]) and math.isfinite(metrics["fit/fit_logcos_rmse/ink"])
+    assert not any(key.startswith("fit/hemisphere_logcos_rmse") for key in metrics)
+    fitted = load_fitted(tmp_path / "checkpoints" / "fitted.ckpt")
+    pretrained = load_pretrained(pretrained_run / "checkpoints" / "last.ckpt")
+    assert sorted(fitted.latents) == ["gold", "ink"]
+    for key, value in fitted.network.state_dict().items():
+        assert torch.equal(value, pretrained.network.state_dict()[key])
+    assert not torch.equal(fitted.latents["gold"], fitted.latents["ink"])
+
+
+def test_load_fitted_rejects_a_pretraining_checkpoint(pretrained_run):
+    with pytest.raises(InputError, match="not a latent-fit checkpoint"):
+        load_fitted(pretrained_run / "checkpoints" / "last.ckpt")
+
+
+@needs_merl
+def test_latent_config_evaluates_nbrdf_sources_on_the_low_plan(pretrained_run, tmp_path):
+    sources = [{"nbrdf": str(NBRDF / "brass.h5"), "plan": "DS4"}, {"nbrdf": str(NBRDF / "nylon.h5")}]
+    metrics = latent_run(pretrained_run, tmp_path, sources, "--data.plan", "DS3", "--data.low2012_abc", str(LOW2012))
+    for material in ("brass", "nylon"):
+        assert 0 < metrics[f"fit/hemisphere_logcos_rmse/{material}"] < 10
+        assert 0 < metrics[f"fit/abc_low2012/hemisphere_logcos_rmse/{material}"] < 0.1
+    assert metrics["fit/hemisphere_logcos_rmse/mean"] == pytest.approx(
+        (metrics["fit/hemisphere_logcos_rmse/brass"] + metrics["fit/hemisphere_logcos_rmse/nylon"]) / 2)
+
+
+@pytest.mark.filterwarnings("ignore:.*negative linear-sRGB value")  # cyan lies partly outside sRGB
+def test_latent_fit_minibatches_are_seeded_subsets():
+    sources = [{"virtual": "gold"}, {"virtual": "cyan"}]
+    data = LatentFitData(sources, eval_plan=None, steps_per_epoch=3, batch_size=500)
+    data.setup()
+    first = list(data.train_dataloader())
+    again = LatentFitData(sources, eval_plan=None, steps_per_epoch=3, batch_size=500)
+    again.setup()
+    for a, b in zip(first, again.train_dataloader()):
+        torch.testing.assert_close(a.f, b.f, rtol=0, atol=0)
+    assert all(len(batch.f) == 500 for batch in first)
+    assert not torch.equal(first[0].wi, first[1].wi)
+    assert set(torch.cat([b.material for b in first]).tolist()) == {0, 1}
+    with pytest.raises(InputError):
+        LatentFitData([{"virtual": "gold"}], batch_size=0)
