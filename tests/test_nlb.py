@@ -317,6 +317,15 @@ def test_latent_sources_of_the_same_measurement_agree(tmp_path):
     assert data.train_samples.material.tolist() == [0] * 1001 + [1] * 1001 + [2] * 1001
 
 
+def test_data_path_drops_a_single_measurement_in_place_of_the_sources(tmp_path):
+    gcms, reference = default_data_path("gold"), default_data_path("munsell_n9")
+    data = LatentFitData([{"virtual": "cyan"}], path=str(gcms), reference=str(reference), eval_plan=None)
+    data.setup()
+    assert data.material_names == ["gold_DS1"] and len(data.train_samples.f) == 1001
+    with pytest.raises(InputError, match="data.reference"):
+        LatentFitData([{"virtual": "cyan"}], reference=str(reference))
+
+
 def test_a_missing_abc_reference_warns(tmp_path):
     data = LatentFitData([{"virtual": "gold"}], low2012_abc=str(tmp_path / "missing.csv"))
     with pytest.warns(UserWarning, match="no ABC comparison"):

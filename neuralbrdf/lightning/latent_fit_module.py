@@ -57,21 +57,18 @@ from pytorch_lightning.cli import LRSchedulerCallable, OptimizerCallable
 from torch.utils.data import DataLoader, Dataset
 
 from neuralbrdf import metrics
-from neuralbrdf.data.loading import load_measurement
-from neuralbrdf.data.nbrdf import NbrdfNetwork, sample_plan
 from neuralbrdf.data.plans import PLAN_NAMES
+from neuralbrdf.data.sources import load_material
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
 from neuralbrdf.lightning.nlb_module import check_loss_domain, load_pretrained, nlb_loss, scheduled_optimizer
 from neuralbrdf.models.abc import load_low2012_parameters
 from neuralbrdf.models.nlb import LatentTable, NLBNetwork
-from neuralbrdf.virtual.instrument import default_data_path
 
 #: The shipped pretrained compact network (SPEC §4.2), the default ``checkpoint``.
 PRETRAINED_COMPACT = Path(__file__).resolve().parents[1] / "pretrained" / "nlb_compact.ckpt"
 #: How the shipped checkpoint is made (for the error message when it is missing).
 PRETRAIN_COMMAND = "python train.py fit --config configs/nlb_pretrain.yaml"
-SHIPPED_REFERENCE = "munsell_n9"
 
 SOURCE_KINDS = ("table", "gcms", "virtual", "nbrdf")
 SOURCE_KEYS = (*SOURCE_KINDS, "name", "reference", "plan")
@@ -147,6 +144,9 @@ class LatentFitData(pl.LightningDataModule):
     ----------
     sources:
         One mapping per material.
+    path, reference:
+        A single measurement to fit instead of ``sources`` (``--data.path FILE`` drops a user's
+        BRDF table, or GCMS raw file with its Munsell N9 ``reference``, into any config).
     plan:
         Sampling plan (SPEC §3) of NBRDF sources without their own ``plan``.
     eval_plan:
@@ -166,7 +166,9 @@ class LatentFitData(pl.LightningDataModule):
 
     def __init__(
         self,
-        sources: list[dict[str, str]],
+        sources: list[dict[str, str]] | None = None,
+        path: str | None = None,
+        reference: str | None = None,
         plan: str = "DS1",
         eval_plan: str | None = "low",
         low2012_abc: str | None = None,
@@ -175,6 +177,10 @@ class LatentFitData(pl.LightningDataModule):
         seed: int = 0,
     ) -> None:
         super().__init__()
+        if path is not None:
+            sources = [{"gcms": path, "reference": reference} if reference is not None else {"table": path}]
+        elif reference is not None:
+            raise InputError("data.reference goes with a GCMS raw data.path", column="data.reference")
         if not sources:
             raise InputError("at least one source is needed", column="data.sources")
         for plan_name, key in ((plan, "data.plan"), (eval_plan, "data.eval_plan")):
@@ -226,22 +232,23 @@ class LatentFitData(pl.LightningDataModule):
 
     def _load(self, index: int, source: dict[str, str], abc_fits) -> EvalSet:
         name = self.material_names[index]
-        if "nbrdf" in source:
-            network = NbrdfNetwork.load(source["nbrdf"])
-            fit = _table_samples(index, sample_plan(network, source.get("plan", self.plan)))
-            if self.eval_plan is None:
-                return EvalSet(name, fit, None, None)
-            truth_table = sample_plan(network, self.eval_plan)
-            truth = _table_samples(index, truth_table)
-            abc = None
-            if network.name in abc_fits:
-                abc = torch.as_tensor(abc_fits[network.name].evaluate(*truth_table.vectors()), dtype=torch.float32)
-            return EvalSet(name, fit, truth, abc)
-        if "virtual" in source:
-            path, reference = default_data_path(source["virtual"]), default_data_path(SHIPPED_REFERENCE)
-        else:
-            path, reference = source.get("table") or source["gcms"], source.get("reference")
-        return EvalSet(name, _table_samples(index, load_measurement(path, reference)), None, None)
+        material = load_material(
+            path=source.get("table") or source.get("gcms"),
+            reference=source.get("reference"),
+            nbrdf=source.get("nbrdf"),
+            virtual=source.get("virtual"),
+            plan=source.get("plan", self.plan),
+            eval_plan=self.eval_plan if "nbrdf" in source else None,
+            name=name,
+        )
+        fit = _table_samples(index, material.fit)
+        if material.truth is None:
+            return EvalSet(name, fit, None, None)
+        abc_params = abc_fits.get(Path(source["nbrdf"]).stem)
+        abc = None
+        if abc_params is not None:
+            abc = torch.as_tensor(abc_params.evaluate(*material.truth.vectors()), dtype=torch.float32)
+        return EvalSet(name, fit, _table_samples(index, material.truth), abc)
 
     def setup(self, stage: str | None = None) -> None:
         if self.train_samples is not None:
