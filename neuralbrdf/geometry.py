@@ -138,6 +138,19 @@ def spherical_to_inplane(theta_i, phi_i, theta_o, phi_o):
     return xp.where(in_plane, exact_i, equiv_i), xp.where(in_plane, exact_r, equiv_r)
 
 
+def half_vector_above(wi, wo):
+    """``(h, above)``: the half vector, and where both directions are strictly above the horizon.
+
+    Below the horizon ``wi + wo`` may vanish; ``h`` is the normal there, so formulas can be
+    evaluated everywhere without dividing by zero and masked with ``above`` afterwards.
+    """
+    xp = _xp(wi, wo)
+    above = (wi[..., 2] > 0.0) & (wo[..., 2] > 0.0)
+    zero = xp.zeros_like(wi[..., 2])
+    pole = _stack3(xp, zero, zero, zero + 1.0)
+    return normalize(xp.where(above[..., None], wi + wo, pole)), above
+
+
 def half_diff_vectors(wi, wo):
     """Rusinkiewicz half vector ``h`` and difference vector ``d`` (both unit, ``[..., 3]``).
 

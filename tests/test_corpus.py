@@ -19,13 +19,13 @@ from neuralbrdf.data.corpus import (
     LOBE_BECKMANN,
     LOBE_GGX,
     abc_lobe_integral,
-    beckmann_smith_g1,
     generate_materials,
     sample_batch,
     sample_ggx_normal,
     uniform_hemisphere,
 )
 from neuralbrdf.errors import InputError
+from neuralbrdf.physics.microfacet import beckmann_smith_g1
 from neuralbrdf.models.abc import abc_brdf
 from neuralbrdf.physics.microfacet import beckmann_distribution
 

@@ -18,7 +18,7 @@ A material is a diffuse base plus up to :data:`MAX_LOBES` specular lobes, all RG
   - ``ggx``: Walter et al. (2007) Eq. 20 with the GGX distribution and separable Smith
     shadowing (:func:`neuralbrdf.physics.microfacet.microfacet_brdf`);
   - ``beckmann``: the same with the Beckmann distribution (Walter et al. Eq. 25) and its exact
-    Smith masking (:func:`beckmann_smith_g1`, Walter et al. Eq. 24 / Heitz 2014 Eq. 72);
+    Smith masking (:func:`neuralbrdf.physics.microfacet.beckmann_smith_g1`, Walter et al. Eq. 24 / Heitz 2014 Eq. 72);
   - ``abc``: the ABC model's specular term (Löw et al. 2012, SPEC §4.1) with a dielectric
     Fresnel term, its ``A`` set from a target albedo through the lobe integral
     (:func:`abc_lobe_integral`).
@@ -48,13 +48,12 @@ import math
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
-from scipy.special import erf
 
 from neuralbrdf.errors import InputError
 from neuralbrdf.geometry import dot, normalize
 from neuralbrdf.models.abc import abc_brdf
 from neuralbrdf.physics.fresnel import fresnel_conductor, fresnel_dielectric
-from neuralbrdf.physics.microfacet import beckmann_distribution, microfacet_brdf
+from neuralbrdf.physics.microfacet import microfacet_brdf
 
 MAX_LOBES = 2
 
@@ -95,44 +94,6 @@ SAMPLING_ALPHA_RANGE = (2e-3, 1.0)
 
 
 # ------------------------------------------------------------------------------- physics
-
-
-def beckmann_smith_g1(cos_theta, alpha):
-    """Exact Smith masking of the Beckmann distribution (Walter et al. 2007 Eq. 24).
-
-    ``G1 = 1 / (1 + Λ(a))``, ``Λ(a) = (erf(a) - 1)/2 + exp(-a²) / (2 a √π)``,
-    ``a = cos θ / (alpha sin θ)``; ``G1 = 1`` at the pole and 0 for ``cos θ <= 0``.
-    """
-    cos_theta = np.asarray(cos_theta, dtype=np.float64)
-    positive = cos_theta > 0.0
-    c = np.clip(cos_theta, 1e-12, 1.0)
-    sin_theta = np.sqrt(np.clip(1.0 - c * c, 0.0, None))
-    with np.errstate(divide="ignore"):
-        a = np.where(sin_theta > 0.0, c / (alpha * sin_theta), np.inf)
-    a_safe = np.where(np.isfinite(a), a, 1.0)
-    lam = 0.5 * (erf(a_safe) - 1.0) + np.exp(-a_safe * a_safe) / (2.0 * a_safe * math.sqrt(math.pi))
-    lam = np.where(np.isfinite(a), lam, 0.0)
-    return np.where(positive, 1.0 / (1.0 + lam), 0.0)
-
-
-def beckmann_brdf(wi, wo, alpha, fresnel_fn):
-    """Beckmann microfacet BRDF ``F D G2 / (4 cos θi cos θo)`` (Walter et al. Eqs. 20, 23–25).
-
-    Same contract as :func:`neuralbrdf.physics.microfacet.microfacet_brdf` (which is GGX).
-    """
-    cos_i, cos_o = wi[..., 2], wo[..., 2]
-    above = (cos_i > 0.0) & (cos_o > 0.0)
-    h = normalize(np.where(above[..., None], wi + wo, np.array([0.0, 0.0, 1.0])))
-    safe_ci = np.where(above, cos_i, 1.0)
-    safe_co = np.where(above, cos_o, 1.0)
-    geometric = (
-        beckmann_distribution(h[..., 2], alpha)
-        * beckmann_smith_g1(safe_ci, alpha)
-        * beckmann_smith_g1(safe_co, alpha)
-        / (4.0 * safe_ci * safe_co)
-    )
-    geometric = np.where(above, geometric, 0.0)
-    return fresnel_fn(np.clip(dot(wi, h), 0.0, 1.0)) * geometric[..., None]
 
 
 def abc_lobe_integral(b, c, points: int = 2048):
@@ -251,9 +212,7 @@ class CorpusMaterials:
             return weight * np.where(conductor, fresnel_conductor(c, eta, k), fresnel_dielectric(c, eta))
 
         alpha = self.lobe_alpha[material, slot]
-        if kind == LOBE_GGX:
-            return microfacet_brdf(wi, wo, alpha, fresnel)
-        return beckmann_brdf(wi, wo, alpha, fresnel)
+        return microfacet_brdf(wi, wo, alpha, fresnel, distribution="ggx" if kind == LOBE_GGX else "beckmann")
 
     def sample_directions(self, material, rng: np.random.Generator, uniform_fraction: float = 0.5):
         """Unit pairs ``(wi, wo)``, each ``[N, 3]``, for materials ``material`` ``[N]`` (module docstring).

@@ -54,7 +54,7 @@ from torch import nn
 
 from neuralbrdf.data.csvio import read_csv_rows
 from neuralbrdf.errors import InputError
-from neuralbrdf.geometry import dot, normalize
+from neuralbrdf.geometry import dot, half_vector_above, normalize
 from neuralbrdf.physics.fresnel import fresnel_dielectric
 
 #: Clamp (dimensionless) on ``cos ti``, ``cos to`` and ``wo·h`` in the specular denominators.
@@ -104,11 +104,7 @@ def abc_brdf(wi, wo, kd, A, B, C, eta):
         raise ValueError(f"kd and A must both be [n_channels], got {tuple(kd.shape)} and {tuple(A.shape)}")
     cos_i = wi[..., 2]
     cos_o = wo[..., 2]
-    above = (cos_i > 0.0) & (cos_o > 0.0)
-    # Below the horizon wi + wo may vanish; use the normal there so nothing divides by zero.
-    zero = xp.zeros_like(cos_i)
-    pole = xp.stack([zero, zero, zero + 1.0], axis=-1)
-    h = normalize(xp.where(above[..., None], wi + wo, pole))
+    h, above = half_vector_above(wi, wo)
     cos_h = xp.clip(h[..., 2], 0.0, 1.0)
     cos_d = xp.clip(dot(wo, h), 0.0, 1.0)
     one = xp.ones_like(cos_i)

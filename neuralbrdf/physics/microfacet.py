@@ -12,7 +12,8 @@ for refraction through rough surfaces* (EGSR):
       D(h) = exp(-tan²θh / alpha²) / (pi alpha² cos⁴θh)
 
 * Smith's masking for GGX (Eq. 34), ``G1(v) = 2 cosθv / (cosθv + sqrt(alpha² + (1 - alpha²)
-  cos²θv))``, and the separable shadowing–masking ``G2(wi, wo) = G1(wi) G1(wo)`` (Eq. 23);
+  cos²θv))``, and for Beckmann (Eq. 24, exact; NumPy only, it needs ``erf``), and the separable
+  shadowing–masking ``G2(wi, wo) = G1(wi) G1(wo)`` (Eq. 23);
 * the reflection BRDF (Eq. 20)::
 
       f(wi, wo) = F(wi·h) D(h) G2(wi, wo) / (4 cosθi cosθo),   h = normalize(wi + wo).
@@ -29,9 +30,11 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 
+import numpy as np
 from array_api_compat import array_namespace
+from scipy.special import erf
 
-from neuralbrdf.geometry import dot, normalize
+from neuralbrdf.geometry import dot, half_vector_above
 
 
 def _ns(*xs):
@@ -78,38 +81,63 @@ def ggx_smith_g2(cos_theta_i, cos_theta_o, alpha):
     return ggx_smith_g1(cos_theta_i, alpha) * ggx_smith_g1(cos_theta_o, alpha)
 
 
-def microfacet_brdf(wi, wo, alpha, fresnel_fn: Callable):
-    """GGX microfacet reflection BRDF ``F D G2 / (4 cosθi cosθo)`` in sr⁻¹ (Walter et al. Eq. 20).
+def beckmann_smith_g1(cos_theta, alpha):
+    """Exact Smith masking of the Beckmann distribution (Walter et al. 2007 Eq. 24).
+
+    ``G1 = 1 / (1 + Λ(a))``, ``Λ(a) = (erf(a) - 1)/2 + exp(-a²) / (2 a √π)``,
+    ``a = cos θ / (alpha sin θ)``; ``G1 = 1`` at the pole and 0 for ``cos θ <= 0``.
+    """
+    cos_theta = np.asarray(cos_theta, dtype=np.float64)
+    positive = cos_theta > 0.0
+    c = np.clip(cos_theta, 1e-12, 1.0)
+    sin_theta = np.sqrt(np.clip(1.0 - c * c, 0.0, None))
+    with np.errstate(divide="ignore"):
+        a = np.where(sin_theta > 0.0, c / (alpha * sin_theta), np.inf)
+    a_safe = np.where(np.isfinite(a), a, 1.0)
+    lam = 0.5 * (erf(a_safe) - 1.0) + np.exp(-a_safe * a_safe) / (2.0 * a_safe * math.sqrt(math.pi))
+    lam = np.where(np.isfinite(a), lam, 0.0)
+    return np.where(positive, 1.0 / (1.0 + lam), 0.0)
+
+
+#: ``(D, G1)`` of each normal distribution, for :func:`microfacet_brdf`.
+DISTRIBUTIONS = {
+    "ggx": (ggx_distribution, ggx_smith_g1),
+    "beckmann": (beckmann_distribution, beckmann_smith_g1),
+}
+
+
+def microfacet_brdf(wi, wo, alpha, fresnel_fn: Callable, distribution: str = "ggx"):
+    """Microfacet reflection BRDF ``F D G2 / (4 cosθi cosθo)`` in sr⁻¹ (Walter et al. Eq. 20).
 
     Parameters
     ----------
     wi, wo:
         Unit directions ``[..., 3]`` (toward the light and the viewer).
     alpha:
-        GGX roughness, a positive scalar or an array broadcasting with ``[...]``.
+        Roughness, a positive scalar or an array broadcasting with ``[...]``.
     fresnel_fn:
         Maps ``cosθd = wi·h`` of shape ``[...]`` to the Fresnel reflectance, of shape ``[...]``
         or ``[..., W]`` (one value per wavelength or channel).
+    distribution:
+        ``"ggx"`` or ``"beckmann"`` (:data:`DISTRIBUTIONS`; Beckmann is NumPy only).
 
     Returns
     -------
     The BRDF with the Fresnel term's shape; zero where ``wi`` or ``wo`` is at or below the
     horizon.
     """
+    distribution_fn, smith_g1 = DISTRIBUTIONS[distribution]
     xp = _ns(wi, wo)
     cos_i = wi[..., 2]
     cos_o = wo[..., 2]
-    above = (cos_i > 0.0) & (cos_o > 0.0)
-    # Below the horizon wi + wo may vanish; use the normal there so nothing divides by zero.
-    zero = xp.zeros_like(cos_i)
-    pole = xp.stack([zero, zero, zero + 1.0], axis=-1)
-    h = normalize(xp.where(above[..., None], wi + wo, pole))
+    h, above = half_vector_above(wi, wo)
     cos_d = xp.clip(dot(wi, h), 0.0, 1.0)
     safe_ci = xp.where(above, cos_i, xp.ones_like(cos_i))
     safe_co = xp.where(above, cos_o, xp.ones_like(cos_o))
     geometric = (
-        ggx_distribution(h[..., 2], alpha)
-        * ggx_smith_g2(safe_ci, safe_co, alpha)
+        distribution_fn(h[..., 2], alpha)
+        * smith_g1(safe_ci, alpha)
+        * smith_g1(safe_co, alpha)
         / (4.0 * safe_ci * safe_co)
     )
     geometric = xp.where(above, geometric, xp.zeros_like(geometric))
