@@ -110,6 +110,10 @@ class SpectralMlpModule(pl.LightningModule):
     def forward(self, theta_i_deg, theta_r_deg, wavelength_nm):
         return self.network(theta_i_deg, theta_r_deg, wavelength_nm)
 
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        # Read by export/to_onnx.py to pick the exporter (SPEC §6 kinds).
+        checkpoint["neuralbrdf_kind"] = "spectral_mlp"
+
     def _loss(self, batch: SpectralSamples) -> tuple[torch.Tensor, torch.Tensor]:
         pred = self.network(batch.theta_i_deg, batch.theta_r_deg, batch.wavelength_nm)
         loss = exp_weighted_mse(

@@ -1,0 +1,446 @@
+"""Speed of the exported models, in one run, as ratios against a named baseline (SPEC §5, §7, §8).
+
+    python benchmarks/run.py [--quick] [--out benchmarks/results.json]
+
+1. **Model.** Trains the spectral MLP on the shipped virtual gold measurement
+   (``train.py fit --config configs/spectral_mlp.yaml``, fewer epochs with ``--quick``) and
+   exports it with ``export/to_onnx.py``.
+2. **Renders.** For each variant (``llvm_ad_rgb``, ``llvm_ad_spectral``) the material-preview
+   scene of ``export/render.py`` is rendered at one resolution and sample count with
+
+   * ``roughconductor/symbolic`` — Mitsuba's built-in rough gold, Dr.Jit's default mode;
+   * ``roughconductor/wavefront`` — the same with symbolic loops and calls off;
+   * ``drjit/symbolic`` — the model through the ``drjit`` backend (fused kernel);
+   * ``onnxruntime/wavefront`` — the model through ``onnxruntime`` (one batched call per
+     wavefront; needs wavefront mode);
+   * ``flat_model_drjit/symbolic`` — a nearly free spectral model (:class:`FlatSpectrum`)
+     through ``drjit``: the plugin's cost without a network.
+
+   The first render of each (scene already loaded; kernel tracing and compilation, possibly a
+   hit in Dr.Jit's on-disk kernel cache) is timed separately, then the median of ``repeats``
+   renders, taken round-robin over the configurations, is reported.  Every configuration uses
+   the same pass split (the wavefront budget of ``export/render.py``), and only one scene is
+   loaded at a time.  The figures are the ratios
+   ``drjit/symbolic : roughconductor/symbolic``, ``onnxruntime/wavefront :
+   roughconductor/wavefront``, ``onnxruntime/wavefront : roughconductor/symbolic`` and
+   ``flat_model_drjit/symbolic : roughconductor/symbolic``.
+3. **Throughput.** Raw model evaluation, queries per second at one batch size (10⁶; one query
+   is one ``(wi, wo[, λ])``), for PyTorch (the :mod:`neuralbrdf.models.directional` module),
+   onnxruntime (the exported file) and Dr.Jit (:class:`~neuralbrdf.render.drjit_onnx.DrJitGraph`
+   on ``drjit.llvm`` arrays, ``dr.eval`` timed, tracing included) — for the spectral MLP, the
+   compact NLB (the shipped pretrained network if present, else random weights of the same size:
+   speed does not depend on the values, as long as none is zero) and the ABC model.  Warm-up call first (its time
+   reported as ``first_call_s``), then the median of ``repeats`` calls.
+
+Targets quoted beside the results (not asserted): Dr.Jit render ≤ 1.1× roughconductor,
+onnxruntime ≤ 1.5× roughconductor in wavefront mode, fastest backend ≥ 150 M queries/s on two
+cores.  Results go to a JSON file (``--out``) and a printed table; the machine, versions,
+thread counts, configuration and seed are recorded with them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import importlib.util
+import json
+import math
+import os
+import platform
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import onnx
+import onnxruntime
+import torch
+
+from neuralbrdf.atomic import atomic_write
+from neuralbrdf.models.abc import ABCParameters
+from neuralbrdf.models.directional import AbcOnDirections, NlbWithLatent
+from neuralbrdf.models.nlb import NLBNetwork
+from neuralbrdf.render.drjit_onnx import DrJitGraph
+from neuralbrdf.render.onnx_contract import AbcMetadata, contract_metadata
+
+ROOT = Path(__file__).resolve().parents[1]
+SEED = 0
+VARIANTS = ("llvm_ad_rgb", "llvm_ad_spectral")
+#: (name, model: None for roughconductor / "trained" / "flat", backend, wavefront mode)
+RENDER_CONFIGS = (
+    ("roughconductor/symbolic", None, None, False),
+    ("roughconductor/wavefront", None, None, True),
+    ("drjit/symbolic", "trained", "drjit", False),
+    ("onnxruntime/wavefront", "trained", "onnxruntime", True),
+    ("flat_model_drjit/symbolic", "flat", "drjit", False),
+)
+RATIOS = {
+    "drjit_vs_roughconductor_symbolic": ("drjit/symbolic", "roughconductor/symbolic"),
+    "flat_model_drjit_vs_roughconductor_symbolic": ("flat_model_drjit/symbolic", "roughconductor/symbolic"),
+    "onnxruntime_vs_roughconductor_wavefront": ("onnxruntime/wavefront", "roughconductor/wavefront"),
+    "onnxruntime_vs_roughconductor_symbolic": ("onnxruntime/wavefront", "roughconductor/symbolic"),
+}
+TARGETS = {
+    "drjit_vs_roughconductor_symbolic": "<= 1.1",
+    "onnxruntime_vs_roughconductor_wavefront": "<= 1.5",
+    "fastest_backend_queries_per_s": ">= 150e6 on 2 cores",
+}
+#: Löw et al.-like parameters of the ABC throughput model (speed only).
+ABC_BENCH_PARAMETERS = ABCParameters(kd=[0.1, 0.08, 0.05], A=[1.0, 0.8, 0.6], B=200.0, C=1.1, eta=1.5)
+PRETRAINED_NLB = ROOT / "neuralbrdf" / "pretrained" / "nlb_compact.ckpt"
+
+
+@dataclass(frozen=True)
+class Settings:
+    epochs: int
+    resolution: int
+    spp: int
+    repeats: int
+    batch: int
+
+    @classmethod
+    def for_mode(cls, quick: bool) -> Settings:
+        if quick:
+            return cls(epochs=2, resolution=48, spp=4, repeats=2, batch=2**16)
+        return cls(epochs=30, resolution=256, spp=64, repeats=5, batch=10**6)
+
+
+def _load_by_path(name: str, path: Path):
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+to_onnx = _load_by_path("neuralbrdf_export_to_onnx", ROOT / "export" / "to_onnx.py")
+render_cmd = _load_by_path("neuralbrdf_export_render", ROOT / "export" / "render.py")
+
+
+def _timed(fn) -> float:
+    start = time.perf_counter()
+    fn()
+    return time.perf_counter() - start
+
+
+def machine() -> dict:
+    cpu = platform.processor() or "unknown"
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.is_file():
+        for line in cpuinfo.read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    return {
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "versions": {
+            "torch": torch.__version__,
+            "onnxruntime": onnxruntime.__version__,
+            "onnx": onnx.__version__,
+            "mitsuba": mi.__version__,
+            "drjit": dr.__version__,
+        },
+        "threads": {"torch": torch.get_num_threads(), "drjit": dr.thread_count()},
+    }
+
+
+# --------------------------------------------------------------------------- model
+
+
+def train_and_export(settings: Settings, workdir: Path) -> dict:
+    """Train the spectral MLP with train.py and export it; paths and wall times."""
+    run_dir = workdir / "spectral_mlp_run"
+    command = [
+        sys.executable, str(ROOT / "train.py"), "fit", "--config", str(ROOT / "configs" / "spectral_mlp.yaml"),
+        "--trainer.max_epochs", str(settings.epochs), "--run_dir", str(run_dir), "--seed_everything", str(SEED),
+    ]
+    train_s = _timed(lambda: subprocess.run(command, cwd=ROOT, check=True, capture_output=True, text=True))
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    model = workdir / "gold_spectral_mlp.onnx"
+    checkpoint = run_dir / "checkpoints" / "best.ckpt"
+    start = time.perf_counter()
+    report = to_onnx.export(checkpoint, model)
+    export_s = time.perf_counter() - start
+    return {
+        "path": str(model),
+        "checkpoint": str(checkpoint),
+        "epochs": settings.epochs,
+        "train_command_s": train_s,
+        "val_rel_rmse_glossy_median": metrics.get("fit/best_model_score"),
+        "export_s": export_s,
+        "export_max_rel_error": report.max_rel_error,
+    }
+
+
+# --------------------------------------------------------------------------- renders
+
+
+class FlatSpectrum(torch.nn.Module):
+    """A nearly free spectral model, ``f = (0.5 + 1e-4 (λ − 550 nm)) / π``: renders with it time the
+    plugin's own machinery (Python BSDF, proposal sampling) without a network."""
+
+    def forward(self, wi: torch.Tensor, wo: torch.Tensor, wavelength: torch.Tensor) -> torch.Tensor:
+        f = (0.5 + 1e-4 * (wavelength - 550.0)) / math.pi
+        return torch.where((wi[:, 2] > 0) & (wo[:, 2] > 0), f, torch.zeros_like(f))
+
+
+def write_flat_model(path: Path) -> Path:
+    metadata = contract_metadata("spectral_mlp", "flat", "benchmarks/run.py", wavelength_range_nm=(400.0, 700.0))
+    exportable = to_onnx.Exportable(FlatSpectrum(), "spectral_mlp", "flat", metadata, (400.0, 700.0))
+    onnx.save(to_onnx.trace(exportable), str(path))
+    return path
+
+
+
+def bench_renders(models: dict[str, Path], variant: str, settings: Settings) -> dict:
+    """First-call and median render times of :data:`RENDER_CONFIGS` in ``variant``.
+
+    One scene is alive at a time: in symbolic mode Dr.Jit traces every registered BSDF
+    instance into a virtual call, so a scene left loaded would both slow the next one's kernel
+    and, with the onnxruntime backend, break its symbolic render.  The timed renders go
+    round-robin over the configurations (each scene reloaded, its kernels served from Dr.Jit's
+    cache), so load from other processes hits every configuration alike.
+    """
+    render_cmd.set_variant(variant)
+    # Same pass split for every configuration: the wavefront budget (the smallest).
+    spp_per_pass = render_cmd.default_spp_per_pass(settings.resolution, wavefront=True)
+    paths = settings.resolution * settings.resolution * settings.spp
+    materials = {
+        name: render_cmd.Material(reference_bsdf="roughconductor")
+        if model is None
+        else render_cmd.Material(model=models[model], backend=backend)
+        for name, model, backend, _ in RENDER_CONFIGS
+    }
+    results = {name: {"wavefront": wavefront, "times_s": []} for name, _, _, wavefront in RENDER_CONFIGS}
+
+    def load_and_render(name: str, seed: int) -> tuple[float, float]:
+        """``(load_s, render_s)``; the scene is dropped before returning."""
+        start = time.perf_counter()
+        scene = render_cmd.load_scene(materials[name], settings.resolution)
+        load_s = time.perf_counter() - start
+        start = time.perf_counter()
+        image = render_cmd.render_passes(scene, settings.spp, spp_per_pass, seed, results[name]["wavefront"])
+        render_s = time.perf_counter() - start
+        del scene
+        gc.collect()
+        if not np.all(np.isfinite(image)):
+            raise RuntimeError(f"{variant} {name}: the render is not finite")
+        return load_s, render_s
+
+    for name in results:
+        results[name]["scene_load_s"], results[name]["first_call_s"] = load_and_render(name, SEED)
+    for repeat in range(settings.repeats):
+        for name in results:
+            results[name]["times_s"].append(load_and_render(name, SEED + 1 + repeat)[1])
+    for entry in results.values():
+        entry["median_s"] = statistics.median(entry["times_s"])
+        entry["ns_per_path_sample"] = entry["median_s"] / paths * 1e9
+    ratios = {key: results[a]["median_s"] / results[b]["median_s"] for key, (a, b) in RATIOS.items()}
+    return {"configs": results, "ratios": ratios, "spp_per_pass": spp_per_pass}
+
+
+# --------------------------------------------------------------------------- throughput
+
+
+def _probe_inputs(batch: int, spectral: bool, seed: int = SEED) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(seed)
+
+    def hemisphere():
+        v = rng.normal(size=(batch, 3))
+        v[:, 2] = np.abs(v[:, 2])
+        return (v / np.linalg.norm(v, axis=1, keepdims=True)).astype(np.float32)
+
+    feeds = {"wi": hemisphere(), "wo": hemisphere()}
+    if spectral:
+        feeds["wavelength"] = rng.uniform(400.0, 700.0, batch).astype(np.float32)
+    return feeds
+
+
+def _first_and_median(fn, repeats: int) -> dict:
+    first = _timed(fn)
+    values = [_timed(fn) for _ in range(repeats)]
+    return {"first_call_s": first, "times_s": values, "median_s": statistics.median(values)}
+
+
+def bench_throughput(module: torch.nn.Module, proto: onnx.ModelProto, spectral: bool, settings: Settings) -> dict:
+    """Queries per second of one model through PyTorch, onnxruntime and Dr.Jit."""
+    from drjit.llvm import Float
+
+    feeds = _probe_inputs(settings.batch, spectral)
+    names = ["wi", "wo", "wavelength"] if spectral else ["wi", "wo"]
+    repeats = max(settings.repeats, 3)
+    results = {}
+
+    tensors = [torch.from_numpy(feeds[n]) for n in names]
+
+    def torch_call():
+        with torch.inference_mode():
+            module(*tensors)
+
+    results["pytorch"] = _first_and_median(torch_call, repeats)
+
+    session = None
+
+    def make_session():
+        nonlocal session
+        session = onnxruntime.InferenceSession(proto.SerializeToString(), providers=["CPUExecutionProvider"])
+
+    session_s = _timed(make_session)
+    results["onnxruntime"] = {
+        "session_s": session_s,
+        **_first_and_median(lambda: session.run(["f"], {n: feeds[n] for n in names}), repeats),
+    }
+
+    graph = None
+
+    def make_graph():
+        nonlocal graph
+        graph = DrJitGraph(proto)
+
+    graph_s = _timed(make_graph)
+    wi = [Float(feeds["wi"][:, k]) for k in range(3)]
+    wo = [Float(feeds["wo"][:, k]) for k in range(3)]
+    wavelength = Float(feeds["wavelength"]) if spectral else None
+    dr.eval(*wi, *wo, *([wavelength] if spectral else []))
+
+    def drjit_call():
+        columns = [c for c in graph(wi, wo, wavelength) if not isinstance(c, float)]
+        dr.eval(*columns)
+        dr.sync_thread()
+
+    results["drjit"] = {
+        "graph_build_s": graph_s,
+        "multiply_adds": graph.multiply_adds,
+        **_first_and_median(drjit_call, repeats),
+    }
+    for entry in results.values():
+        entry["queries_per_s"] = settings.batch / entry["median_s"]
+    return results
+
+
+def nlb_module() -> tuple[torch.nn.Module, str]:
+    """The compact NLB with one latent: the shipped pretrained network, else untrained weights."""
+    if PRETRAINED_NLB.is_file():
+        from neuralbrdf.lightning.nlb_module import load_pretrained
+
+        pretrained = load_pretrained(PRETRAINED_NLB)
+        return NlbWithLatent(pretrained.network, pretrained.latent_mean), "pretrained compact network"
+    torch.manual_seed(SEED)
+    network = NLBNetwork()
+    with torch.no_grad():  # random everywhere: a zero layer would let Dr.Jit drop the network
+        for parameter in network.parameters():
+            parameter.copy_(torch.randn_like(parameter) * 0.2)
+    latent = torch.randn(network.latent_dim)
+    return NlbWithLatent(network, latent), "random weights of the compact size (speed only)"
+
+
+def _exportable(module: torch.nn.Module, kind: str):
+    """An RGB model built here (not from a checkpoint) in the exporter's form."""
+    abc = None
+    if kind == "abc":
+        p = ABC_BENCH_PARAMETERS
+        abc = AbcMetadata(kd=tuple(p.kd.tolist()), A=tuple(p.A.tolist()), B=p.B, C=p.C, eta=p.eta)
+    metadata = contract_metadata(kind, "benchmark", "benchmarks/run.py", abc=abc)
+    return to_onnx.Exportable(module.eval(), kind, "benchmark", metadata, None)
+
+
+# --------------------------------------------------------------------------- report
+
+
+def _table(results: dict) -> str:
+    lines = []
+    model = results["model"]
+    lines.append(
+        f"machine: {results['machine']['cpu']}, {results['machine']['cores']} cores; "
+        f"scene {results['settings']['resolution']}^2 x {results['settings']['spp']} spp, "
+        f"median of {results['settings']['repeats']}"
+    )
+    lines.append(
+        f"spectral MLP: {model['epochs']} epochs, val glossy rel. RMSE {model['val_rel_rmse_glossy_median']:.3g}"
+    )
+    lines.append("")
+    lines.append(f"{'variant':<18}{'configuration':<26}{'first call s':>13}{'median s':>10}{'ns/sample':>11}")
+    for variant, entry in results["render"].items():
+        for name, r in entry["configs"].items():
+            lines.append(
+                f"{variant:<18}{name:<26}{r['first_call_s']:>13.2f}{r['median_s']:>10.3f}"
+                f"{r['ns_per_path_sample']:>11.0f}"
+            )
+        for key, value in entry["ratios"].items():
+            target = TARGETS.get(key, "")
+            lines.append(f"{'':<18}{key:<44}{value:>8.2f}x  {('target ' + target) if target else ''}")
+    lines.append("")
+    lines.append(f"{'model':<16}{'backend':<14}{'first call s':>13}{'median s':>10}{'M queries/s':>13}")
+    for name, entry in results["throughput"].items():
+        for backend, r in entry["backends"].items():
+            lines.append(
+                f"{name:<16}{backend:<14}{r['first_call_s']:>13.3f}{r['median_s']:>10.4f}"
+                f"{r['queries_per_s'] / 1e6:>13.1f}"
+            )
+    target = TARGETS["fastest_backend_queries_per_s"]
+    lines.append(f"(batch {results['settings']['batch']}; target: fastest backend {target})")
+    return "\n".join(lines)
+
+
+def run(quick: bool, out: Path) -> dict:
+    settings = Settings.for_mode(quick)
+    started = time.perf_counter()
+    results = {
+        "command": "python benchmarks/run.py" + (" --quick" if quick else ""),
+        "quick": quick,
+        "seed": SEED,
+        "machine": machine(),
+        "settings": settings.__dict__,
+        "targets": TARGETS,
+    }
+    with tempfile.TemporaryDirectory(prefix="neuralbrdf-bench-") as tmp:
+        workdir = Path(tmp)
+        results["model"] = train_and_export(settings, workdir)
+        model_path = Path(results["model"]["path"])
+        render_models = {"trained": model_path, "flat": write_flat_model(workdir / "flat.onnx")}
+        results["render"] = {variant: bench_renders(render_models, variant, settings) for variant in VARIANTS}
+
+        spectral = to_onnx.load_exportable(results["model"]["checkpoint"])
+        nlb, nlb_note = nlb_module()
+        models = {
+            "spectral_mlp": (spectral, "trained above"),
+            "nlb_compact": (_exportable(nlb, "nlb"), nlb_note),
+            "abc": (_exportable(AbcOnDirections(ABC_BENCH_PARAMETERS), "abc"), "analytic, fixed parameters"),
+        }
+        results["throughput"] = {}
+        for name, (exportable, note) in models.items():
+            proto = to_onnx.trace(exportable)
+            backends = bench_throughput(exportable.module, proto, exportable.is_spectral, settings)
+            fastest = max(backends, key=lambda b: backends[b]["queries_per_s"])
+            results["throughput"][name] = {"note": note, "backends": backends, "fastest": fastest}
+    results["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    results["wall_time_s"] = time.perf_counter() - started
+    with atomic_write(out) as handle:
+        json.dump(results, handle, indent=2)
+        handle.write("\n")
+    return results
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="benchmarks/run.py", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="tiny scene, 2 epochs, small batch (smoke test)")
+    parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results.json"), help="JSON results file")
+    args = parser.parse_args(argv)
+    results = run(args.quick, Path(args.out))
+    print(_table(results))
+    print(f"\nwrote {args.out} ({results['wall_time_s']:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

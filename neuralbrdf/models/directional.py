@@ -1,0 +1,169 @@
+"""Models as functions of directions: the interface of the ONNX contract (SPEC §6).
+
+Every trained model becomes an ``nn.Module`` that maps unit directions ``wi, wo`` ``[N, 3]``
+(local frame, ``z`` the normal, both pointing away from the surface; SPEC §1) — and, for
+spectral models, wavelengths ``[N]`` in nm — to the BRDF ``f`` in sr⁻¹ (no cosine factor),
+with everything needed for evaluation baked in.  These modules are what ``export/to_onnx.py``
+traces into ``.onnx`` files, and what Python-side evaluation (hemisphere metrics, plots) calls,
+so that both see the same function.
+
+* :class:`SpectralMlpOnDirections` — the in-plane spectral MLP of the report (§5.1) queried out of
+  plane through the Rusinkiewicz (1998) half/difference angles: any pair maps to its *in-plane
+  equivalent* ``ti = θd + θh``, ``tr = θd − θh`` (SPEC §1, §4.4; the bivariate approximation of
+  isotropic BRDFs, Romeiro et al. 2008).
+* :class:`NlbWithLatent` — the NLB representation network (Fan et al. 2022) with one fitted
+  material latent baked in as a constant (SPEC §4.2, §4.3).
+* :class:`AbcOnDirections` — the ABC model (Löw et al. 2012, SPEC §4.1) with fixed parameters;
+  per-wavelength parameters are interpolated linearly in wavelength.
+
+All return exactly 0 when either direction is at or below the horizon (``z <= 0``).  Only
+operators that ONNX (opset 17) has and that :mod:`neuralbrdf.render.drjit_onnx` interprets are
+used: no ``atan2`` (ONNX has none), no ``floor`` or integer indexing.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from neuralbrdf.models.abc import ABCParameters, abc_brdf
+from neuralbrdf.models.nlb import NLBNetwork, above_horizon
+from neuralbrdf.models.spectral_mlp import SpectralMLP
+
+#: Range (degrees) the in-plane equivalent angles are clamped to before the spectral MLP sees
+#: them: the in-plane domain of SPEC §1.  Far out of plane ``θd + θh`` can exceed 90°.
+INPLANE_LIMIT_DEG = 90.0
+
+#: Floor on the denominators of the half-angle formulas; only reached at or below the horizon.
+_TINY = 1e-30
+
+
+def _norm(v: torch.Tensor) -> torch.Tensor:
+    return torch.sqrt((v * v).sum(-1))
+
+
+def rusinkiewicz_theta_h_d(wi: torch.Tensor, wo: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Half and difference polar angles ``(θh, θd)`` in radians of unit direction pairs ``[..., 3]``.
+
+    Written with ``atan`` of ratios of lengths, accurate near 0 and without ``atan2`` (absent
+    from ONNX), from ``s = wi + wo`` (the unnormalised half vector) and ``t = wi − wo``:
+
+    * ``θh``, the polar angle of ``s``: ``tan θh = |s_xy| / s_z``;
+    * ``θd``, the angle between ``wi`` and the half vector, half the angle ``γ`` between ``wi``
+      and ``wo``: ``tan θd = |t| / |s|`` (``|wi ± wo| = 2 cos(γ/2), 2 sin(γ/2)`` for unit vectors).
+
+    Valid for both directions above the horizon (``s_z > 0``); elsewhere the values are finite
+    but meaningless (callers mask them).
+    """
+    s = wi + wo
+    theta_h = torch.atan(_norm(s[..., :2]) / torch.clamp(s[..., 2], min=_TINY))
+    theta_d = torch.atan(_norm(wi - wo) / torch.clamp(_norm(s), min=_TINY))
+    return theta_h, theta_d
+
+
+class SpectralMlpOnDirections(nn.Module):
+    """``f(wi, wo, λ)`` ``[N]`` of an in-plane :class:`SpectralMLP` (SPEC §4.4, §6).
+
+    The pair is replaced by its in-plane equivalent ``(ti, tr) = (θd + θh, θd − θh)`` in degrees
+    (:func:`rusinkiewicz_theta_h_d`), the representative with ``ti >= |tr|`` — for an in-plane
+    pair this is the pair itself or its image under the isotropy/reciprocity symmetries of
+    SPEC §1.  Both angles are clamped to ±:data:`INPLANE_LIMIT_DEG`, wavelengths to the model's
+    range (:attr:`SpectralMLP.wavelength_range_nm`), and ``f = 0`` below the horizon.
+    """
+
+    def __init__(self, mlp: SpectralMLP) -> None:
+        super().__init__()
+        self.mlp = mlp
+        low, high = mlp.wavelength_range_nm
+        self.wavelength_range_nm = (low, high)
+
+    def inplane_equivalent_deg(self, wi: torch.Tensor, wo: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Clamped signed in-plane angles ``(ti, tr)`` (degrees) the MLP is queried at."""
+        theta_h, theta_d = rusinkiewicz_theta_h_d(wi, wo)
+        to_deg = 180.0 / math.pi
+        theta_i = torch.clamp((theta_d + theta_h) * to_deg, -INPLANE_LIMIT_DEG, INPLANE_LIMIT_DEG)
+        theta_r = torch.clamp((theta_d - theta_h) * to_deg, -INPLANE_LIMIT_DEG, INPLANE_LIMIT_DEG)
+        return theta_i, theta_r
+
+    def forward(self, wi: torch.Tensor, wo: torch.Tensor, wavelength: torch.Tensor) -> torch.Tensor:
+        theta_i, theta_r = self.inplane_equivalent_deg(wi, wo)
+        low, high = self.wavelength_range_nm
+        f = self.mlp(theta_i, theta_r, torch.clamp(wavelength, low, high))
+        return torch.where(above_horizon(wi, wo), f, torch.zeros_like(f))
+
+
+class NlbWithLatent(nn.Module):
+    """``f(wi, wo)`` ``[N, 3]`` (linear sRGB) of an :class:`NLBNetwork` with a fixed latent.
+
+    ``latent`` (``[latent_dim]``) is copied into a buffer, so it is a constant of the traced
+    graph; the network is used as it is (its own horizon mask and output activation).
+    """
+
+    def __init__(self, network: NLBNetwork, latent: torch.Tensor) -> None:
+        super().__init__()
+        latent = torch.as_tensor(latent, dtype=torch.float32).detach().reshape(-1)
+        if latent.numel() != network.latent_dim:
+            raise ValueError(f"latent has {latent.numel()} values, the network takes {network.latent_dim}")
+        self.network = network
+        self.register_buffer("latent", latent.clone())
+
+    def forward(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+        return self.network(wi, wo, self.latent)
+
+
+def _hat_widths(grid: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Left and right widths (nm) of the linear-interpolation hat of each grid node.
+
+    The outer widths of the end nodes are irrelevant (queries are clamped into the grid) and
+    set to 1 so that no division by zero appears.
+    """
+    steps = grid[1:] - grid[:-1]
+    one = torch.ones(1, dtype=grid.dtype)
+    return torch.cat([one, steps]), torch.cat([steps, one])
+
+
+class AbcOnDirections(nn.Module):
+    """The ABC BRDF (SPEC §4.1) with fixed parameters, as a function of directions.
+
+    RGB parameters (``wavelengths is None``): ``forward(wi, wo) -> [N, 3]``.  Spectral
+    parameters: ``forward(wi, wo, wavelength) -> [N]``, with ``kd`` and ``A`` interpolated
+    linearly between the parameter wavelengths (clamped to their range).  The interpolation is a
+    sum of hat functions, ``kd(λ) = Σ_k kd_k · clip(min(1 + (λ − λ_k)/w⁻_k, 1 − (λ − λ_k)/w⁺_k),
+    0, 1)``, which is exact piecewise-linear interpolation on any increasing grid and needs
+    neither ``floor`` nor integer indexing.
+    """
+
+    def __init__(self, parameters: ABCParameters) -> None:
+        super().__init__()
+        self.B, self.C, self.eta = parameters.B, parameters.C, parameters.eta
+        self.register_buffer("kd", torch.as_tensor(parameters.kd, dtype=torch.float32))
+        self.register_buffer("A", torch.as_tensor(parameters.A, dtype=torch.float32))
+        self.is_spectral = parameters.wavelengths is not None
+        if self.is_spectral:
+            grid = torch.as_tensor(parameters.wavelengths, dtype=torch.float64)
+            if grid.numel() > 1 and not bool(torch.all(grid[1:] > grid[:-1])):
+                raise ValueError(f"ABC wavelengths must increase, got {parameters.wavelengths.tolist()}")
+            left, right = _hat_widths(grid)
+            self.register_buffer("grid", grid.float())
+            self.register_buffer("inv_left", (1.0 / left).float())
+            self.register_buffer("inv_right", (1.0 / right).float())
+            self.wavelength_range_nm = (float(grid[0]), float(grid[-1]))
+
+    def interpolation_weights(self, wavelength: torch.Tensor) -> torch.Tensor:
+        """``[N, K]`` weights of the K parameter wavelengths at ``wavelength`` ``[N]`` (rows sum to 1)."""
+        low, high = self.wavelength_range_nm
+        offset = torch.clamp(wavelength, low, high)[:, None] - self.grid
+        return torch.clamp(torch.minimum(1.0 + offset * self.inv_left, 1.0 - offset * self.inv_right), 0.0, 1.0)
+
+    def forward(self, wi: torch.Tensor, wo: torch.Tensor, wavelength: torch.Tensor | None = None) -> torch.Tensor:
+        if not self.is_spectral:
+            return abc_brdf(wi, wo, self.kd, self.A, self.B, self.C, self.eta)
+        if wavelength is None:
+            raise ValueError("spectral ABC parameters need wavelengths")
+        weights = self.interpolation_weights(wavelength)
+        # One channel of unit kd and one of unit A: f = kd(λ) f_d + A(λ) f_s.
+        unit = torch.tensor([1.0, 0.0], dtype=wi.dtype)
+        parts = abc_brdf(wi, wo, unit, 1.0 - unit, self.B, self.C, self.eta)
+        return parts[..., 0] * (weights @ self.kd) + parts[..., 1] * (weights @ self.A)
