@@ -393,13 +393,8 @@ def test_export_refuses_a_file_that_load_model_rejects(checkpoints, tmp_path, mo
     assert _no_output_left(tmp_path, out.name)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    raises=to_onnx.ExportValidationError,
-    reason="abc_brdf computes 1 - n·h by cancellation in float32: for Löw et al.'s sharp lobes "
-    "(B ~ 1e5) torch and onnxruntime disagree by ~1e-2 near the peak; fixed by a stable 1 - cos θh",
-)
 def test_sharp_abc_lobes_export(tmp_path):
+    """Löw et al.'s sharp lobes (B ~ 1e5) need 1 - cos θh without cancellation in float32."""
     sharp = ABCParameters(kd=[0.011, 0.035, 0.104], A=[1191.4, 1099.3, 1082.1], B=255869.0, C=1.0847, eta=1.475)
     to_onnx.export(abc_checkpoint(tmp_path / "sharp.ckpt", sharp, "blue-acrylic"), tmp_path / "sharp.onnx")
 

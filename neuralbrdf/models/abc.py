@@ -105,8 +105,13 @@ def abc_brdf(wi, wo, kd, A, B, C, eta):
     cos_i = wi[..., 2]
     cos_o = wo[..., 2]
     h, above = half_vector_above(wi, wo)
+    # From s = wi + wo without cancellation (sharp lobes have B ~ 1e5, float32 inputs):
+    # 1 - cos θh = |s_xy|² / (|s| (|s| + s_z)) and wo·h = |s| / 2.
+    s = xp.where(above[..., None], wi + wo, h)
+    s_norm = xp.linalg.vector_norm(s, axis=-1)
+    one_minus_cos_h = (s[..., 0] ** 2 + s[..., 1] ** 2) / (s_norm * (s_norm + s[..., 2]))
     cos_h = xp.clip(h[..., 2], 0.0, 1.0)
-    cos_d = xp.clip(dot(wo, h), 0.0, 1.0)
+    cos_d = xp.clip(0.5 * s_norm, 0.0, 1.0)
     one = xp.ones_like(cos_i)
     safe_i = xp.where(above, xp.clip(cos_i, COS_EPS, 1.0), one)
     safe_o = xp.where(above, xp.clip(cos_o, COS_EPS, 1.0), one)
@@ -116,7 +121,7 @@ def abc_brdf(wi, wo, kd, A, B, C, eta):
         1.0 / (safe_i * safe_o),
         xp.minimum(2.0 * cos_h / (safe_d * safe_i), 2.0 * cos_h / (safe_d * safe_o)),
     )
-    distribution = (1.0 + B * (1.0 - cos_h)) ** (-C)
+    distribution = (1.0 + B * one_minus_cos_h) ** (-C)
     specular = fresnel_dielectric(cos_d, eta) * g_over_cos * distribution / math.pi
     specular = xp.where(above, specular, xp.zeros_like(specular))
     diffuse = xp.where(above, one / math.pi, xp.zeros_like(cos_i))

@@ -206,8 +206,11 @@ def _sigmoid(x):
 
 
 def _softplus(x):
-    # onnxruntime: x > 0 ? x + log(exp(-x) + 1) : log(exp(x) + 1)
-    return dr.maximum(x, 0.0) + dr.log(1.0 + dr.exp(-dr.abs(x)))
+    # max(x, 0) + log1p(exp(-|x|)), with Kahan's accurate log1p (Dr.Jit has none):
+    # log1p(e) = e where 1 + e rounds to 1, else log(1 + e) · e / ((1 + e) - 1).
+    e = dr.exp(-dr.abs(x))
+    u = 1.0 + e
+    return dr.maximum(x, 0.0) + dr.select(u == 1.0, e, dr.log(u) * e / (u - 1.0))
 
 
 def _np_sigmoid(a):
