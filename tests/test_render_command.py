@@ -63,7 +63,13 @@ def test_onnxruntime_backend_renders_like_drjit_and_restores_symbolic_mode(model
     wavefront = render.render(render.Material(model=material["model"], backend="onnxruntime"), **_kw(material))
     assert (dr.flag(dr.JitFlag.SymbolicLoops), dr.flag(dr.JitFlag.SymbolicCalls)) == flags
     assert fused.mean() > 0.01
-    assert np.sqrt(np.mean((fused - wavefront) ** 2)) <= 1e-3 * fused.mean()
+    # Same seed, same sampling: the backends agree to float32 (<= 1e-5), but a rare path can take
+    # another branch (roulette, lobe choice) on such a difference; so compare with the Monte
+    # Carlo noise between two seeds rather than with zero.
+    other_seed = render.render(render.Material(model=material["model"], backend="drjit"), **{**_kw(material), "seed": 4})
+    noise = np.sqrt(np.mean((fused - other_seed) ** 2))
+    assert np.sqrt(np.mean((fused - wavefront) ** 2)) <= 0.1 * noise
+    np.testing.assert_allclose(wavefront.mean(), fused.mean(), rtol=1e-3)
 
 
 def _kw(material):
