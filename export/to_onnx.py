@@ -50,6 +50,7 @@ from torch.onnx import symbolic_helper
 from neuralbrdf.atomic import atomic_path
 from neuralbrdf.errors import InputError
 from neuralbrdf.geometry import inplane_to_vectors, normalize, reflect, spherical_to_vector
+from neuralbrdf.lightning.checkpoint_io import one_line, read_checkpoint
 from neuralbrdf.models.abc import ABCParameters
 from neuralbrdf.models.directional import AbcOnDirections, NlbWithLatent, SpectralMlpOnDirections
 from neuralbrdf.render.onnx_contract import (
@@ -108,26 +109,6 @@ class ExportReport:
 
 
 # --------------------------------------------------------------------------- checkpoints
-
-
-def _one_line(error: BaseException, limit: int = 300) -> str:
-    """``Type: message`` on one line, shortened to ``limit`` characters."""
-    text = " ".join(line.strip() for line in str(error).splitlines() if line.strip())
-    text = text if len(text) <= limit else text[: limit - 3] + "..."
-    return f"{type(error).__name__}: {text}" if text else type(error).__name__
-
-
-def read_checkpoint(path: Path) -> dict:
-    """The checkpoint dictionary, or :class:`InputError` for a missing or unreadable file."""
-    if not path.is_file():
-        raise InputError("checkpoint not found", path=path)
-    try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as error:  # torch raises many kinds for corrupt or foreign files
-        raise InputError(f"not a readable PyTorch checkpoint ({_one_line(error)})", path=path) from None
-    if not isinstance(checkpoint, dict):
-        raise InputError(f"not a checkpoint dictionary (found {type(checkpoint).__name__})", path=path)
-    return checkpoint
 
 
 def checkpoint_kind(checkpoint: dict, path: Path) -> str:
@@ -247,7 +228,7 @@ def load_exportable(ckpt: str | Path, material: str | None = None) -> Exportable
         raise
     except (KeyError, TypeError, ValueError, RuntimeError, AttributeError) as error:
         # Lightning's loader and load_state_dict on a checkpoint of the right kind but wrong content
-        raise InputError(f"not a valid {kind} checkpoint ({_one_line(error)})", path=path) from None
+        raise InputError(f"not a valid {kind} checkpoint ({one_line(error)})", path=path) from None
     exportable.module.eval().requires_grad_(False)
     return exportable
 

@@ -61,6 +61,7 @@ from neuralbrdf.data.plans import PLAN_NAMES
 from neuralbrdf.data.sources import load_material
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
+from neuralbrdf.lightning.checkpoint_io import read_checkpoint
 from neuralbrdf.lightning.nlb_module import check_loss_domain, load_pretrained, nlb_loss, scheduled_optimizer
 from neuralbrdf.models.abc import load_low2012_parameters
 from neuralbrdf.models.nlb import LatentTable, NLBNetwork
@@ -397,12 +398,7 @@ def load_fitted(path: str | os.PathLike[str]) -> FittedNLB:
     Raises :class:`InputError` when the file is missing or is not such a checkpoint.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError("fitted NLB checkpoint not found", path=path)
-    try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many kinds for a corrupt or foreign file
-        raise InputError(f"not a readable PyTorch checkpoint ({type(exc).__name__}: {exc})", path=path) from None
+    checkpoint = read_checkpoint(path, "fitted NLB checkpoint")
     try:
         names, state = checkpoint["material_names"], checkpoint["state_dict"]
         network = NLBNetwork(**checkpoint["nlb_config"])

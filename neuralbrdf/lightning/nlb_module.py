@@ -36,6 +36,7 @@ from pytorch_lightning.cli import LRSchedulerCallable, OptimizerCallable
 
 from neuralbrdf import metrics
 from neuralbrdf.errors import InputError
+from neuralbrdf.lightning.checkpoint_io import read_checkpoint
 from neuralbrdf.lightning.corpus_data import CorpusSamples
 from neuralbrdf.losses import l1_loss
 from neuralbrdf.models.nlb import COMPACT, LatentTable, NLBConfig, NLBNetwork
@@ -181,12 +182,7 @@ def load_pretrained(path: str | os.PathLike[str]) -> PretrainedNLB:
     Raises :class:`InputError` when the file is missing or is not such a checkpoint.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError("pretrained NLB checkpoint not found", path=path)
-    try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many kinds for a corrupt or foreign file
-        raise InputError(f"not a readable PyTorch checkpoint ({type(exc).__name__}: {exc})", path=path) from None
+    checkpoint = read_checkpoint(path, "pretrained NLB checkpoint")
     if not isinstance(checkpoint, dict) or "state_dict" not in checkpoint or "hyper_parameters" not in checkpoint:
         raise InputError("not a Lightning checkpoint (no state_dict / hyper_parameters)", path=path)
     hparams = checkpoint["hyper_parameters"]
