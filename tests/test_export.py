@@ -3,7 +3,6 @@
 PyTorch = onnxruntime = Dr.Jit on every kind's file, ``load_model`` accepts it, a graph that does
 not reproduce PyTorch is never written, bad checkpoints exit 2 with one line."""
 
-import importlib.util
 import math
 import subprocess
 import sys
@@ -17,6 +16,7 @@ import pytest
 import pytorch_lightning as pl
 import torch
 from drjit.llvm import Float
+from export_scripts import load_export_script
 
 from neuralbrdf.geometry import half_diff_angles, inplane_to_vectors
 from neuralbrdf.lightning.spectral_mlp_module import SpectralMlpModule
@@ -34,15 +34,7 @@ from neuralbrdf.render.onnx_contract import load_model
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _load_by_path(name, path):
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-to_onnx = _load_by_path("export_to_onnx_under_test", ROOT / "export" / "to_onnx.py")
+to_onnx = load_export_script("to_onnx")
 
 RTOL = to_onnx.RELATIVE_TOLERANCE
 ATOL = to_onnx.ABSOLUTE_FLOOR_SR

@@ -2,8 +2,6 @@
 variants with both backends, to PNG and EXR written atomically; passes split and weight the
 samples correctly; a Lambertian model renders like Mitsuba's own ``diffuse``; bad input exits 2."""
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import drjit as dr
@@ -12,19 +10,9 @@ import numpy as np
 import pytest
 
 import onnx_fixtures as fx
+from export_scripts import load_export_script
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _load_by_path(name, path):
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-render = _load_by_path("export_render_under_test", ROOT / "export" / "render.py")
+render = load_export_script("render")
 
 
 @pytest.fixture(scope="module")
