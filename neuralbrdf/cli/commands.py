@@ -18,9 +18,9 @@ from neuralbrdf.data.table import read_table, write_table
 from neuralbrdf.errors import InputError
 from neuralbrdf.plotting import DEFAULT_THETA_I_DEG, plot_inplane
 from neuralbrdf.virtual import instrument
+from neuralbrdf.virtual.materials import MATERIALS, REFERENCE_MATERIAL
 
-STAND_INS = ("cyan", "magenta", "gold", "gonio")
-REFERENCE_MATERIAL = "munsell_n9"
+STAND_INS = tuple(name for name in MATERIALS if name != REFERENCE_MATERIAL)
 
 
 def plan(args) -> None:

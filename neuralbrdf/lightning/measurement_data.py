@@ -35,9 +35,7 @@ from neuralbrdf.data.plans import SPECTRAL_MLP_TEST_THETA_I, spectral_mlp_split
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
 from neuralbrdf.virtual.instrument import default_data_path
-
-#: The Munsell N9 white of the shipped measurements.
-SHIPPED_REFERENCE = "munsell_n9"
+from neuralbrdf.virtual.materials import REFERENCE_MATERIAL
 
 
 class SpectralSamples(NamedTuple):
@@ -141,7 +139,7 @@ class MeasurementDataModule(pl.LightningDataModule):
             raise InputError(f"batch_size and eval_batch_size must be >= 1, got {batch_size} and {eval_batch_size}")
         if path is None:
             path = str(default_data_path(virtual_material))
-            reference = str(default_data_path(SHIPPED_REFERENCE)) if reference is None else reference
+            reference = str(default_data_path(REFERENCE_MATERIAL)) if reference is None else reference
         self.path = os.fspath(path)
         self.reference = None if reference is None else os.fspath(reference)
         self.batch_size = batch_size
