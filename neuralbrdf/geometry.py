@@ -33,8 +33,10 @@ DEG = math.pi / 180.0
 MIRROR_SIN_THETA_H = 3e-6
 
 
-def _xp(*arrays):
+def array_namespace_of(*arrays):
+    """The array-API namespace (NumPy or torch) of ``arrays``; Python scalars are ignored."""
     return array_namespace(*[a for a in arrays if not isinstance(a, (int, float))])
+
 
 
 def _stack3(xp, x, y, z):
@@ -47,7 +49,7 @@ def _clip_unit(xp, c):
 
 def normalize(v):
     """Scale vectors ``[..., 3]`` to unit length."""
-    xp = _xp(v)
+    xp = array_namespace_of(v)
     return v / xp.linalg.vector_norm(v, axis=-1, keepdims=True)
 
 
@@ -58,7 +60,7 @@ def dot(a, b):
 
 def spherical_to_vector(theta_deg, phi_deg):
     """Unit vector ``[..., 3]`` from polar ``theta`` and azimuth ``phi`` (degrees)."""
-    xp = _xp(theta_deg, phi_deg)
+    xp = array_namespace_of(theta_deg, phi_deg)
     t = theta_deg * DEG
     p = phi_deg * DEG
     st = xp.sin(t)
@@ -70,7 +72,7 @@ def vector_to_spherical(v):
 
     Vectors need not be normalised.
     """
-    xp = _xp(v)
+    xp = array_namespace_of(v)
     v = normalize(v)
     theta = xp.acos(_clip_unit(xp, v[..., 2])) / DEG
     phi = xp.atan2(v[..., 1], v[..., 0]) / DEG
@@ -82,7 +84,7 @@ def vector_to_spherical(v):
 
 def inplane_to_vectors(theta_i_deg, theta_r_deg):
     """``(wi, wo)`` for signed in-plane angles (degrees): the report's convention, SPEC §1."""
-    xp = _xp(theta_i_deg, theta_r_deg)
+    xp = array_namespace_of(theta_i_deg, theta_r_deg)
     ti = theta_i_deg * DEG
     tr = theta_r_deg * DEG
     zero_i = xp.zeros_like(ti)
@@ -103,7 +105,7 @@ def inplane_to_spherical(theta_i_deg, theta_r_deg):
     spectral MLP's train/test split (report Table 5.1) is asymmetric in ``theta_i``.
     :func:`spherical_to_inplane` reads both forms.
     """
-    xp = _xp(theta_i_deg, theta_r_deg)
+    xp = array_namespace_of(theta_i_deg, theta_r_deg)
     theta_i = xp.abs(theta_i_deg)
     theta_o = xp.abs(theta_r_deg)
     phi_i = xp.where(theta_i_deg < 0, 180.0, 0.0) + xp.zeros_like(theta_i)
@@ -117,7 +119,7 @@ IN_PLANE_TOLERANCE = 1e-9
 
 def in_plane_of_incidence(wi, wo):
     """True where ``wi``, ``wo`` and the normal are coplanar: ``|n · (wi × wo)| <= 1e-9``."""
-    xp = _xp(wi, wo)
+    xp = array_namespace_of(wi, wo)
     return xp.abs(wi[..., 0] * wo[..., 1] - wi[..., 1] * wo[..., 0]) <= IN_PLANE_TOLERANCE
 
 
@@ -128,7 +130,7 @@ def spherical_to_inplane(theta_i, phi_i, theta_o, phi_o):
     of ``theta_i`` included; any other pair gets its :func:`inplane_equivalent` (same
     Rusinkiewicz ``theta_h, theta_d``).  Inverse of :func:`inplane_to_spherical`.
     """
-    xp = _xp(theta_i, phi_i, theta_o, phi_o)
+    xp = array_namespace_of(theta_i, phi_i, theta_o, phi_o)
     wi, wo = spherical_pair_to_vectors(theta_i, phi_i, theta_o, phi_o)
     in_plane = (xp.abs(wi[..., 1]) < IN_PLANE_TOLERANCE) & (xp.abs(wo[..., 1]) < IN_PLANE_TOLERANCE)
     # wi = (sin ti, 0, cos ti), wo = (-sin tr, 0, cos tr): the polar angles carry the magnitudes
@@ -144,7 +146,7 @@ def half_vector_above(wi, wo):
     Below the horizon ``wi + wo`` may vanish; ``h`` is the normal there, so formulas can be
     evaluated everywhere without dividing by zero and masked with ``above`` afterwards.
     """
-    xp = _xp(wi, wo)
+    xp = array_namespace_of(wi, wo)
     above = (wi[..., 2] > 0.0) & (wo[..., 2] > 0.0)
     zero = xp.zeros_like(wi[..., 2])
     pole = _stack3(xp, zero, zero, zero + 1.0)
@@ -162,7 +164,7 @@ def half_diff_vectors(wi, wo):
     ``phi_h = phi_i`` (the limit along the plane of incidence), which keeps ``d`` invariant
     under rotations about the normal: ``d = (sin theta_i, 0, cos theta_i)``.
     """
-    xp = _xp(wi, wo)
+    xp = array_namespace_of(wi, wo)
     h = normalize(wi + wo)
     cos_th = _clip_unit(xp, h[..., 2])
     sin_th = xp.sqrt(xp.clip(1.0 - cos_th * cos_th, 0.0, None))
@@ -189,7 +191,7 @@ def half_diff_angles(wi, wo):
 
 def inplane_half_diff_angles(theta_i_deg, theta_r_deg):
     """Closed form for in-plane pairs: ``theta_h = |ti - tr|/2``, ``theta_d = |ti + tr|/2``."""
-    xp = _xp(theta_i_deg, theta_r_deg)
+    xp = array_namespace_of(theta_i_deg, theta_r_deg)
     return xp.abs(theta_i_deg - theta_r_deg) / 2.0, xp.abs(theta_i_deg + theta_r_deg) / 2.0
 
 
@@ -212,5 +214,5 @@ def spherical_pair_to_vectors(theta_i, phi_i, theta_o, phi_o):
 
 def reflect(w):
     """Mirror direction of ``w`` about the normal: ``(-x, -y, z)``."""
-    xp = _xp(w)
+    xp = array_namespace_of(w)
     return _stack3(xp, -w[..., 0], -w[..., 1], w[..., 2])

@@ -54,7 +54,7 @@ from torch import nn
 
 from neuralbrdf.data.csvio import read_csv_rows
 from neuralbrdf.errors import InputError
-from neuralbrdf.geometry import dot, half_vector_above, normalize
+from neuralbrdf.geometry import array_namespace_of, dot, half_vector_above, normalize
 from neuralbrdf.physics.fresnel import fresnel_dielectric
 
 #: Clamp (dimensionless) on ``cos ti``, ``cos to`` and ``wo·h`` in the specular denominators.
@@ -65,10 +65,6 @@ B_MIN_SAMPLING = 1e-12
 
 #: ``|1 - C| ln(1 + B)`` below this uses the ``C = 1`` limit of the normalisation and inverse CDF.
 _SERIES_EPS = 1e-8
-
-
-def _ns(*xs):
-    return array_namespace(*[x for x in xs if not isinstance(x, (int, float))])
 
 
 def _channel_vector(xp, values, like):
@@ -97,7 +93,7 @@ def abc_brdf(wi, wo, kd, A, B, C, eta):
         Scalars (Python floats or 0-d arrays): distribution width, fall-off exponent, index of
         refraction.
     """
-    xp = _ns(wi, wo)
+    xp = array_namespace_of(wi, wo)
     kd = _channel_vector(xp, kd, wi)
     A = _channel_vector(xp, A, wi)
     if kd.ndim != 1 or tuple(A.shape) != tuple(kd.shape):
@@ -379,7 +375,7 @@ def abc_pdf_half_vector(h, B, C):
 
     Zero for ``h`` at or below the horizon.
     """
-    xp = _ns(h)
+    xp = array_namespace_of(h)
     cos_h = h[..., 2]
     density = (1.0 + B * (1.0 - xp.clip(cos_h, 0.0, 1.0))) ** (-C) / abc_distribution_normalization(B, C)
     return xp.where(cos_h > 0.0, density, xp.zeros_like(density))
@@ -390,7 +386,7 @@ def abc_sample_half_vector(u1, u2, B, C):
 
     ``u1`` picks ``cos θh`` and ``u2`` the azimuth; both uniform in [0, 1), same shape.
     """
-    xp = _ns(u1, u2)
+    xp = array_namespace_of(u1, u2)
     B, log_1pb, s = _log_terms(B, C)
     s = s + xp.zeros_like(u1)
     near_one = xp.abs(s) < _SERIES_EPS
@@ -406,7 +402,7 @@ def abc_sample_half_vector(u1, u2, B, C):
 
 def sample_cosine_hemisphere(u1, u2):
     """Cosine-weighted directions ``[..., 3]`` on the upper hemisphere (density ``cos θ / π``)."""
-    xp = _ns(u1, u2)
+    xp = array_namespace_of(u1, u2)
     r = xp.sqrt(u1)
     phi = 2.0 * math.pi * u2
     return xp.stack([r * xp.cos(phi), r * xp.sin(phi), xp.sqrt(xp.clip(1.0 - u1, 0.0, None))], axis=-1)
@@ -424,7 +420,7 @@ def abc_pdf_reflected(wi, wo, B, C):
     half vectors with ``wi·h < 0`` send ``wo`` below the horizon, where the BRDF is zero, and
     this density still integrates to 1 over all ``wo``.
     """
-    xp = _ns(wi, wo)
+    xp = array_namespace_of(wi, wo)
     h = normalize(wi + wo)
     h = xp.where(h[..., 2:3] < 0.0, -h, h)
     return abc_pdf_half_vector(h, B, C) / (4.0 * xp.abs(dot(wo, h)))
@@ -438,7 +434,7 @@ def abc_sample(wi, u_select, u1, u2, B, C, specular_probability: float):
     direction drawn from the same ``(u1, u2)``.  Reflected directions can fall below the horizon
     (the BRDF is zero there).
     """
-    xp = _ns(wi, u_select, u1, u2)
+    xp = array_namespace_of(wi, u_select, u1, u2)
     reflected = _reflect_about(wi, abc_sample_half_vector(u1, u2, B, C))
     diffuse = sample_cosine_hemisphere(u1, u2)
     return xp.where((u_select < specular_probability)[..., None], reflected, diffuse)
@@ -446,7 +442,7 @@ def abc_sample(wi, u_select, u1, u2, B, C, specular_probability: float):
 
 def abc_pdf(wi, wo, B, C, specular_probability: float):
     """Density (sr⁻¹) of :func:`abc_sample`: ``p_s · p_reflected + (1 - p_s) · max(cos θo, 0) / π``."""
-    xp = _ns(wi, wo)
+    xp = array_namespace_of(wi, wo)
     cosine = xp.clip(wo[..., 2], 0.0, None) / math.pi
     return specular_probability * abc_pdf_reflected(wi, wo, B, C) + (1.0 - specular_probability) * cosine
 

@@ -16,16 +16,12 @@ incident direction and the (micro)surface normal, clipped to [0, 1].
 
 from __future__ import annotations
 
-from array_api_compat import array_namespace
-
-
-def _ns(*xs):
-    return array_namespace(*[x for x in xs if not isinstance(x, (int, float))])
+from neuralbrdf.geometry import array_namespace_of
 
 
 def fresnel_dielectric(cos_theta, eta):
     """Exact unpolarised Fresnel reflectance of a dielectric with relative index ``eta``."""
-    xp = _ns(cos_theta, eta)
+    xp = array_namespace_of(cos_theta, eta)
     c = xp.clip(cos_theta, 0.0, 1.0)
     g2 = eta * eta - 1.0 + c * c
     tir = g2 <= 0.0
@@ -38,7 +34,7 @@ def fresnel_dielectric(cos_theta, eta):
 
 def fresnel_conductor(cos_theta, eta, k):
     """Exact unpolarised Fresnel reflectance of a conductor with complex index ``eta + i k``."""
-    xp = _ns(cos_theta, eta, k)
+    xp = array_namespace_of(cos_theta, eta, k)
     c = xp.clip(cos_theta, 0.0, 1.0)
     c2 = c * c
     s2 = 1.0 - c2

@@ -31,19 +31,14 @@ import math
 from collections.abc import Callable
 
 import numpy as np
-from array_api_compat import array_namespace
 from scipy.special import erf
 
-from neuralbrdf.geometry import dot, half_vector_above
-
-
-def _ns(*xs):
-    return array_namespace(*[x for x in xs if not isinstance(x, (int, float))])
+from neuralbrdf.geometry import array_namespace_of, dot, half_vector_above
 
 
 def ggx_distribution(cos_theta_h, alpha):
     """GGX (Trowbridge–Reitz) normal distribution ``D(h)`` in sr⁻¹; zero for ``cosθh <= 0``."""
-    xp = _ns(cos_theta_h, alpha)
+    xp = array_namespace_of(cos_theta_h, alpha)
     c2 = cos_theta_h * cos_theta_h
     a2 = alpha * alpha
     denom = c2 * (a2 - 1.0) + 1.0
@@ -53,7 +48,7 @@ def ggx_distribution(cos_theta_h, alpha):
 
 def beckmann_distribution(cos_theta_h, alpha):
     """Beckmann normal distribution ``D(h)`` in sr⁻¹; zero for ``cosθh <= 0``."""
-    xp = _ns(cos_theta_h, alpha)
+    xp = array_namespace_of(cos_theta_h, alpha)
     positive = cos_theta_h > 0.0
     c2 = xp.where(positive, cos_theta_h * cos_theta_h, xp.ones_like(cos_theta_h))
     a2 = alpha * alpha
@@ -68,7 +63,7 @@ def ggx_smith_g1(cos_theta, alpha):
     Zero for ``cosθ <= 0``.  Valid for directions on the visible side of the microfacet
     (``v·h > 0``), which always holds for the half vector of a reflection pair.
     """
-    xp = _ns(cos_theta, alpha)
+    xp = array_namespace_of(cos_theta, alpha)
     positive = cos_theta > 0.0
     c = xp.where(positive, xp.clip(cos_theta, 0.0, 1.0), xp.ones_like(cos_theta))
     a2 = alpha * alpha
@@ -127,7 +122,7 @@ def microfacet_brdf(wi, wo, alpha, fresnel_fn: Callable, distribution: str = "gg
     horizon.
     """
     distribution_fn, smith_g1 = DISTRIBUTIONS[distribution]
-    xp = _ns(wi, wo)
+    xp = array_namespace_of(wi, wo)
     cos_i = wi[..., 2]
     cos_o = wo[..., 2]
     h, above = half_vector_above(wi, wo)

@@ -23,9 +23,8 @@ from __future__ import annotations
 
 import math
 
-from array_api_compat import array_namespace
-
 from neuralbrdf.errors import InputError
+from neuralbrdf.geometry import array_namespace_of
 
 
 def _snell_cos(xp, sin2_ambient, ratio):
@@ -75,7 +74,7 @@ def thin_film_reflectance(
     n1 = _check_scalar("film_index", film_index, n0)
     n2 = _check_scalar("substrate_index", substrate_index, n0)
     d = _check_scalar("thickness_nm", thickness_nm, 0.0)
-    xp = array_namespace(*[x for x in (cos_theta, wavelength_nm) if not isinstance(x, (int, float))])
+    xp = array_namespace_of(cos_theta, wavelength_nm)
     wavelength_nm = xp.asarray(wavelength_nm)
     if not bool(xp.all(wavelength_nm > 0.0)):
         raise InputError("wavelength_nm must be positive (nm)")
