@@ -272,6 +272,16 @@ def _probe_quadrature(n_theta: int = 64, n_phi: int = 48) -> _Probe:
     return _Probe(wi=wi, wo=wo, d_omega_o=d_omega_o, cos_o=np.clip(wo[..., 2], 0.0, None))
 
 
+def probe_direction_pairs() -> tuple[np.ndarray, np.ndarray]:
+    """``(wi, wo)`` float32 ``[M, 3]``: the usable pairs of the probe quadrature, both above the
+    horizon (dense around the mirror direction; used to fit other load-time approximations)."""
+    probe = _probe_quadrature()
+    usable = probe.d_omega_o > 0
+    n_dirs = probe.d_omega_o.shape[1]
+    wi = np.repeat(probe.wi, n_dirs, axis=0)[usable.reshape(-1)]
+    return wi.astype(np.float32), probe.wo[usable].astype(np.float32)
+
+
 def _probe_values(brdf: ProbeFunction, probe: _Probe) -> np.ndarray:
     """``f`` on the probe quadrature, ``[P, M]``, from one call of ``brdf``."""
     n_probe, n_dirs = probe.d_omega_o.shape

@@ -1,0 +1,139 @@
+"""Fewer wavelengths for rendering a spectral model in an RGB variant (SPEC §2.3, §7).
+
+In RGB variants the ``neuralbrdf`` BSDF returns a spectral model's linear sRGB value, the
+integral of SPEC §2.3 (CIE 1931 2° × D65, IEC 61966-2-1 matrix) on the 31-wavelength grid
+400–700 nm at 10 nm::
+
+    rgb_c(wi, wo) = Σ_{k=1..31} W[k, c] f(wi, wo, λ_k)
+
+That is 31 network evaluations per query.  The spectra a trained model produces are smooth in
+λ and span a low-dimensional space, so the same integral is reproduced by a few of the 31
+wavelengths with re-fitted weights: an *empirical quadrature* for this model (the idea of
+empirical interpolation and empirical cubature; Barrault et al. 2004, Hernández et al. 2017)::
+
+    rgb_c ≈ Σ_{j=1..K} V[j, c] f(wi, wo, λ_{k_j})
+
+:func:`fit_reduced_quadrature` chooses the nodes ``k_j`` greedily (each step adds the grid
+wavelength that most reduces the fit error) and the weights ``V`` by least squares, on spectra
+of the model itself, *relative* to each probe's colour so that dim directions count as much as
+the specular peak.  It stops at the first ``K`` whose error on probes held out of the fit meets
+:data:`TOLERANCE`; the reached error is reported with the rule, and a model whose spectra do not
+compress keeps all 31 wavelengths (then the rule is the full integral, exactly).
+
+Error measure: per probe, ``|rgb_K − rgb_31|₂ / (|rgb_31|₂ + floor)`` with ``floor`` =
+:data:`RELATIVE_FLOOR` × the largest ``|rgb_31|₂`` among the probes (values far below the peak
+are judged against it, not against themselves).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Held-out error the reduced rule must meet: root-mean-square and largest relative error.
+TOLERANCE = {"rms": 1e-3, "max": 1e-2}
+
+#: Floor of the relative error's denominator, as a fraction of the brightest probe colour.
+RELATIVE_FLOOR = 1e-3
+
+#: Fraction of the probes held out of the fit to measure its error.
+HOLDOUT_FRACTION = 0.5
+
+
+@dataclass(frozen=True)
+class ReducedQuadrature:
+    """``rgb = Σ_j weights[j] · f(wavelengths_nm[j])``, with its held-out error."""
+
+    wavelengths_nm: tuple[float, ...]
+    weights: np.ndarray  # [K, 3]
+    rms_relative_error: float
+    max_relative_error: float
+    full_size: int
+
+    @property
+    def size(self) -> int:
+        return len(self.wavelengths_nm)
+
+    def describe(self) -> str:
+        return (
+            f"{self.size} of {self.full_size} wavelengths "
+            f"({', '.join(f'{w:g}' for w in self.wavelengths_nm)} nm; held-out relative error "
+            f"rms {self.rms_relative_error:.1e}, max {self.max_relative_error:.1e})"
+        )
+
+
+def _relative_errors(approx: np.ndarray, exact: np.ndarray, floor: float) -> np.ndarray:
+    return np.linalg.norm(approx - exact, axis=1) / (np.linalg.norm(exact, axis=1) + floor)
+
+
+def _solve(spectra: np.ndarray, target: np.ndarray, row_weights: np.ndarray, nodes: list[int]):
+    """Least-squares weights ``[K, 3]`` of the node columns, each probe row scaled by its weight."""
+    a = spectra[:, nodes] * row_weights[:, None]
+    b = target * row_weights[:, None]
+    weights, *_ = np.linalg.lstsq(a, b, rcond=None)
+    return weights
+
+
+def fit_reduced_quadrature(
+    spectra: np.ndarray,
+    wavelengths_nm: np.ndarray,
+    weights: np.ndarray,
+    seed: int = 0,
+) -> ReducedQuadrature:
+    """The smallest node subset of ``wavelengths_nm`` reproducing ``spectra @ weights``.
+
+    Parameters
+    ----------
+    spectra:
+        ``[M, W]`` model values of ``M`` probe direction pairs at the ``W`` grid wavelengths.
+    wavelengths_nm:
+        ``[W]`` grid, nm.
+    weights:
+        ``[W, 3]`` full rule (spectrum → linear sRGB).
+    seed:
+        Seed of the fit / held-out split of the probes.
+    """
+    spectra = np.asarray(spectra, dtype=np.float64)
+    weights = np.asarray(weights, dtype=np.float64)
+    n_probes, n_wavelengths = spectra.shape
+    if weights.shape != (n_wavelengths, 3) or len(wavelengths_nm) != n_wavelengths:
+        raise ValueError(
+            f"spectra {spectra.shape}, wavelengths {len(wavelengths_nm)} and weights "
+            f"{weights.shape} do not match ([M, W], [W], [W, 3])"
+        )
+    if n_probes < 2 or not np.all(np.isfinite(spectra)):
+        raise ValueError("need at least two probe spectra, all finite")
+    exact = spectra @ weights
+    floor = RELATIVE_FLOOR * max(float(np.linalg.norm(exact, axis=1).max()), 1e-30)
+    row_weights = 1.0 / (np.linalg.norm(exact, axis=1) + floor)
+    order = np.random.default_rng(seed).permutation(n_probes)
+    n_holdout = max(1, int(round(HOLDOUT_FRACTION * n_probes)))
+    held, fit = order[:n_holdout], order[n_holdout:]
+
+    nodes: list[int] = []
+    while len(nodes) < n_wavelengths:
+        candidates = [k for k in range(n_wavelengths) if k not in nodes]
+        residuals = []
+        for k in candidates:
+            trial = nodes + [k]
+            v = _solve(spectra[fit], exact[fit], row_weights[fit], trial)
+            r = (spectra[fit][:, trial] @ v - exact[fit]) * row_weights[fit, None]
+            residuals.append(float(np.sum(r * r)))
+        nodes.append(candidates[int(np.argmin(residuals))])
+        v = _solve(spectra[fit], exact[fit], row_weights[fit], nodes)
+        errors = _relative_errors(spectra[held][:, nodes] @ v, exact[held], floor)
+        rms, worst = float(np.sqrt(np.mean(errors**2))), float(errors.max())
+        if rms <= TOLERANCE["rms"] and worst <= TOLERANCE["max"]:
+            break
+    if len(nodes) == n_wavelengths:
+        nodes, v, rms, worst = list(range(n_wavelengths)), weights, 0.0, 0.0
+    order_by_wavelength = np.argsort([wavelengths_nm[k] for k in nodes])
+    nodes = [nodes[i] for i in order_by_wavelength]
+    return ReducedQuadrature(
+        wavelengths_nm=tuple(float(wavelengths_nm[k]) for k in nodes),
+        weights=np.ascontiguousarray(v[order_by_wavelength]),
+        rms_relative_error=rms,
+        max_relative_error=worst,
+        full_size=n_wavelengths,
+    )
