@@ -4,7 +4,9 @@
 
 1. **Model.** Trains the spectral MLP on the shipped virtual gold measurement
    (``train.py fit --config configs/spectral_mlp.yaml``, fewer epochs with ``--quick``) and
-   exports it with ``export/to_onnx.py``.
+   exports it with ``export/to_onnx.py``; likewise a ReLU ablation of it
+   (``--model.activation relu``: the cheapest activation, less accurate) to show what the
+   activation costs.
 2. **Renders.** For each variant (``llvm_ad_rgb``, ``llvm_ad_spectral``) the material-preview
    scene of ``export/render.py`` is rendered at one resolution and sample count with
 
@@ -14,7 +16,8 @@
    * ``onnxruntime/wavefront`` — the model through ``onnxruntime`` (one batched call per
      wavefront; needs wavefront mode);
    * ``flat_model_drjit/symbolic`` — a nearly free spectral model (:class:`FlatSpectrum`)
-     through ``drjit``: the plugin's cost without a network.
+     through ``drjit``: the plugin's cost without a network;
+   * ``relu_model_drjit/symbolic`` — the ReLU ablation through ``drjit``.
 
    The first render of each (scene already loaded; kernel tracing and compilation, possibly a
    hit in Dr.Jit's on-disk kernel cache) is timed separately, then the median of ``repeats``
@@ -22,14 +25,16 @@
    the same pass split (the wavefront budget of ``export/render.py``), and only one scene is
    loaded at a time.  The figures are the ratios
    ``drjit/symbolic : roughconductor/symbolic``, ``onnxruntime/wavefront :
-   roughconductor/wavefront``, ``onnxruntime/wavefront : roughconductor/symbolic`` and
-   ``flat_model_drjit/symbolic : roughconductor/symbolic``.
+   roughconductor/wavefront``, ``onnxruntime/wavefront : roughconductor/symbolic``,
+   ``flat_model_drjit/symbolic : roughconductor/symbolic`` and
+   ``relu_model_drjit/symbolic : roughconductor/symbolic``.
 3. **Throughput.** Raw model evaluation, queries per second at one batch size (10⁶; one query
    is one ``(wi, wo[, λ])``), for PyTorch (the :mod:`neuralbrdf.models.directional` module),
    onnxruntime (the exported file) and Dr.Jit (:class:`~neuralbrdf.render.drjit_onnx.DrJitGraph`
    on ``drjit.llvm`` arrays, ``dr.eval`` timed, tracing included) — for the spectral MLP, the
    compact NLB (the shipped pretrained network if present, else random weights of the same size:
-   speed does not depend on the values, as long as none is zero) and the ABC model.  Warm-up call first (its time
+   speed does not depend on the values, as long as none is zero), the ABC model and the ReLU
+   spectral MLP.  Warm-up call first (its time
    reported as ``first_call_s``), then the median of ``repeats`` calls.
 
 Targets quoted beside the results (not asserted): Dr.Jit render ≤ 1.1× roughconductor,
@@ -80,10 +85,12 @@ RENDER_CONFIGS = (
     ("drjit/symbolic", "trained", "drjit", False),
     ("onnxruntime/wavefront", "trained", "onnxruntime", True),
     ("flat_model_drjit/symbolic", "flat", "drjit", False),
+    ("relu_model_drjit/symbolic", "relu", "drjit", False),
 )
 RATIOS = {
     "drjit_vs_roughconductor_symbolic": ("drjit/symbolic", "roughconductor/symbolic"),
     "flat_model_drjit_vs_roughconductor_symbolic": ("flat_model_drjit/symbolic", "roughconductor/symbolic"),
+    "relu_model_drjit_vs_roughconductor_symbolic": ("relu_model_drjit/symbolic", "roughconductor/symbolic"),
     "onnxruntime_vs_roughconductor_wavefront": ("onnxruntime/wavefront", "roughconductor/wavefront"),
     "onnxruntime_vs_roughconductor_symbolic": ("onnxruntime/wavefront", "roughconductor/symbolic"),
 }
@@ -157,21 +164,24 @@ def machine() -> dict:
 # --------------------------------------------------------------------------- model
 
 
-def train_and_export(settings: Settings, workdir: Path) -> dict:
-    """Train the spectral MLP with train.py and export it; paths and wall times."""
-    run_dir = workdir / "spectral_mlp_run"
+def train_and_export(settings: Settings, workdir: Path, activation: str = "tanh") -> dict:
+    """Train the spectral MLP with train.py (config as shipped, or another hidden activation)
+    and export it; paths and wall times."""
+    run_dir = workdir / f"spectral_mlp_{activation}_run"
     command = [
         sys.executable, str(ROOT / "train.py"), "fit", "--config", str(ROOT / "configs" / "spectral_mlp.yaml"),
         "--trainer.max_epochs", str(settings.epochs), "--run_dir", str(run_dir), "--seed_everything", str(SEED),
+        "--model.activation", activation,
     ]
     train_s = _timed(lambda: subprocess.run(command, cwd=ROOT, check=True, capture_output=True, text=True))
     metrics = json.loads((run_dir / "metrics.json").read_text())
-    model = workdir / "gold_spectral_mlp.onnx"
+    model = workdir / f"gold_spectral_mlp_{activation}.onnx"
     checkpoint = run_dir / "checkpoints" / "best.ckpt"
     start = time.perf_counter()
     report = to_onnx.export(checkpoint, model)
     export_s = time.perf_counter() - start
     return {
+        "activation": activation,
         "path": str(model),
         "checkpoint": str(checkpoint),
         "epochs": settings.epochs,
@@ -228,6 +238,13 @@ def bench_renders(models: dict[str, Path], variant: str, settings: Settings) -> 
         start = time.perf_counter()
         scene = render_cmd.load_scene(materials[name], settings.resolution)
         load_s = time.perf_counter() - start
+        rules = [rule for shape in scene.shapes() if (rule := getattr(shape.bsdf(), "rgb_rule", None))]
+        if rules:  # a spectral model in an RGB variant: how many wavelengths it costs
+            results[name]["rgb_rule"] = {
+                "wavelengths_nm": list(rules[0].wavelengths_nm),
+                "rms_relative_error": rules[0].rms_relative_error,
+                "max_relative_error": rules[0].max_relative_error,
+            }
         start = time.perf_counter()
         image = render_cmd.render_passes(scene, settings.spp, spp_per_pass, seed, results[name]["wavefront"])
         render_s = time.perf_counter() - start
@@ -359,32 +376,36 @@ def _exportable(module: torch.nn.Module, kind: str):
 
 def _table(results: dict) -> str:
     lines = []
-    model = results["model"]
     lines.append(
         f"machine: {results['machine']['cpu']}, {results['machine']['cores']} cores; "
         f"scene {results['settings']['resolution']}^2 x {results['settings']['spp']} spp, "
         f"median of {results['settings']['repeats']}"
     )
-    lines.append(
-        f"spectral MLP: {model['epochs']} epochs, val glossy rel. RMSE {model['val_rel_rmse_glossy_median']:.3g}"
-    )
+    for key in ("model", "relu_model"):
+        model = results[key]
+        lines.append(
+            f"spectral MLP ({model['activation']}): {model['epochs']} epochs, "
+            f"val glossy rel. RMSE {model['val_rel_rmse_glossy_median']:.3g}"
+        )
     lines.append("")
     lines.append(f"{'variant':<18}{'configuration':<26}{'first call s':>13}{'median s':>10}{'ns/sample':>11}")
     for variant, entry in results["render"].items():
         for name, r in entry["configs"].items():
+            rule = r.get("rgb_rule")
             lines.append(
                 f"{variant:<18}{name:<26}{r['first_call_s']:>13.2f}{r['median_s']:>10.3f}"
                 f"{r['ns_per_path_sample']:>11.0f}"
+                + (f"  (sRGB from {len(rule['wavelengths_nm'])} of 31 wavelengths)" if rule else "")
             )
         for key, value in entry["ratios"].items():
             target = TARGETS.get(key, "")
             lines.append(f"{'':<18}{key:<44}{value:>8.2f}x  {('target ' + target) if target else ''}")
     lines.append("")
-    lines.append(f"{'model':<16}{'backend':<14}{'first call s':>13}{'median s':>10}{'M queries/s':>13}")
+    lines.append(f"{'model':<20}{'backend':<14}{'first call s':>13}{'median s':>10}{'M queries/s':>13}")
     for name, entry in results["throughput"].items():
         for backend, r in entry["backends"].items():
             lines.append(
-                f"{name:<16}{backend:<14}{r['first_call_s']:>13.3f}{r['median_s']:>10.4f}"
+                f"{name:<20}{backend:<14}{r['first_call_s']:>13.3f}{r['median_s']:>10.4f}"
                 f"{r['queries_per_s'] / 1e6:>13.1f}"
             )
     target = TARGETS["fastest_backend_queries_per_s"]
@@ -406,14 +427,20 @@ def run(quick: bool, out: Path) -> dict:
     with tempfile.TemporaryDirectory(prefix="neuralbrdf-bench-") as tmp:
         workdir = Path(tmp)
         results["model"] = train_and_export(settings, workdir)
-        model_path = Path(results["model"]["path"])
-        render_models = {"trained": model_path, "flat": write_flat_model(workdir / "flat.onnx")}
+        results["relu_model"] = train_and_export(settings, workdir, activation="relu")
+        render_models = {
+            "trained": Path(results["model"]["path"]),
+            "flat": write_flat_model(workdir / "flat.onnx"),
+            "relu": Path(results["relu_model"]["path"]),
+        }
         results["render"] = {variant: bench_renders(render_models, variant, settings) for variant in VARIANTS}
 
         spectral = to_onnx.load_exportable(results["model"]["checkpoint"])
+        spectral_relu = to_onnx.load_exportable(results["relu_model"]["checkpoint"])
         nlb, nlb_note = nlb_module()
         models = {
             "spectral_mlp": (spectral, "trained above"),
+            "spectral_mlp_relu": (spectral_relu, "ReLU ablation, trained above"),
             "nlb_compact": (_exportable(nlb, "nlb"), nlb_note),
             "abc": (_exportable(AbcOnDirections(ABC_BENCH_PARAMETERS), "abc"), "analytic, fixed parameters"),
         }
