@@ -1,7 +1,7 @@
 """Render an exported model (SPEC §6) in the shipped material-preview scene with Mitsuba 3 (SPEC §7).
 
     python export/render.py --model MODEL.onnx --out IMAGE.png [--exr] [--variant llvm_ad_rgb]
-        [--backend drjit|onnxruntime] [--spp 64] [--resolution 256] [--seed 0]
+        [--backend drjit|onnxruntime] [--spp 64] [--resolution 256] [--seed 0] [--rgb-tolerance 1e-3]
     python export/render.py --reference-bsdf roughconductor --out REF.png ...
 
 The scene is ``export/scenes/material_preview.xml`` (a sphere on a checkerboard floor, constant
@@ -13,9 +13,13 @@ sky plus two area lights, all procedural); the material comes from ``scenes/mate
 paths (:data:`PASS_LANES_WAVEFRONT` for the onnxruntime backend; ``--spp-per-pass``
 overrides), each an ``mi.render`` call with its own seed (drawn from ``--seed``); the image is
 their sample-weighted mean.  Memory therefore depends on the pass size, not on ``--spp``
-(measured peak resident memory at 512 x 512: 0.35 GB with ``drjit``, 2.0 GB with
+(measured peak resident memory at 512 x 512: 0.34 GB with ``drjit``, 0.78 GB with
 ``onnxruntime`` for a spectral MLP in ``llvm_ad_rgb``, the worst case).  Progress is shown
 per pass on stderr.
+
+**Spectral models in RGB variants** are integrated to sRGB through the plugin's reduced rule
+(``--rgb-tolerance``, its held-out rms relative error, default 1e-3; ``0`` for all 31
+wavelengths), see :mod:`neuralbrdf.render.mitsuba_bsdf`.
 
 **Backends.** ``drjit`` renders in Dr.Jit's default symbolic mode (the network fused into the
 kernel); ``onnxruntime`` needs wavefront mode (``SymbolicLoops``/``SymbolicCalls`` off), which
@@ -45,6 +49,7 @@ from tqdm import tqdm
 
 from neuralbrdf.atomic import atomic_path
 from neuralbrdf.errors import InputError
+from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE
 
 SCENE_DIR = Path(__file__).resolve().parent / "scenes"
 SCENE_FILE = SCENE_DIR / "material_preview.xml"
@@ -95,6 +100,7 @@ class Material:
     model: Path | None = None
     backend: str = "drjit"
     reference_bsdf: str | None = None
+    rgb_tolerance: float = DEFAULT_RMS_TOLERANCE
 
     def __post_init__(self) -> None:
         if (self.model is None) == (self.reference_bsdf is None):
@@ -113,7 +119,12 @@ class Material:
     def scene_parameters(self) -> dict[str, str]:
         if self.reference_bsdf is not None:
             return {"material": REFERENCE_BSDFS[self.reference_bsdf]}
-        return {"material": NEURAL_MATERIAL, "model": str(Path(self.model).resolve()), "backend": self.backend}
+        return {
+            "material": NEURAL_MATERIAL,
+            "model": str(Path(self.model).resolve()),
+            "backend": self.backend,
+            "rgb_tolerance": repr(float(self.rgb_tolerance)),
+        }
 
     def describe(self) -> str:
         if self.reference_bsdf is not None:
@@ -220,6 +231,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--exr", action="store_true", help="also write the linear image as OUT with suffix .exr")
     parser.add_argument("--variant", default=DEFAULT_VARIANT, help=f"Mitsuba variant (default {DEFAULT_VARIANT})")
     parser.add_argument("--backend", choices=BACKENDS, default="drjit", help="model evaluation (default drjit)")
+    parser.add_argument(
+        "--rgb-tolerance",
+        type=float,
+        default=DEFAULT_RMS_TOLERANCE,
+        help="spectral models in RGB variants: held-out rms relative error of the fitted few-wavelength "
+        f"sRGB rule (default {DEFAULT_RMS_TOLERANCE:g}; 0: integrate all 31 wavelengths)",
+    )
     parser.add_argument("--spp", type=int, default=64, help="samples per pixel (default 64)")
     parser.add_argument("--resolution", type=int, default=256, help="image width = height in pixels (default 256)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the pass seeds (default 0)")
@@ -245,6 +263,7 @@ def main(argv: list[str] | None = None) -> int:
             model=None if args.model is None else Path(args.model),
             backend=args.backend,
             reference_bsdf=args.reference_bsdf,
+            rgb_tolerance=args.rgb_tolerance,
         )
         start = time.perf_counter()
         image = render(

@@ -116,6 +116,8 @@ def test_register_is_idempotent_and_checks_properties(variant, files):
         load(files["ggx"], backend="torch")
     with pytest.raises(Exception, match="needs a 'filename' property"):
         mi.load_dict({"type": "neuralbrdf"})
+    with pytest.raises(Exception, match=r"rgb_tolerance must be in \[0, 1\)"):
+        mi.load_dict({"type": "neuralbrdf", "filename": str(files["ggx"]), "rgb_tolerance": -0.1})
 
 
 def test_bad_file_fails_at_scene_load_naming_it(variant, tmp_path):

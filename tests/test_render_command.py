@@ -110,6 +110,7 @@ BAD_ARGUMENTS = {
     "unknown variant": (["--model", "{spectral}", "--variant", "llvm_ad_rgbx"], "unknown Mitsuba variant"),
     "scalar variant": (["--model", "{spectral}", "--variant", "scalar_rgb"], "does not support Mitsuba variant"),
     "no samples": (["--model", "{spectral}", "--spp", "0"], "spp must be a positive integer"),
+    "bad rgb tolerance": (["--model", "{spectral}", "--rgb-tolerance", "2"], "rgb_tolerance must be in [0, 1)"),
 }
 
 

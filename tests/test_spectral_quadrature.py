@@ -8,7 +8,7 @@ import pytest
 
 import onnx_fixtures as fx
 from neuralbrdf.data.colorimetry import XYZ_TO_LINEAR_SRGB, spectral_to_linear_srgb, xyz_weights
-from neuralbrdf.render.spectral_quadrature import TOLERANCE, fit_reduced_quadrature
+from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE, MAX_TO_RMS, fit_reduced_quadrature
 
 GRID = np.arange(400.0, 701.0, 10.0)
 WEIGHTS = xyz_weights(GRID) @ XYZ_TO_LINEAR_SRGB.T
@@ -40,7 +40,7 @@ def test_white_noise_spectra_keep_almost_every_wavelength():
     spectra = rng.uniform(0.0, 1.0, (400, len(GRID)))
     rule = fit_reduced_quadrature(spectra, GRID, WEIGHTS)
     # Only the ends, where the colour matching functions vanish, can be dropped.
-    assert rule.size >= 25 and rule.max_relative_error <= TOLERANCE["max"]
+    assert rule.size >= 25 and rule.max_relative_error <= MAX_TO_RMS * DEFAULT_RMS_TOLERANCE
 
 
 def test_incompressible_spectra_keep_the_full_rule():
@@ -49,6 +49,16 @@ def test_incompressible_spectra_keep_the_full_rule():
     rule = fit_reduced_quadrature(spectra, GRID, weights)
     assert rule.size == len(GRID) and rule.max_relative_error == 0.0
     np.testing.assert_array_equal(rule.weights, weights)
+
+
+def test_zero_tolerance_is_the_full_rule_and_looser_tolerances_need_fewer_wavelengths():
+    basis = np.stack([gaussian(c, 50) for c in (420, 480, 540, 600, 660)])
+    spectra = rng.uniform(0.0, 1.0, (600, 5)) @ basis
+    full = fit_reduced_quadrature(spectra, GRID, WEIGHTS, rms_tolerance=0.0)
+    assert full.size == len(GRID) and full.rms_relative_error == 0.0
+    np.testing.assert_array_equal(full.weights, WEIGHTS)
+    sizes = [fit_reduced_quadrature(spectra, GRID, WEIGHTS, rms_tolerance=t).size for t in (1e-6, 1e-3, 3e-2)]
+    assert sizes[0] >= sizes[1] >= sizes[2] and sizes[2] < sizes[0]
 
 
 @pytest.mark.parametrize(
@@ -65,16 +75,29 @@ def test_bad_arguments_are_refused(spectra, weights, message):
         fit_reduced_quadrature(spectra, GRID, weights)
 
 
-def test_plugin_rule_reproduces_the_full_integral_on_fresh_directions(tmp_path):
-    """The rule fitted at load agrees with the 31-wavelength integral away from its probe set."""
+@pytest.mark.parametrize("tolerance", [-1e-3, 1.0])
+def test_bad_tolerance_is_refused(tolerance):
+    with pytest.raises(ValueError, match="rms_tolerance"):
+        fit_reduced_quadrature(np.ones((4, 31)), GRID, WEIGHTS, rms_tolerance=tolerance)
+
+
+@pytest.mark.parametrize("backend", ["drjit", "onnxruntime"])
+@pytest.mark.parametrize("tolerance", [DEFAULT_RMS_TOLERANCE, 0.0])
+def test_plugin_rule_reproduces_the_full_integral_on_fresh_directions(tmp_path, backend, tolerance):
+    """The rule fitted at load agrees with the 31-wavelength integral away from its probe set;
+    ``rgb_tolerance = 0`` is that integral to float32 rounding."""
     mi = pytest.importorskip("mitsuba")
+    dr = pytest.importorskip("drjit")
     mi.set_variant("llvm_ad_rgb")
     from neuralbrdf.render import register
 
     register()
     path = fx.write_inplane_spectral(tmp_path / "inplane.onnx")
-    bsdf = mi.load_dict({"type": "neuralbrdf", "filename": str(path), "backend": "drjit"})
+    bsdf = mi.load_dict(
+        {"type": "neuralbrdf", "filename": str(path), "backend": backend, "rgb_tolerance": tolerance}
+    )
     assert "of 31 wavelengths" in str(bsdf)
+    assert bsdf.rgb_rule.size == 31 if tolerance == 0 else bsdf.rgb_rule.size < 31
     n = 2000
     wi = rng.normal(size=(n, 3))
     wo = rng.normal(size=(n, 3))
@@ -83,7 +106,11 @@ def test_plugin_rule_reproduces_the_full_integral_on_fresh_directions(tmp_path):
         v /= np.linalg.norm(v, axis=1, keepdims=True)
     si = mi.SurfaceInteraction3f()
     si.wi = mi.Vector3f(wi.T.astype(np.float32))
-    value = bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(wo.T.astype(np.float32))).numpy().T / wo[:, 2:3]
+    with dr.scoped_set_flag(dr.JitFlag.SymbolicCalls, backend == "drjit"), dr.scoped_set_flag(
+        dr.JitFlag.SymbolicLoops, backend == "drjit"
+    ):
+        value = bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(wo.T.astype(np.float32))).numpy().T
+    value = value / wo[:, 2:3]
     session = onnxruntime.InferenceSession(str(path))
     feeds = {
         "wi": np.tile(wi, (len(GRID), 1)).astype(np.float32),
@@ -94,5 +121,8 @@ def test_plugin_rule_reproduces_the_full_integral_on_fresh_directions(tmp_path):
     exact = np.clip(spectral_to_linear_srgb(spectra.astype(np.float64), GRID), 0.0, None)
     scale = np.linalg.norm(exact, axis=1) + 1e-3 * np.linalg.norm(exact, axis=1).max()
     errors = np.linalg.norm(value - exact, axis=1) / scale
-    assert np.sqrt(np.mean(errors**2)) < 3 * TOLERANCE["rms"]
-    assert errors.max() < 3 * TOLERANCE["max"]
+    if tolerance == 0:
+        assert errors.max() < 1e-5
+    else:
+        assert np.sqrt(np.mean(errors**2)) < 3 * tolerance
+        assert errors.max() < 3 * MAX_TO_RMS * tolerance

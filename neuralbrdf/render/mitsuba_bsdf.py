@@ -23,6 +23,10 @@ Properties
         dr.set_flag(dr.JitFlag.SymbolicCalls, False)
 
     (checked at every call, with an error saying so).  Not differentiable.
+``rgb_tolerance``
+    Spectral models in RGB variants only: held-out rms relative error of the reduced
+    spectrum → sRGB rule fitted at load (default 1e-3; ``0`` integrates all 31 wavelengths
+    exactly, at 31 network evaluations per query).  See *Colour* below.
 
 Any other property fails loading (Mitsuba reports unreferenced properties).
 
@@ -52,7 +56,8 @@ The last row makes a flat spectrum ``c`` render as about ``(c, c, c)`` and keeps
 spectral models consistent with the project's own sRGB conversion
 (:mod:`neuralbrdf.data.colorimetry`).  The full rule costs 31 network evaluations per query;
 at load the plugin fits a rule on a few of the 31 wavelengths that reproduces it on the model's
-own spectra (:mod:`~neuralbrdf.render.spectral_quadrature`, relative error ≤ 1e-3 rms held out;
+own spectra (:mod:`~neuralbrdf.render.spectral_quadrature`, held-out rms relative error ≤
+``rgb_tolerance``, 1e-3 by default;
 ``to_string`` reports the rule and its error), evaluated unrolled in the drjit backend and as
 one stacked run in onnxruntime.
 
@@ -88,7 +93,11 @@ from neuralbrdf.render.sampling import (
     fit_neural_mixture,
     probe_direction_pairs,
 )
-from neuralbrdf.render.spectral_quadrature import ReducedQuadrature, fit_reduced_quadrature
+from neuralbrdf.render.spectral_quadrature import (
+    DEFAULT_RMS_TOLERANCE,
+    ReducedQuadrature,
+    fit_reduced_quadrature,
+)
 
 PLUGIN_NAME = "neuralbrdf"
 BACKENDS = ("drjit", "onnxruntime")
@@ -245,7 +254,7 @@ def _session(path: Path) -> onnxruntime.InferenceSession:
     return onnxruntime.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
 
 
-def _rgb_rule(model: OnnxModel, session: onnxruntime.InferenceSession) -> ReducedQuadrature:
+def _rgb_rule(model: OnnxModel, session: onnxruntime.InferenceSession, rms_tolerance: float) -> ReducedQuadrature:
     """The reduced spectrum → linear sRGB rule of a spectral model (module docstring)."""
     low, high = model.wavelength_range_nm
     grid = np.clip(SPECTRAL_TO_RGB_GRID_NM, low, high)
@@ -257,7 +266,7 @@ def _rgb_rule(model: OnnxModel, session: onnxruntime.InferenceSession) -> Reduce
     }
     (f,) = session.run([OUTPUT_F], feeds)
     spectra = f.reshape(len(grid), len(wi)).T
-    return fit_reduced_quadrature(spectra, grid, _spectral_to_srgb_weights())
+    return fit_reduced_quadrature(spectra, grid, _spectral_to_srgb_weights(), rms_tolerance)
 
 
 def _probe_function(model: OnnxModel, session: onnxruntime.InferenceSession):
@@ -371,7 +380,7 @@ def _spectral_to_srgb_weights() -> np.ndarray:
 # --------------------------------------------------------------------------- the BSDF
 
 
-def _read_properties(props: mi.Properties) -> tuple[Path, str]:
+def _read_properties(props: mi.Properties) -> tuple[Path, str, float]:
     if "filename" not in props:
         raise InputError("the neuralbrdf BSDF needs a 'filename' property (the .onnx model)")
     filename = str(props.get("filename"))
@@ -380,7 +389,13 @@ def _read_properties(props: mi.Properties) -> tuple[Path, str]:
         raise InputError(
             f"unknown backend {backend!r}; expected one of {list(BACKENDS)}", column="backend"
         )
-    return Path(str(mi.file_resolver().resolve(filename))), backend
+    rgb_tolerance = float(props.get("rgb_tolerance", DEFAULT_RMS_TOLERANCE))
+    if not 0.0 <= rgb_tolerance < 1.0:
+        raise InputError(
+            f"rgb_tolerance must be in [0, 1) (0: all 31 wavelengths), got {rgb_tolerance}",
+            column="rgb_tolerance",
+        )
+    return Path(str(mi.file_resolver().resolve(filename))), backend, rgb_tolerance
 
 
 def _bsdf_class(variant: str) -> type:
@@ -393,7 +408,7 @@ def _bsdf_class(variant: str) -> type:
 
         def __init__(self, props: mi.Properties) -> None:
             mi.BSDF.__init__(self, props)
-            path, backend = _read_properties(props)
+            path, backend, rgb_tolerance = _read_properties(props)
             self.model = load_model(path)
             session = _session(path)
             if backend == "onnxruntime":
@@ -408,7 +423,7 @@ def _bsdf_class(variant: str) -> type:
             self._spectral_variant = mi.is_spectral
             self.rgb_rule = None
             if self.model.is_spectral and not mi.is_spectral:
-                self.rgb_rule = _rgb_rule(self.model, session)
+                self.rgb_rule = _rgb_rule(self.model, session, rgb_tolerance)
             self.m_flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
             self.m_components = [self.m_flags]
 

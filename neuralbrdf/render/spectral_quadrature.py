@@ -17,8 +17,10 @@ empirical interpolation and empirical cubature; Barrault et al. 2004, Hernández
 wavelength that most reduces the fit error) and the weights ``V`` by least squares, on spectra
 of the model itself, *relative* to each probe's colour so that dim directions count as much as
 the specular peak.  It stops at the first ``K`` whose error on probes held out of the fit meets
-:data:`TOLERANCE`; the reached error is reported with the rule, and a model whose spectra do not
-compress keeps all 31 wavelengths (then the rule is the full integral, exactly).
+the tolerance (root-mean-square ``rms_tolerance``, default :data:`DEFAULT_RMS_TOLERANCE`, and
+largest :data:`MAX_TO_RMS` times that); the reached error is reported with the rule.  A model
+whose spectra do not compress keeps all 31 wavelengths, and ``rms_tolerance = 0`` asks for
+them: then the rule is the full integral, exactly.
 
 Error measure: per probe, ``|rgb_K − rgb_31|₂ / (|rgb_31|₂ + floor)`` with ``floor`` =
 :data:`RELATIVE_FLOOR` × the largest ``|rgb_31|₂`` among the probes (values far below the peak
@@ -31,8 +33,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: Held-out error the reduced rule must meet: root-mean-square and largest relative error.
-TOLERANCE = {"rms": 1e-3, "max": 1e-2}
+#: Default held-out root-mean-square relative error the reduced rule must meet.
+DEFAULT_RMS_TOLERANCE = 1e-3
+
+#: The largest held-out relative error may be this many times the rms tolerance.
+MAX_TO_RMS = 10.0
 
 #: Floor of the relative error's denominator, as a fraction of the brightest probe colour.
 RELATIVE_FLOOR = 1e-3
@@ -79,6 +84,7 @@ def fit_reduced_quadrature(
     spectra: np.ndarray,
     wavelengths_nm: np.ndarray,
     weights: np.ndarray,
+    rms_tolerance: float = DEFAULT_RMS_TOLERANCE,
     seed: int = 0,
 ) -> ReducedQuadrature:
     """The smallest node subset of ``wavelengths_nm`` reproducing ``spectra @ weights``.
@@ -91,6 +97,8 @@ def fit_reduced_quadrature(
         ``[W]`` grid, nm.
     weights:
         ``[W, 3]`` full rule (spectrum → linear sRGB).
+    rms_tolerance:
+        Held-out rms relative error to meet (module docstring); 0: the full rule.
     seed:
         Seed of the fit / held-out split of the probes.
     """
@@ -104,6 +112,8 @@ def fit_reduced_quadrature(
         )
     if n_probes < 2 or not np.all(np.isfinite(spectra)):
         raise ValueError("need at least two probe spectra, all finite")
+    if not 0.0 <= rms_tolerance < 1.0:
+        raise ValueError(f"rms_tolerance must be in [0, 1), got {rms_tolerance}")
     exact = spectra @ weights
     floor = RELATIVE_FLOOR * max(float(np.linalg.norm(exact, axis=1).max()), 1e-30)
     row_weights = 1.0 / (np.linalg.norm(exact, axis=1) + floor)
@@ -112,7 +122,7 @@ def fit_reduced_quadrature(
     held, fit = order[:n_holdout], order[n_holdout:]
 
     nodes: list[int] = []
-    while len(nodes) < n_wavelengths:
+    while rms_tolerance > 0 and len(nodes) < n_wavelengths:
         candidates = [k for k in range(n_wavelengths) if k not in nodes]
         residuals = []
         for k in candidates:
@@ -124,9 +134,9 @@ def fit_reduced_quadrature(
         v = _solve(spectra[fit], exact[fit], row_weights[fit], nodes)
         errors = _relative_errors(spectra[held][:, nodes] @ v, exact[held], floor)
         rms, worst = float(np.sqrt(np.mean(errors**2))), float(errors.max())
-        if rms <= TOLERANCE["rms"] and worst <= TOLERANCE["max"]:
+        if rms <= rms_tolerance and worst <= MAX_TO_RMS * rms_tolerance:
             break
-    if len(nodes) == n_wavelengths:
+    if len(nodes) in (0, n_wavelengths):
         nodes, v, rms, worst = list(range(n_wavelengths)), weights, 0.0, 0.0
     order_by_wavelength = np.argsort([wavelengths_nm[k] for k in nodes])
     nodes = [nodes[i] for i in order_by_wavelength]
