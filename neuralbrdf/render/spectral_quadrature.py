@@ -72,12 +72,11 @@ def _relative_errors(approx: np.ndarray, exact: np.ndarray, floor: float) -> np.
     return np.linalg.norm(approx - exact, axis=1) / (np.linalg.norm(exact, axis=1) + floor)
 
 
-def _solve(spectra: np.ndarray, target: np.ndarray, row_weights: np.ndarray, nodes: list[int]):
-    """Least-squares weights ``[K, 3]`` of the node columns, each probe row scaled by its weight."""
-    a = spectra[:, nodes] * row_weights[:, None]
-    b = target * row_weights[:, None]
-    weights, *_ = np.linalg.lstsq(a, b, rcond=None)
-    return weights
+def _solve(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
+    """Least-squares weights ``[K, 3]`` of ``a @ v ≈ b`` and the squared residual norm."""
+    v, *_ = np.linalg.lstsq(a, b, rcond=None)
+    r = a @ v - b
+    return v, float(np.sum(r * r))
 
 
 def fit_reduced_quadrature(
@@ -120,19 +119,19 @@ def fit_reduced_quadrature(
     order = np.random.default_rng(seed).permutation(n_probes)
     n_holdout = max(1, int(round(HOLDOUT_FRACTION * n_probes)))
     held, fit = order[:n_holdout], order[n_holdout:]
+    # The fit rows, each scaled by its weight (relative least squares), and the held-out rows.
+    fit_a = spectra[fit] * row_weights[fit, None]
+    fit_b = exact[fit] * row_weights[fit, None]
+    held_spectra, held_exact = spectra[held], exact[held]
 
     nodes: list[int] = []
     while rms_tolerance > 0 and len(nodes) < n_wavelengths:
         candidates = [k for k in range(n_wavelengths) if k not in nodes]
-        residuals = []
-        for k in candidates:
-            trial = nodes + [k]
-            v = _solve(spectra[fit], exact[fit], row_weights[fit], trial)
-            r = (spectra[fit][:, trial] @ v - exact[fit]) * row_weights[fit, None]
-            residuals.append(float(np.sum(r * r)))
-        nodes.append(candidates[int(np.argmin(residuals))])
-        v = _solve(spectra[fit], exact[fit], row_weights[fit], nodes)
-        errors = _relative_errors(spectra[held][:, nodes] @ v, exact[held], floor)
+        solutions = [_solve(fit_a[:, nodes + [k]], fit_b) for k in candidates]
+        best = int(np.argmin([residual for _, residual in solutions]))
+        nodes.append(candidates[best])
+        v = solutions[best][0]
+        errors = _relative_errors(held_spectra[:, nodes] @ v, held_exact, floor)
         rms, worst = float(np.sqrt(np.mean(errors**2))), float(errors.max())
         if rms <= rms_tolerance and worst <= MAX_TO_RMS * rms_tolerance:
             break
