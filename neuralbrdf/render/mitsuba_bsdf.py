@@ -254,18 +254,23 @@ def _session(path: Path) -> onnxruntime.InferenceSession:
     return onnxruntime.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
 
 
+def _numpy_spectra(session: onnxruntime.InferenceSession, wi: np.ndarray, wo: np.ndarray, wavelengths) -> np.ndarray:
+    """``[k, n]`` values of a spectral model at ``n`` NumPy direction pairs and ``k`` wavelengths
+    (nm), from one run (load-time probing)."""
+    feeds = {
+        INPUT_WI: np.tile(wi, (len(wavelengths), 1)),
+        INPUT_WO: np.tile(wo, (len(wavelengths), 1)),
+        INPUT_WAVELENGTH: np.repeat(wavelengths, len(wi)).astype(np.float32),
+    }
+    (f,) = session.run([OUTPUT_F], feeds)
+    return f.reshape(len(wavelengths), len(wi))
+
+
 def _rgb_rule(model: OnnxModel, session: onnxruntime.InferenceSession, rms_tolerance: float) -> ReducedQuadrature:
     """The reduced spectrum → linear sRGB rule of a spectral model (module docstring)."""
     low, high = model.wavelength_range_nm
     grid = np.clip(SPECTRAL_TO_RGB_GRID_NM, low, high)
-    wi, wo = probe_direction_pairs()
-    feeds = {
-        INPUT_WI: np.tile(wi, (len(grid), 1)),
-        INPUT_WO: np.tile(wo, (len(grid), 1)),
-        INPUT_WAVELENGTH: np.repeat(grid, len(wi)).astype(np.float32),
-    }
-    (f,) = session.run([OUTPUT_F], feeds)
-    spectra = f.reshape(len(grid), len(wi)).T
+    spectra = _numpy_spectra(session, *probe_direction_pairs(), grid).T
     return fit_reduced_quadrature(spectra, grid, _spectral_to_srgb_weights(), rms_tolerance)
 
 
@@ -277,13 +282,7 @@ def _probe_function(model: OnnxModel, session: onnxruntime.InferenceSession):
             (f,) = session.run([OUTPUT_F], {INPUT_WI: wi, INPUT_WO: wo})
             return f.mean(axis=1)
         wavelengths = np.linspace(*model.wavelength_range_nm, _PROBE_WAVELENGTH_COUNT)
-        feeds = {
-            INPUT_WI: np.tile(wi, (len(wavelengths), 1)),
-            INPUT_WO: np.tile(wo, (len(wavelengths), 1)),
-            INPUT_WAVELENGTH: np.repeat(wavelengths, len(wi)).astype(np.float32),
-        }
-        (f,) = session.run([OUTPUT_F], feeds)
-        return f.reshape(len(wavelengths), len(wi)).mean(axis=0)
+        return _numpy_spectra(session, wi, wo, wavelengths).mean(axis=0)
 
     return brdf
 
