@@ -45,7 +45,11 @@ def test_renders_png_and_exr_in_rgb_and_spectral_variants(models, variant, tmp_p
 
 
 def test_onnxruntime_backend_renders_like_drjit_and_restores_symbolic_mode(models):
-    material = {"model": models["spectral"], "variant": "llvm_ad_spectral", "spp": 4, "resolution": 16, "seed": 3}
+    # llvm_ad_rgb: in llvm_ad_spectral this scene is not reproducible — two renders with the same
+    # seed differ by a whole path about once in twenty, even with Mitsuba's own roughconductor
+    # (measured; RGB: 30 of 30 identical). Backend agreement in the spectral variant is
+    # test_mitsuba_bsdf.py::test_backends_render_alike, on a scene that is reproducible.
+    material = {"model": models["spectral"], "variant": "llvm_ad_rgb", "spp": 4, "resolution": 16, "seed": 3}
     flags = dr.flag(dr.JitFlag.SymbolicLoops), dr.flag(dr.JitFlag.SymbolicCalls)
     fused = render.render(render.Material(model=material["model"], backend="drjit"), **_kw(material))
     wavefront = render.render(render.Material(model=material["model"], backend="onnxruntime"), **_kw(material))
