@@ -209,9 +209,11 @@ def float32_error_allowance(exportable: Exportable, inputs: list[torch.Tensor], 
     """Per output entry, how far a correct float32 evaluation of the model may stray, in sr⁻¹.
 
     The model is evaluated once more in float64 (a deep copy); ``e = |f_float32 − f_float64|`` is
-    the float32 rounding error of PyTorch's own evaluation at each probe, and ``r`` the 99.9th
-    percentile of ``e / |f|`` over the probes, the model's float32 accuracy where it is worst
-    conditioned (deep networks with an exponential output at grazing angles reach 1e-5).
+    the float32 rounding error of PyTorch's own evaluation at each probe, and ``r`` the largest
+    ``e / |f|`` over the probes, the model's float32 accuracy where it is worst conditioned
+    (networks with an exponential output and large cancelling pre-activations reach 1e-5 to
+    1e-3 near grazing mirror pairs).  One probe's ``e`` is one sample of a rounding error that
+    another evaluation order can exceed, hence ``r |f|`` beside it.
     onnxruntime runs the same arithmetic in another order, so it may differ from PyTorch by
     :data:`FLOAT32_ERROR_FACTOR` times ``e + r |f|`` on top of the contract's
     ``RELATIVE_TOLERANCE |f| + ABSOLUTE_FLOOR_SR``.  A model that cannot run in float64 gets
@@ -227,9 +229,7 @@ def float32_error_allowance(exportable: Exportable, inputs: list[torch.Tensor], 
         return np.zeros_like(expected)
     rounding = np.abs(expected - exact)
     significant = np.abs(exact) > ABSOLUTE_FLOOR_SR
-    worst_relative = (
-        float(np.quantile(rounding[significant] / np.abs(exact[significant]), 0.999)) if np.any(significant) else 0.0
-    )
+    worst_relative = float(np.max(rounding[significant] / np.abs(exact[significant]))) if np.any(significant) else 0.0
     return FLOAT32_ERROR_FACTOR * (rounding + worst_relative * np.abs(expected))
 
 
