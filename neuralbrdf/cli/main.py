@@ -112,14 +112,14 @@ def build_parser() -> argparse.ArgumentParser:
     p = add(
         "plot",
         commands.plot,
-        "plot a BRDF table's in-plane slices to PNG",
+        "plot a BRDF table's in-plane slices (PNG, PDF or SVG)",
         "Plot a BRDF table (RGB or spectral; GCMS raw files need --reference) against the signed outgoing "
         "angle for a few incident angles, and the mirror-direction spectra of spectral tables.",
     )
     p.add_argument("table", help="BRDF table CSV (or GCMS raw CSV with --reference)")
     p.add_argument("--reference", help="Munsell N9 GCMS raw CSV, when TABLE is a GCMS raw file")
     p.add_argument("--theta-i", type=float, nargs="+", help="incident angles to show (degrees, signed)")
-    p.add_argument("--out", required=True, help="output PNG")
+    p.add_argument("--out", required=True, help="output figure: .png, .pdf or .svg")
 
     p = add(
         "demo",
