@@ -9,6 +9,9 @@ import pytest
 import torch
 
 from neuralbrdf.data.gcms import write_gcms
+from neuralbrdf.data.plans import in_plane_plan
+from neuralbrdf.data.table import write_table
+from neuralbrdf.lightning.measurement_data import MeasurementDataModule
 from neuralbrdf.lightning.run import MetricsJson, main
 from neuralbrdf.lightning.spectral_mlp_module import SpectralMlpModule
 from neuralbrdf.virtual import instrument
@@ -105,6 +108,24 @@ def test_default_run_dir_is_under_runs_by_config_stem(tmp_path, monkeypatch, gcm
     assert (run_dir / "checkpoints" / "last.ckpt").is_file()
     # The evaluation split came in several batches; the metrics see all of it.
     assert 0 < read_metrics(run_dir)["fit/val/rel_rmse_glossy_median"] < float("inf")
+
+
+@pytest.mark.parametrize("plan, split", [("DS2", "every_third_theta_i"), ("DS3", "every_third_theta_i"), ("DS4", "none")])
+def test_sparse_plans_train(tmp_path, plan, split):
+    """DS2–DS4 tables train with the default config: the test split follows the plan (``auto``)."""
+    table = tmp_path / f"gold_{plan}.csv"
+    write_table(instrument.VirtualGoniospectrophotometer.ground_truth("gold", *in_plane_plan(plan)), table)
+    run_dir = tmp_path / "run"
+    assert main(["fit", "--config", str(CONFIG), "--data.path", str(table), *quick("--run_dir", str(run_dir))]) == 0
+    metrics = read_metrics(run_dir)
+    assert metrics["fit/epochs"] == 1 and (run_dir / "checkpoints" / "best.ckpt").is_file()
+    assert 0 < metrics["fit/val/loss"] < float("inf")
+    module = SpectralMlpModule.load_from_checkpoint(run_dir / "checkpoints" / "best.ckpt")
+    f = module(torch.tensor([30.0]), torch.tensor([30.0]), torch.tensor([550.0]))
+    assert bool(torch.isfinite(f).all())
+    data = MeasurementDataModule(str(table))
+    data.setup("fit")
+    assert data.resolved_test_split == split
 
 
 def test_bad_data_path_is_one_line_error_and_nonzero_exit(tmp_path):
