@@ -13,7 +13,7 @@
   region ``|theta_i - theta_r| <= 10°``, entries with ``f_mea`` below ``rel_rmse_floor``
   excluded and counted):
 
-  - ``<split>/loss`` — Eq. 5.1 over every sample of the split;
+  - ``<split>/loss`` — the configured loss over every sample of the split;
   - ``<split>/rel_rmse_glossy`` — Eq. 4.3 per wavelength over all glossy samples of the split,
     averaged over wavelengths (:func:`~neuralbrdf.metrics.relative_rmse`);
   - ``<split>/rel_rmse_glossy_median`` — the median of the Fig. 5.3 box-plot data: one Eq. 4.3
