@@ -28,6 +28,7 @@ from neuralbrdf.models.directional import (
     rusinkiewicz_theta_h_d,
 )
 from neuralbrdf.models.nlb import NLBConfig, NLBNetwork
+from neuralbrdf import onnx_export
 from neuralbrdf.render.drjit_onnx import DrJitGraph
 from neuralbrdf.render.onnx_contract import load_model
 
@@ -36,8 +37,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 to_onnx = load_export_script("to_onnx")
 
-RTOL = to_onnx.RELATIVE_TOLERANCE
-ATOL = to_onnx.ABSOLUTE_FLOOR_SR
+RTOL = onnx_export.RELATIVE_TOLERANCE
+ATOL = onnx_export.ABSOLUTE_FLOOR_SR
 NLB_CONFIG = NLBConfig(latent_dim=4, width=16, depth=2, residual=False, half_vector=True)
 ABC_RGB = ABCParameters(kd=[0.1, 0.2, 0.3], A=[0.5, 0.8, 1.0], B=20.0, C=1.5, eta=1.5)
 ABC_SPECTRAL = ABCParameters(
@@ -332,7 +333,7 @@ def test_activations_are_exported_to_float32_accuracy_in_both_backends(name, fn,
     replacements keep a few ulps in onnxruntime and in the Dr.Jit interpretation."""
     x = np.concatenate([np.geomspace(1e-9, 1.0, 2000), -np.geomspace(1e-9, 1.0, 2000)])
     wi = np.repeat(x[:, None], 3, axis=1).astype(np.float32)
-    proto = to_onnx.trace(to_onnx.Exportable(_Activation(fn), "nlb", name, {}, None))
+    proto = onnx_export.trace(onnx_export.Exportable(_Activation(fn), "nlb", name, {}, None))
     ort = onnxruntime.InferenceSession(proto.SerializeToString()).run(None, {"wi": wi, "wo": wi})[0][:, 0]
     columns = DrJitGraph(proto)([Float(wi[:, k]) for k in range(3)], [Float(wi[:, k]) for k in range(3)])
     reference = exact(wi[:, 0].astype(np.float64))
@@ -351,7 +352,7 @@ def _no_output_left(directory: Path, name: str) -> bool:
 
 
 def test_export_refuses_a_graph_that_does_not_reproduce_pytorch(checkpoints, tmp_path, monkeypatch, capsys):
-    trace = to_onnx.trace
+    trace = onnx_export.trace
 
     def corrupted_trace(exportable):
         proto = trace(exportable)
@@ -360,9 +361,9 @@ def test_export_refuses_a_graph_that_does_not_reproduce_pytorch(checkpoints, tmp
         weight.CopyFrom(onnx.numpy_helper.from_array(values, weight.name))
         return proto
 
-    monkeypatch.setattr(to_onnx, "trace", corrupted_trace)
+    monkeypatch.setattr(onnx_export, "trace", corrupted_trace)
     out = tmp_path / "corrupt.onnx"
-    with pytest.raises(to_onnx.ExportValidationError, match="differs from PyTorch"):
+    with pytest.raises(onnx_export.ExportValidationError, match="differs from PyTorch"):
         to_onnx.export(checkpoints["spectral_mlp"], out)
     assert to_onnx.main(["--ckpt", str(checkpoints["spectral_mlp"]), "--out", str(out)]) == 1
     err = capsys.readouterr().err
@@ -371,16 +372,16 @@ def test_export_refuses_a_graph_that_does_not_reproduce_pytorch(checkpoints, tmp
 
 
 def test_export_refuses_a_file_that_load_model_rejects(checkpoints, tmp_path, monkeypatch):
-    trace = to_onnx.trace
+    trace = onnx_export.trace
 
     def without_metadata(exportable):
         proto = trace(exportable)
         del proto.metadata_props[:]
         return proto
 
-    monkeypatch.setattr(to_onnx, "trace", without_metadata)
+    monkeypatch.setattr(onnx_export, "trace", without_metadata)
     out = tmp_path / "nometa.onnx"
-    with pytest.raises(to_onnx.ExportValidationError, match="contract check: missing metadata"):
+    with pytest.raises(onnx_export.ExportValidationError, match="contract check: missing metadata"):
         to_onnx.export(checkpoints["abc"], out)
     assert _no_output_left(tmp_path, out.name)
 
