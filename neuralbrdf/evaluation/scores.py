@@ -100,10 +100,10 @@ class TorchEvaluator:
             return module(*inputs).numpy()
 
 
-def hemisphere_pairs(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Stratified direction pairs ``wi, wo`` ``[N, 3]`` (module docstring), ``N = (16·20)²``."""
+def hemisphere_pairs(seed: int = 0, strata: tuple[int, int] = HEMISPHERE_STRATA) -> tuple[np.ndarray, np.ndarray]:
+    """Stratified direction pairs ``wi, wo`` ``[N, 3]`` (module docstring), ``N = (16·20)²`` by default."""
     rng = np.random.default_rng(seed)
-    n_cos, n_phi = HEMISPHERE_STRATA
+    n_cos, n_phi = strata
     per_direction = n_cos * n_phi
     cos_low = np.cos(np.radians(HEMISPHERE_MAX_THETA_DEG))
     cos_cell, phi_cell = np.meshgrid(np.arange(n_cos), np.arange(n_phi), indexing="ij")
@@ -177,10 +177,12 @@ def _finite_or_none(value: float) -> float | None:
     return float(value) if np.isfinite(value) else None
 
 
-def hemisphere_scores(model: Evaluator, truth: Evaluator, seed: int = 0) -> dict[str, float]:
+def hemisphere_scores(
+    model: Evaluator, truth: Evaluator, seed: int = 0, strata: tuple[int, int] = HEMISPHERE_STRATA
+) -> dict[str, float]:
     """``hemisphere_logcos_rmse`` and ``hemisphere_rel_rmse`` over :func:`hemisphere_pairs`."""
     spectral = compares_spectra(model, truth)
-    wi, wo = hemisphere_pairs(seed)
+    wi, wo = hemisphere_pairs(seed, strata)
     pred, target = compared_values(model, wi, wo, spectral), compared_values(truth, wi, wo, spectral)
     theta_i = np.degrees(np.arccos(np.clip(wi[:, 2], -1.0, 1.0)))
     rows = np.ones(len(wi), dtype=bool)
@@ -201,19 +203,46 @@ def inplane_scores(pred: np.ndarray, target: np.ndarray, theta_i: np.ndarray, th
     return metrics, per_channel
 
 
-def direction_scores(model: Evaluator, truth: Evaluator, seed: int = 0) -> DirectionScores:
-    """The four metrics of :data:`DIRECTION_METRICS` of ``model`` against ``truth``."""
+def direction_scores(
+    model: Evaluator, truth: Evaluator, seed: int = 0, strata: tuple[int, int] = HEMISPHERE_STRATA
+) -> DirectionScores:
+    """The four metrics of :data:`DIRECTION_METRICS` of ``model`` against ``truth``
+    (``strata``: fewer hemisphere pairs, for quick checks; the fixed names mean the default)."""
     spectral = compares_spectra(model, truth)
     theta_i, theta_r, wi, wo = inplane_pairs()
     inplane, per_channel = inplane_scores(
         compared_values(model, wi, wo, spectral), compared_values(truth, wi, wo, spectral), theta_i, theta_r
     )
     per_wavelength = {"wavelength_nm": COMPARISON_WAVELENGTHS_NM.tolist(), **per_channel} if spectral else None
-    n_cos, n_phi = HEMISPHERE_STRATA
+    n_cos, n_phi = strata
     return DirectionScores(
-        metrics={**hemisphere_scores(model, truth, seed), **inplane},
+        metrics={**hemisphere_scores(model, truth, seed, strata), **inplane},
         comparison="spectral (31 wavelengths, 400-700 nm)" if spectral else "linear sRGB",
         n_hemisphere_pairs=(n_cos * n_phi) ** 2,
         n_inplane_pairs=len(theta_i),
         per_wavelength=per_wavelength,
     )
+
+
+def fit_scores(pred_fit, fit, pred_truth=None, truth=None) -> dict[str, float | None]:
+    """The metrics every training run writes to ``metrics.json`` under these names (SPEC §9).
+
+    ``inplane_glossy_rel_rmse`` and ``inplane_diffuse_rel_rmse`` of ``pred_fit`` against the
+    :class:`~neuralbrdf.data.table.BrdfTable` ``fit`` the model was given (rows off the plane of
+    incidence count by their in-plane equivalent, ``|θi − θr| = 2 θh``); a region without a sample
+    above the floor gives ``None``.  With a ``truth`` table (the dense Low set of a virtual
+    material or NBRDF proxy, SPEC §5) and the model's values on it, ``hemisphere_logcos_rmse``.
+    """
+    theta_i, theta_r = fit.inplane_angles()
+    glossy = is_glossy(theta_i, theta_r)
+    metrics: dict[str, float | None] = {}
+    for name, rows, region in (("inplane_glossy_rel_rmse", glossy, "glossy"),
+                               ("inplane_diffuse_rel_rmse", ~glossy, "diffuse")):
+        try:
+            metrics[name] = masked_relative_rmse(pred_fit, fit.values, rows, DEFAULT_FLOOR, region).value
+        except ValueError:
+            metrics[name] = None
+    if truth is not None:
+        metrics["hemisphere_logcos_rmse"] = hemisphere_logcos_rmse(np.clip(pred_truth, 0.0, None), truth.values,
+                                                                   truth.theta_i)
+    return metrics
