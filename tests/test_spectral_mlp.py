@@ -112,6 +112,28 @@ def test_module_rejects_an_unknown_angle_unit():
         SpectralMlpModule(angle_unit="grad")
 
 
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [({"residual": "huber"}, "residual"), ({"residual_epsilon_sr": 0.0}, "residual_epsilon_sr"), ({"weight_floor": -0.1}, "weight_floor")],
+)
+def test_module_rejects_bad_loss_options(kwargs, match):
+    with pytest.raises(InputError, match=match):
+        SpectralMlpModule(**kwargs)
+
+
+@pytest.mark.parametrize("residual", ["linear", "log"])
+def test_module_loss_is_the_configured_residual(residual):
+    torch.manual_seed(0)
+    module = SpectralMlpModule(residual=residual, residual_epsilon_sr=1e-3, weight_floor=0.02)
+    theta_i, theta_r = torch.tensor([30.0, 30.0, -10.0]), torch.tensor([30.0, -40.0, 50.0])
+    wavelength, brdf = torch.tensor([450.0, 550.0, 650.0]), torch.tensor([5.0, 0.02, 0.01])
+    batch = SpectralSamples(theta_i, theta_r, wavelength, brdf, torch.arange(3))
+    pred, loss = module._loss(batch)
+    weight = torch.clamp(torch.exp(-3.0 * torch.deg2rad((theta_i - theta_r).abs())), min=0.02)
+    r = pred - brdf if residual == "linear" else torch.log(pred + 1e-3) - torch.log(brdf + 1e-3)
+    torch.testing.assert_close(loss, torch.mean(weight * r**2))
+
+
 # --------------------------------------------------------------------------- signed in-plane angles
 
 
