@@ -1,16 +1,19 @@
 """Training of the spectral MLP (report §5.1.1–5.1.2; SPEC §4.4, §5).
 
-* **Loss** — report Eq. 5.1, :func:`neuralbrdf.losses.exp_weighted_mse`:
-  ``mean(exp(-gamma |theta_i - theta_r|) (f_mea - f_pred)²)`` with ``gamma`` and the unit of the
-  angle difference from the config (default 3 per radian; the report's per-degree form leaves
-  the diffuse region without gradient, SPEC §4.4).
+* **Loss** — report Eq. 5.1's weighting, :func:`neuralbrdf.losses.exp_weighted_loss`:
+  ``mean(max(exp(-gamma |theta_i - theta_r|), weight_floor) · r²)`` with ``gamma``, the unit of
+  the angle difference (default 3 per radian; the report's per-degree form leaves the diffuse
+  region without gradient, SPEC §4.4), the residual ``r`` and the floor from the config.  The
+  module's defaults (``residual="linear"``, ``weight_floor=0``) are Eq. 5.1 exactly
+  (``configs/spectral_mlp_paper.yaml``); ``configs/spectral_mlp.yaml`` chooses the residual
+  that fits the whole in-plane range (README, spectral MLP).
 * **Optimiser** — Adam with a decaying learning rate, both injected from the config
   (``optimizer`` and ``lr_scheduler``, stepped once per epoch).
 * **Metrics** on the evaluation split (:mod:`neuralbrdf.metrics`, report Eq. 4.3 over the glossy
   region ``|theta_i - theta_r| <= 10°``, entries with ``f_mea`` below ``rel_rmse_floor``
   excluded and counted):
 
-  - ``<split>/loss`` — Eq. 5.1 over every sample of the split;
+  - ``<split>/loss`` — the configured loss over every sample of the split;
   - ``<split>/rel_rmse_glossy`` — Eq. 4.3 per wavelength over all glossy samples of the split,
     averaged over wavelengths (:func:`~neuralbrdf.metrics.relative_rmse`);
   - ``<split>/rel_rmse_glossy_median`` — the median of the Fig. 5.3 box-plot data: one Eq. 4.3
@@ -36,7 +39,7 @@ from pytorch_lightning.cli import LRSchedulerCallable, OptimizerCallable
 from neuralbrdf import metrics
 from neuralbrdf.errors import InputError
 from neuralbrdf.lightning.measurement_data import SpectralSamples
-from neuralbrdf.losses import ANGLE_UNITS, exp_weighted_mse
+from neuralbrdf.losses import ANGLE_UNITS, RESIDUALS, exp_weighted_loss
 from neuralbrdf.models.spectral_mlp import Activation, OutputActivation, SpectralMLP
 
 
@@ -67,7 +70,7 @@ def glossy_relative_rmse(samples: SpectralSamples, pred: torch.Tensor, floor: fl
 
 
 class SpectralMlpModule(pl.LightningModule):
-    """Fits a :class:`~neuralbrdf.models.spectral_mlp.SpectralMLP` with the report's Eq. 5.1 loss.
+    """Fits a :class:`~neuralbrdf.models.spectral_mlp.SpectralMLP` with an Eq. 5.1-weighted loss.
 
     Parameters
     ----------
@@ -77,6 +80,10 @@ class SpectralMlpModule(pl.LightningModule):
         Eq. 5.1 weight decay rate per ``angle_unit`` of ``|theta_i - theta_r|``.
     angle_unit:
         ``"radians"`` or ``"degrees"`` (the report's literal form).
+    residual, residual_epsilon_sr, weight_floor:
+        The loss's residual (:data:`neuralbrdf.losses.RESIDUALS`; ``"linear"`` is Eq. 5.1), the
+        BRDF value (sr⁻¹) added to both sides of the ``relative`` and ``log`` residuals, and
+        the smallest weight a sample gets (0: Eq. 5.1's weight).
     rel_rmse_floor:
         Measured values (sr⁻¹) below this are left out of the Eq. 4.3 metrics.
     optimizer, lr_scheduler:
@@ -94,6 +101,9 @@ class SpectralMlpModule(pl.LightningModule):
         wavelength_range_nm: Sequence[float] = (400.0, 700.0),
         gamma: float = 3.0,
         angle_unit: Literal[ANGLE_UNITS] = "radians",
+        residual: Literal[RESIDUALS] = "linear",
+        residual_epsilon_sr: float = 1e-3,
+        weight_floor: float = 0.0,
         rel_rmse_floor: float = metrics.DEFAULT_FLOOR,
         optimizer: OptimizerCallable = torch.optim.Adam,
         lr_scheduler: LRSchedulerCallable | None = None,
@@ -106,6 +116,13 @@ class SpectralMlpModule(pl.LightningModule):
         self._evaluated: list[tuple[SpectralSamples, torch.Tensor]] = []
         if angle_unit not in ANGLE_UNITS:
             raise InputError(f"angle_unit must be one of {', '.join(ANGLE_UNITS)}, got {angle_unit!r}")
+        if residual not in RESIDUALS:
+            raise InputError(f"residual must be one of {', '.join(RESIDUALS)}, got {residual!r}")
+        if not residual_epsilon_sr > 0 or not 0.0 <= weight_floor <= 1.0:
+            raise InputError(
+                f"residual_epsilon_sr must be > 0 sr⁻¹ and weight_floor in [0, 1], got {residual_epsilon_sr} "
+                f"and {weight_floor}"
+            )
 
     def forward(self, theta_i_deg, theta_r_deg, wavelength_nm):
         return self.network(theta_i_deg, theta_r_deg, wavelength_nm)
@@ -116,8 +133,10 @@ class SpectralMlpModule(pl.LightningModule):
 
     def _loss(self, batch: SpectralSamples) -> tuple[torch.Tensor, torch.Tensor]:
         pred = self.network(batch.theta_i_deg, batch.theta_r_deg, batch.wavelength_nm)
-        loss = exp_weighted_mse(
-            pred, batch.brdf, batch.theta_i_deg, batch.theta_r_deg, self.hparams.gamma, self.hparams.angle_unit
+        h = self.hparams
+        loss = exp_weighted_loss(
+            pred, batch.brdf, batch.theta_i_deg, batch.theta_r_deg, h.gamma, h.angle_unit,
+            h.residual, h.residual_epsilon_sr, h.weight_floor,
         )
         return pred, loss
 
