@@ -80,6 +80,10 @@ def test_fit_writes_config_checkpoints_csv_log_and_metrics(fitted_run, gcms_sess
     assert metrics["fit/epochs"] == 1
     assert metrics["fit/best_model_path"] == "checkpoints/best.ckpt"
     assert metrics["fit/best_model_score"] == pytest.approx(metrics["fit/val/loss"])
+    # the shared names of SPEC §9 on the data it was given; a user's file has no truth
+    assert 0 < metrics["fit/inplane_glossy_rel_rmse"] < float("inf")
+    assert 0 < metrics["fit/inplane_diffuse_rel_rmse"] < float("inf")
+    assert "fit/hemisphere_logcos_rmse" not in metrics
     assert not list(fitted_run.glob(".*tmp*"))  # atomic writes leave no temporaries
 
 
@@ -128,6 +132,24 @@ def test_sparse_plans_train(tmp_path, plan, split):
     data = MeasurementDataModule(str(table))
     data.setup("fit")
     assert data.resolved_test_split == split
+
+
+def test_virtual_measurement_run_reports_the_hemisphere_against_its_truth(tmp_path):
+    """The shipped virtual measurements have a truth: metrics.json carries fit/hemisphere_logcos_rmse
+    for the best checkpoint, the same quantity ``neuralbrdf evaluate`` computes on more pairs."""
+    from neuralbrdf.evaluation.scores import TorchEvaluator, hemisphere_scores
+    from neuralbrdf.evaluation.truth import load_truth
+    from neuralbrdf.models.directional import SpectralMlpOnDirections
+
+    run_dir = tmp_path / "run"
+    assert main(["fit", "--config", str(CONFIG), "--data.virtual_material", "cyan", *quick("--run_dir", str(run_dir))]) == 0
+    metrics = read_metrics(run_dir)
+    module = SpectralMlpModule.load_from_checkpoint(run_dir / "checkpoints" / "best.ckpt")
+    truth = load_truth("virtual:cyan")
+    expected = hemisphere_scores(TorchEvaluator(SpectralMlpOnDirections(module.network), True),
+                                 TorchEvaluator(truth.module, True), strata=(8, 10))["hemisphere_logcos_rmse"]
+    assert metrics["fit/hemisphere_logcos_rmse"] == pytest.approx(expected, rel=1e-9)
+    assert metrics["fit/inplane_diffuse_rel_rmse"] > 0
 
 
 def test_bad_data_path_is_one_line_error_and_nonzero_exit(tmp_path):
