@@ -49,3 +49,9 @@ class InputError(ValueError):
             where.append(f"column {self.column!r}")
         prefix = ", ".join(where)
         return f"{prefix}: {self.reason}" if prefix else self.reason
+
+
+class OutputError(InputError):
+    """An output path that cannot or must not be written: an input of the same command, an
+    existing non-regular file, an unwritable folder (see :mod:`neuralbrdf.atomic`).  ``path`` is
+    the output as the user gave it, never a temporary file."""

@@ -7,7 +7,9 @@ from pathlib import Path
 
 import torch
 
+from neuralbrdf.atomic import note_input
 from neuralbrdf.errors import InputError
+from neuralbrdf.limits import MAX_CHECKPOINT_BYTES, check_file_size
 
 
 def one_line(error: BaseException, limit: int = 300) -> str:
@@ -25,6 +27,8 @@ def read_checkpoint(path: str | os.PathLike[str], what: str = "checkpoint") -> d
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{what} not found", path=path)
+    note_input(path)
+    check_file_size(path, MAX_CHECKPOINT_BYTES, "checkpoint")
     try:
         checkpoint = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # torch raises many kinds for corrupt or foreign files

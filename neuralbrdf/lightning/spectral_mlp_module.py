@@ -106,6 +106,9 @@ class SpectralMlpModule(pl.LightningModule):
         self._evaluated: list[tuple[SpectralSamples, torch.Tensor]] = []
         if angle_unit not in ANGLE_UNITS:
             raise InputError(f"angle_unit must be one of {', '.join(ANGLE_UNITS)}, got {angle_unit!r}")
+        for name, value in (("gamma", gamma), ("rel_rmse_floor", rel_rmse_floor)):
+            if not (np.isfinite(value) and value >= 0):
+                raise InputError(f"model.{name} must be a finite number >= 0, got {value}", column=name)
 
     def forward(self, theta_i_deg, theta_r_deg, wavelength_nm):
         return self.network(theta_i_deg, theta_r_deg, wavelength_nm)

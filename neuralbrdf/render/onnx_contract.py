@@ -55,7 +55,9 @@ import onnx
 import onnxruntime
 from onnx import numpy_helper
 
+from neuralbrdf.atomic import note_input
 from neuralbrdf.errors import InputError
+from neuralbrdf.limits import MAX_ONNX_BYTES, MAX_ONNX_WEIGHT_ELEMENTS, check_file_size
 
 #: Version of this contract written to and required in ``neuralbrdf.format_version``.
 FORMAT_VERSION = "1"
@@ -172,12 +174,16 @@ def load_model(path: str | os.PathLike[str]) -> OnnxModel:
     path = Path(path)
     if not path.is_file():
         raise InputError("no such ONNX model file", path=path)
+    note_input(path)
+    check_file_size(path, MAX_ONNX_BYTES, "ONNX model file")
     try:
-        proto = onnx.load(str(path))
+        # External data (weights in other files) is never followed: the contract is one file.
+        proto = onnx.load(str(path), load_external_data=False)
     except Exception as error:  # onnx raises protobuf DecodeError, OSError, ...
         raise InputError(f"not an ONNX model ({type(error).__name__}: {error})", path=path) from None
     if not proto.graph.node and not proto.graph.output:
         raise InputError("not an ONNX model (no graph)", path=path)
+    _check_tensor_sizes(proto.graph, path)
     try:
         onnx.checker.check_model(proto)
     except onnx.checker.ValidationError as error:
@@ -381,6 +387,47 @@ def _check_metadata(metadata: Mapping[str, str], path, is_spectral: bool):
 # --------------------------------------------------------------------------- weights
 
 
+def _tensor_protos(graph: onnx.GraphProto):
+    """``(name, TensorProto)`` of every initialiser and tensor attribute, subgraphs included."""
+    for init in graph.initializer:
+        yield init.name, init
+    for node in graph.node:
+        for attribute in node.attribute:
+            name = f"{node.name or node.op_type}.{attribute.name}"
+            if attribute.type == onnx.AttributeProto.TENSOR:
+                yield name, attribute.t
+            elif attribute.type == onnx.AttributeProto.TENSORS:
+                for k, tensor in enumerate(attribute.tensors):
+                    yield f"{name}[{k}]", tensor
+            elif attribute.type == onnx.AttributeProto.GRAPH:
+                yield from _tensor_protos(attribute.g)
+            elif attribute.type == onnx.AttributeProto.GRAPHS:
+                for subgraph in attribute.graphs:
+                    yield from _tensor_protos(subgraph)
+
+
+def _check_tensor_sizes(graph: onnx.GraphProto, path) -> None:
+    """Refuse external data and declared sizes above the limit, before any tensor is read."""
+    total = 0
+    for name, tensor in _tensor_protos(graph):
+        if tensor.data_location == onnx.TensorProto.EXTERNAL or tensor.external_data:
+            location = next((entry.value for entry in tensor.external_data if entry.key == "location"), "?")
+            raise InputError(
+                f"weight tensor {name!r} keeps its data in an external file ({location!r}); a model must be "
+                "one self-contained file (SPEC §6)",
+                path=path,
+            )
+        if any(d < 0 for d in tensor.dims):
+            raise InputError(f"weight tensor {name!r} has a negative dimension {list(tensor.dims)}", path=path)
+        total += math.prod(tensor.dims)
+        if total > MAX_ONNX_WEIGHT_ELEMENTS:
+            raise InputError(
+                f"weight tensors declare more than {MAX_ONNX_WEIGHT_ELEMENTS} elements (limit "
+                f"neuralbrdf.limits.MAX_ONNX_WEIGHT_ELEMENTS; {name!r} has shape {list(tensor.dims)})",
+                path=path,
+            )
+
+
 def _constant_tensors(graph: onnx.GraphProto):
     """``(name, array)`` of every initialiser and ``Constant`` node value, subgraphs included."""
     for init in graph.initializer:
@@ -399,7 +446,11 @@ def _constant_tensors(graph: onnx.GraphProto):
 
 
 def _check_finite_constants(graph: onnx.GraphProto, path) -> None:
-    for name, array in _constant_tensors(graph):
+    try:
+        constants = list(_constant_tensors(graph))
+    except Exception as error:  # numpy_helper: data length inconsistent with the declared shape
+        raise InputError(f"malformed weight tensor ({type(error).__name__}: {error})", path=path) from None
+    for name, array in constants:
         if np.issubdtype(array.dtype, np.floating) and not np.all(np.isfinite(array)):
             bad = int(np.size(array) - np.count_nonzero(np.isfinite(array)))
             raise InputError(
