@@ -26,16 +26,30 @@ kernel); ``onnxruntime`` needs wavefront mode (``SymbolicLoops``/``SymbolicCalls
 this command sets for it.
 
 **Outputs** are written atomically and synchronously: ``IMAGE.png`` (8-bit sRGB, clipped to
-[0, 1]) and with ``--exr`` ``IMAGE.exr`` beside it (linear float32 RGB).
+[0, 1]) and with ``--exr`` ``IMAGE.exr`` beside it (linear float32 RGB), both or neither
+(:func:`neuralbrdf.atomic.atomic_paths`).  They are checked before rendering: an output that
+is the model file, a directory, a device or in an unwritable folder is refused at once; a
+symbolic link is written through.
 
-Exit status 2 with one line for bad input (missing or invalid model, unsupported variant,
-invalid numbers).
+**Limits.** ``--resolution`` is checked before rendering against the memory the image and one
+pass would need (:func:`render_memory_bytes`) and refused above :data:`MEMORY_FRACTION` of
+this machine's memory.  A model too large for the ``drjit`` backend
+(:data:`~neuralbrdf.limits.DRJIT_MAX_MULTIPLY_ADDS`) is rendered with ``onnxruntime`` instead,
+with a message.  Model values that are negative or not finite are clamped to 0 in the render
+and counted; a non-zero count is reported on stderr (the model file's load-time probe refuses
+models it finds negative, this catches the rest).
+
+Exit status 2 with one line for bad input (missing or invalid model, unsupported or
+unavailable variant — a ``cuda_*`` variant without a CUDA device —, invalid numbers, refused
+outputs).
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
+import os
 import sys
 import time
 from collections.abc import Iterator
@@ -47,8 +61,10 @@ import mitsuba as mi
 import numpy as np
 from tqdm import tqdm
 
-from neuralbrdf.atomic import atomic_path
+from neuralbrdf.atomic import atomic_paths, check_outputs, command_inputs
 from neuralbrdf.errors import InputError
+from neuralbrdf.lightning.checkpoint_io import one_line
+from neuralbrdf.limits import DRJIT_MAX_MULTIPLY_ADDS
 from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE
 
 SCENE_DIR = Path(__file__).resolve().parent / "scenes"
@@ -65,6 +81,15 @@ PASS_LANES_SYMBOLIC = 2**22
 #: 512 x 512 x 256 spp then peaks at about 2 GB.
 PASS_LANES_WAVEFRONT = 2**19
 DEFAULT_MAX_DEPTH = 5
+#: Bytes per pixel of the image buffers: Mitsuba's film (5 float32), the float64 pass sum and
+#: weighted pass (2 × 3 float64), the float32 result and the bitmaps written (3 float32 + 3 bytes).
+IMAGE_BYTES_PER_PIXEL = 5 * 4 + 2 * 3 * 8 + 3 * 4 + 3 * 4 + 3
+#: Bytes per path of a pass, measured (module docstring): symbolic mode ...
+PATH_BYTES_SYMBOLIC = 96
+#: ... and wavefront mode (onnxruntime backend).
+PATH_BYTES_WAVEFRONT = 4096
+#: Largest share of this machine's physical memory a render may plan to use.
+MEMORY_FRACTION = 0.75
 
 
 @contextlib.contextmanager
@@ -86,11 +111,13 @@ def set_variant(variant: str) -> None:
 
     if variant not in mi.variants():
         raise InputError(f"unknown Mitsuba variant {variant!r}; this build has {', '.join(mi.variants())}")
-    mi.set_variant(variant)
     try:
+        mi.set_variant(variant)
         register()
-    except RuntimeError as error:
-        raise InputError(str(error)) from None
+        mi.Float(0.0).numpy()  # the variant's JIT backend must start here (a cuda_* one needs a GPU)
+    except Exception as error:  # ImportError for a CUDA variant on a CPU machine, RuntimeError ...
+        cpu = " (no CUDA device here? use an llvm_* variant)" if variant.startswith("cuda_") else ""
+        raise InputError(f"cannot render in Mitsuba variant {variant!r}{cpu}: {one_line(error)}") from None
 
 
 @dataclass(frozen=True)
@@ -148,6 +175,31 @@ def load_scene(material: Material, resolution: int, max_depth: int = DEFAULT_MAX
         raise InputError(f"cannot load the scene: {str(error).splitlines()[-1]}", path=SCENE_FILE) from None
 
 
+def machine_memory_bytes() -> int:
+    """Physical memory of this machine in bytes."""
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def render_memory_bytes(resolution: int, spp_per_pass: int, wavefront: bool) -> int:
+    """Memory a render plans to hold at once: the image buffers and one pass's paths."""
+    pixels = resolution * resolution
+    per_path = PATH_BYTES_WAVEFRONT if wavefront else PATH_BYTES_SYMBOLIC
+    return pixels * IMAGE_BYTES_PER_PIXEL + pixels * spp_per_pass * per_path
+
+
+def check_render_size(resolution: int, spp_per_pass: int, wavefront: bool) -> None:
+    """Refuse (before any rendering) a render that would need more than :data:`MEMORY_FRACTION` of
+    this machine's memory, or more paths per pass than Mitsuba's 32-bit indices can count."""
+    need, have = render_memory_bytes(resolution, spp_per_pass, wavefront), machine_memory_bytes()
+    lanes = resolution * resolution * spp_per_pass
+    if need > MEMORY_FRACTION * have or lanes >= 2**32:
+        raise InputError(
+            f"--resolution {resolution} ({resolution}x{resolution}, {spp_per_pass} spp per pass) would need about "
+            f"{need / 2**30:.3g} GiB and {lanes} paths per pass; this machine has {have / 2**30:.3g} GiB "
+            f"(limit {MEMORY_FRACTION:.0%}) and a pass holds < 2^32 paths"
+        )
+
+
 def pass_sizes(spp: int, spp_per_pass: int) -> list[int]:
     """Samples per pixel of each pass: full passes of ``spp_per_pass`` and the remainder."""
     full, rest = divmod(spp, spp_per_pass)
@@ -195,27 +247,43 @@ def render(
     for name, value in (("spp", spp), ("resolution", resolution), ("max_depth", max_depth)):
         if value < 1:
             raise InputError(f"{name} must be a positive integer, got {value}")
-    set_variant(variant)
-    scene = load_scene(material, resolution, max_depth)
     per_pass = spp_per_pass or default_spp_per_pass(resolution, material.needs_wavefront)
     if per_pass < 1:
         raise InputError(f"spp_per_pass must be a positive integer, got {per_pass}")
+    check_render_size(resolution, min(per_pass, spp), material.needs_wavefront)
+    set_variant(variant)
+    scene = load_scene(material, resolution, max_depth)
     return render_passes(scene, spp, per_pass, seed, material.needs_wavefront, progress)
 
 
-def write_png(image: np.ndarray, path: str | Path) -> None:
-    """8-bit sRGB PNG of a linear RGB image (values clipped to [0, 1]), written atomically."""
+def within_drjit_budget(material: Material) -> Material:
+    """``material``, switched to the onnxruntime backend (with a message on stderr) when its model
+    is too large for the drjit backend (:data:`~neuralbrdf.limits.DRJIT_MAX_MULTIPLY_ADDS`)."""
+    if material.model is None or material.backend != "drjit":
+        return material
+    from neuralbrdf.render.onnx_contract import load_model, matrix_multiply_adds
+
+    count = matrix_multiply_adds(load_model(material.model).proto)
+    if count <= DRJIT_MAX_MULTIPLY_ADDS:
+        return material
+    print(
+        f"note: {material.model} unrolls to {count} multiply-adds per evaluation, above the drjit backend's "
+        f"budget of {DRJIT_MAX_MULTIPLY_ADDS}; rendering with backend 'onnxruntime'",
+        file=sys.stderr,
+    )
+    return dataclasses.replace(material, backend="onnxruntime")
+
+
+def write_images(image: np.ndarray, png: str | Path, exr: str | Path | None = None) -> None:
+    """8-bit sRGB PNG of a linear RGB image (values clipped to [0, 1]) and, if ``exr`` is given,
+    the linear float32 RGB OpenEXR; written atomically, both or neither."""
     bitmap = mi.Bitmap(np.ascontiguousarray(image, dtype=np.float32), mi.Bitmap.PixelFormat.RGB)
     srgb = bitmap.convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.UInt8, srgb_gamma=True)
-    with atomic_path(path) as tmp:
-        srgb.write(str(tmp))
-
-
-def write_exr(image: np.ndarray, path: str | Path) -> None:
-    """Linear float32 RGB OpenEXR, written atomically."""
-    bitmap = mi.Bitmap(np.ascontiguousarray(image, dtype=np.float32), mi.Bitmap.PixelFormat.RGB)
-    with atomic_path(path) as tmp:
-        bitmap.write(str(tmp))
+    targets = [png] if exr is None else [png, exr]
+    with atomic_paths(*targets) as temporaries:
+        srgb.write(str(temporaries[0]))
+        if exr is not None:
+            bitmap.write(str(temporaries[1]))
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -227,8 +295,14 @@ def build_parser() -> argparse.ArgumentParser:
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--model", help="exported model file (.onnx, SPEC §6)")
     source.add_argument("--reference-bsdf", choices=sorted(REFERENCE_BSDFS), help="render a built-in BSDF instead")
-    parser.add_argument("--out", required=True, help="output PNG (8-bit sRGB)")
-    parser.add_argument("--exr", action="store_true", help="also write the linear image as OUT with suffix .exr")
+    parser.add_argument(
+        "--out", required=True,
+        help="output PNG (8-bit sRGB); never the model file, a directory or a device; a symbolic link is "
+        "written through (the file it points to is replaced)",
+    )
+    parser.add_argument(
+        "--exr", action="store_true", help="also write the linear image as OUT with suffix .exr (both or neither)"
+    )
     parser.add_argument("--variant", default=DEFAULT_VARIANT, help=f"Mitsuba variant (default {DEFAULT_VARIANT})")
     parser.add_argument("--backend", choices=BACKENDS, default="drjit", help="model evaluation (default drjit)")
     parser.add_argument(
@@ -239,7 +313,11 @@ def build_parser() -> argparse.ArgumentParser:
         f"sRGB rule (default {DEFAULT_RMS_TOLERANCE:g}; 0: integrate all 31 wavelengths)",
     )
     parser.add_argument("--spp", type=int, default=64, help="samples per pixel (default 64)")
-    parser.add_argument("--resolution", type=int, default=256, help="image width = height in pixels (default 256)")
+    parser.add_argument(
+        "--resolution", type=int, default=256,
+        help=f"image width = height in pixels (default 256; refused before rendering if the image and one pass "
+        f"would need more than {MEMORY_FRACTION:.0%} of this machine's memory)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="seed of the pass seeds (default 0)")
     parser.add_argument(
         "--spp-per-pass",
@@ -256,35 +334,46 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     out = Path(args.out)
+    written = [out, out.with_suffix(".exr")] if args.exr else [out]
     try:
-        if out.suffix.lower() != ".png":
-            raise InputError("the output must be a .png file (add --exr for a linear EXR beside it)", path=out)
-        material = Material(
-            model=None if args.model is None else Path(args.model),
-            backend=args.backend,
-            reference_bsdf=args.reference_bsdf,
-            rgb_tolerance=args.rgb_tolerance,
-        )
-        start = time.perf_counter()
-        image = render(
-            material, args.variant, args.spp, args.resolution, args.seed, args.spp_per_pass, args.max_depth,
-            progress=not args.quiet,
-        )
-        elapsed = time.perf_counter() - start
+        with command_inputs():
+            if out.suffix.lower() != ".png":
+                raise InputError("the output must be a .png file (add --exr for a linear EXR beside it)", path=out)
+            material = Material(
+                model=None if args.model is None else Path(args.model),
+                backend=args.backend,
+                reference_bsdf=args.reference_bsdf,
+                rgb_tolerance=args.rgb_tolerance,
+            )
+            material = within_drjit_budget(material)  # reads the model: an input from here on
+            check_outputs(*written)
+            start = time.perf_counter()
+            from neuralbrdf.render.mitsuba_bsdf import clamped_values, reset_clamped_values
+
+            set_variant(args.variant)
+            reset_clamped_values()
+            image = render(
+                material, args.variant, args.spp, args.resolution, args.seed, args.spp_per_pass, args.max_depth,
+                progress=not args.quiet,
+            )
+            elapsed = time.perf_counter() - start
+            clamped = clamped_values()
+            if not np.all(np.isfinite(image)):
+                print(f"error: the render of {material.describe()} is not finite; nothing written", file=sys.stderr)
+                return 1
+            write_images(image, out, written[1] if args.exr else None)
     except InputError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    if not np.all(np.isfinite(image)):
-        print(f"error: the render of {material.describe()} is not finite; nothing written", file=sys.stderr)
-        return 1
-    write_png(image, out)
-    written = [str(out)]
-    if args.exr:
-        write_exr(image, out.with_suffix(".exr"))
-        written.append(str(out.with_suffix(".exr")))
+    if clamped:
+        print(
+            f"warning: {clamped} evaluations of {material.describe()} were negative or not finite and were "
+            "clamped to 0 (the model is wrong somewhere its load-time probe did not look)",
+            file=sys.stderr,
+        )
     print(
         f"rendered {material.describe()} in {args.variant}, {args.resolution}x{args.resolution} at {args.spp} spp "
-        f"in {elapsed:.1f} s; wrote {', '.join(written)}"
+        f"in {elapsed:.1f} s; wrote {', '.join(map(str, written))}"
     )
     return 0
 

@@ -266,24 +266,26 @@ def atomic_paths(*targets: str | os.PathLike[str]) -> Iterator[list[Path]]:
         current = given[0]
         _commit(list(zip(temporaries, reals)))
     except InputError:
-        _remove_folders(created)
+        _clean_up(temporaries, created)
         raise
     except Exception as error:
-        _remove_folders(created)
+        _clean_up(temporaries, created)
         if isinstance(error, OSError) or any(str(tmp) in str(error) or tmp.name in str(error) for tmp in temporaries):
             raise _output_error(error, current, temporaries) from None
         raise
     except BaseException:
-        _remove_folders(created)
+        _clean_up(temporaries, created)
         raise
     finally:
-        for tmp in temporaries:
-            with contextlib.suppress(OSError):
-                tmp.unlink(missing_ok=True)
+        _clean_up(temporaries, [])
 
 
-def _remove_folders(created: list[Path]) -> None:
-    for folder in created:  # deepest first
+def _clean_up(temporaries: list[Path], created_folders: list[Path]) -> None:
+    """Remove the temporary files, then the folders made for them (deepest first) if empty."""
+    for tmp in temporaries:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+    for folder in created_folders:
         with contextlib.suppress(OSError):
             folder.rmdir()
 
