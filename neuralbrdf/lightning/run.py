@@ -284,12 +284,25 @@ def holds_run(run_dir: Path) -> bool:
     return any((run_dir / entry).exists() for entry in RUN_ENTRIES)
 
 
-def _metrics_csv_header(run_dir: Path) -> list[str]:
+def _read_csv_log(path: Path) -> tuple[list[str], list[dict]]:
+    """Header and rows of a CSV log (empty if missing or unreadable)."""
     try:
-        with open(run_dir / "metrics.csv", newline="", encoding="utf-8") as handle:
-            return next(csv.reader(handle), [])
+        with open(path, newline="", encoding="utf-8") as handle:
+            reader = csv.DictReader(handle)
+            rows = list(reader)
+            return list(reader.fieldnames or []), rows
     except (OSError, UnicodeDecodeError, csv.Error):
-        return []
+        return [], []
+
+
+def _prepend_csv_log(path: Path, header: list[str], rows: list[dict]) -> None:
+    """Put ``rows`` (the log of the sessions before a resume) in front of the log at ``path``."""
+    new_header, new_rows = _read_csv_log(path)
+    fields = [*header, *(name for name in new_header if name not in header)]
+    with atomic_write(path) as handle:
+        writer = csv.DictWriter(handle, fieldnames=fields, restval="")
+        writer.writeheader()
+        writer.writerows([*rows, *new_rows])
 
 
 def _fresh_run_dir(config_paths) -> Path:
@@ -312,13 +325,21 @@ class NeuralBrdfCLI(LightningCLI):
         self.run_dir: Path | None = None
         self._created_run_dir = False
         self._set_aside: Path | None = None
-        self._resume_csv_header: list[str] = []
+        self._earlier_log: tuple[list[str], list[dict]] | None = None
         try:
             super().__init__(*args, **kwargs)
         except BaseException as exc:
+            self._restore_earlier_log()
             self._after_failure(exc)
             raise
+        self._restore_earlier_log()
         self._drop_set_aside()
+
+    def _restore_earlier_log(self) -> None:
+        """A resumed run's ``metrics.csv``: the earlier sessions' rows, then this one's."""
+        if self._earlier_log is not None:
+            _prepend_csv_log(self.run_dir / "metrics.csv", *self._earlier_log)
+            self._earlier_log = None
 
     # -- the run directory (module docstring)
 
@@ -358,7 +379,10 @@ class NeuralBrdfCLI(LightningCLI):
                 raise InputError("--resume: no run to resume here (checkpoints/last.ckpt not found)", path=run_dir)
             read_checkpoint(ckpt, "checkpoint to resume from")
             config.ckpt_path = str(ckpt)
-            self._resume_csv_header = _metrics_csv_header(run_dir)
+            header, rows = _read_csv_log(run_dir / "metrics.csv")
+            if header:
+                self._earlier_log = (header, rows)
+                (run_dir / "metrics.csv").unlink()  # this session's log starts afresh, then both join
             return
         if run_dir.exists() and holds_run(run_dir):
             if not config.get("overwrite"):
@@ -423,10 +447,7 @@ class NeuralBrdfCLI(LightningCLI):
         kwargs["default_root_dir"] = str(self.run_dir)
         if self._get(self.config_init, "trainer", {}).get("logger") in (None, True):
             version = "" if self.subcommand == "fit" else self.subcommand
-            logger = CSVLogger(self.run_dir, name="", version=version)
-            if self._resume_csv_header:  # append to the run's metrics.csv under its header
-                logger.experiment.metrics_keys = sorted(self._resume_csv_header)
-            kwargs["logger"] = logger
+            kwargs["logger"] = CSVLogger(self.run_dir, name="", version=version)
         if self.subcommand == "fit":
             configured = self._get(self.config_init, "trainer", default={}).get("callbacks") or []
             configured = configured if isinstance(configured, list) else [configured]
@@ -445,6 +466,26 @@ def _input_error(exc: BaseException) -> InputError | None:
     return None
 
 
+def _check_config_files(args: list[str]) -> None:
+    """Every ``--config FILE`` must be a readable UTF-8 text file (jsonargparse shows a traceback
+    for a binary one)."""
+    for k, arg in enumerate(args):
+        if arg == "--config" and k + 1 < len(args):
+            path = args[k + 1]
+        elif arg.startswith("--config="):
+            path = arg.split("=", 1)[1]
+        else:
+            continue
+        try:
+            Path(path).read_bytes().decode("utf-8")
+        except FileNotFoundError:
+            raise InputError("configuration file not found", path=path) from None
+        except UnicodeDecodeError as error:
+            raise InputError(f"not a YAML configuration: not UTF-8 text ({error.reason} at byte {error.start})", path=path) from None
+        except OSError as error:
+            raise InputError(f"cannot read the configuration ({error.strerror or error})", path=path) from None
+
+
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``train.py``; returns the exit status (2 on bad input)."""
     # The data are in-memory tensors: worker processes would only add start-up time.
@@ -457,6 +498,7 @@ def main(args: list[str] | None = None) -> int:
     # The ABC fit runs its own bounded optimiser (SciPy), not a torch one.
     warnings.filterwarnings("ignore", message=r".*configure_optimizers` returned `None`")
     try:
+        _check_config_files(sys.argv[1:] if args is None else args)
         with command_inputs():
             NeuralBrdfCLI(args=args)
     except FitFailed as failure:
