@@ -103,7 +103,7 @@ def output_target(target: str | os.PathLike[str]) -> Path:
     except FileNotFoundError:
         return real
     except OSError as error:
-        raise OutputError(f"cannot use as output ({error.strerror or error})", path=target) from None
+        raise OutputError(f"cannot write: {error.strerror or error}", path=target) from None
     if not stat.S_ISREG(info.st_mode):
         raise OutputError(f"exists and is {_kind(info.st_mode)}; refusing to replace it with a file", path=target)
     inputs = _INPUTS.get() or {}
