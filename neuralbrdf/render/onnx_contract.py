@@ -194,6 +194,7 @@ def load_model(path: str | os.PathLike[str]) -> OnnxModel:
     metadata = {entry.key: entry.value for entry in proto.metadata_props}
     kind, wavelength_range, abc = _check_metadata(metadata, path, is_spectral)
     _check_finite_constants(proto.graph, path)
+    _check_constant_shapes(proto.graph, path)
     _check_trial_evaluation(proto, path, wavelength_range)
     return OnnxModel(
         path=path,
@@ -425,6 +426,35 @@ def _check_tensor_sizes(graph: onnx.GraphProto, path) -> None:
             raise InputError(
                 f"weight tensors declare more than {MAX_ONNX_WEIGHT_ELEMENTS} elements (limit "
                 f"neuralbrdf.limits.MAX_ONNX_WEIGHT_ELEMENTS; {name!r} has shape {list(tensor.dims)})",
+                path=path,
+            )
+
+
+#: Operators that create a tensor of a size given by a shape input (input index): a constant
+#: shape is bounded like the weights, before onnxruntime folds or runs it.
+_SIZED_BY_INPUT = {"ConstantOfShape": 0, "Expand": 1, "Tile": 1}
+
+
+def _check_constant_shapes(graph: onnx.GraphProto, path) -> None:
+    constants = {init.name: init for init in graph.initializer}
+    for node in graph.node:
+        if node.op_type == "Constant":
+            for attribute in node.attribute:
+                if attribute.type == onnx.AttributeProto.TENSOR:
+                    constants[node.output[0]] = attribute.t
+    for node in graph.node:
+        index = _SIZED_BY_INPUT.get(node.op_type)
+        if index is None or len(node.input) <= index or node.input[index] not in constants:
+            continue
+        shape = numpy_helper.to_array(constants[node.input[index]])
+        if shape.dtype.kind not in "iu":
+            continue
+        elements = math.prod(int(d) for d in shape.ravel() if d > 0)
+        if elements > MAX_ONNX_WEIGHT_ELEMENTS:
+            raise InputError(
+                f"{node.op_type} node {node.name or node.output[0]!r} creates a tensor of {elements} elements "
+                f"(shape {shape.tolist()}), above the limit of {MAX_ONNX_WEIGHT_ELEMENTS} "
+                "(neuralbrdf.limits.MAX_ONNX_WEIGHT_ELEMENTS)",
                 path=path,
             )
 
