@@ -24,13 +24,7 @@ import numpy as np
 
 from neuralbrdf.data.gcms import GCMS_HEADER, GCMS_WAVELENGTHS_NM, GcmsMeasurement, pair_keys
 from neuralbrdf.data.csvio import CellProblem, first_flagged_cell
-from neuralbrdf.data.table import (
-    NEGATIVE_ATOL,
-    NEGATIVE_RTOL,
-    BrdfTable,
-    clip_negatives,
-    negative_noise_tolerance,
-)
+from neuralbrdf.data.table import BrdfTable, clip_negatives, negative_value_problem
 from neuralbrdf.geometry import inplane_to_spherical
 
 #: Reflectance of the Munsell N9 reference relative to a perfect diffuser (report §2.1.1).
@@ -82,14 +76,10 @@ def calibrate(sample: GcmsMeasurement, reference: GcmsMeasurement) -> BrdfTable:
             reference.source, reference.lines
         )
     brdf = MUNSELL_N9_REFLECTANCE / math.pi * sample.beta[:, bands] / beta_reference
-    tolerance = negative_noise_tolerance(brdf)
-    problem = first_flagged_cell(
-        brdf < -tolerance,
+    problem = negative_value_problem(
+        brdf,
         band_names,
-        lambda r, k: (
-            f"beta {sample.beta[r, bands][k]:g} calibrates to a BRDF of {brdf[r, k]:.4g} sr^-1, negative beyond "
-            f"the noise tolerance -{tolerance:.3g} (max({NEGATIVE_RTOL:g} × max|f|, {NEGATIVE_ATOL:g}))"
-        ),
+        lambda r, k: f"beta {sample.beta[r, bands][k]:g} calibrates to a negative BRDF of {brdf[r, k]:.4g} sr^-1,",
     )
     if problem:
         raise problem.to_error(sample.source, sample.lines)

@@ -53,6 +53,19 @@ def negative_noise_tolerance(values: np.ndarray) -> float:
     return max(NEGATIVE_RTOL * scale, NEGATIVE_ATOL)
 
 
+def negative_value_problem(values: np.ndarray, channel_names, describe) -> CellProblem | None:
+    """First value below ``-negative_noise_tolerance(values)``; ``describe(row, k)`` names it."""
+    tolerance = negative_noise_tolerance(values)
+    return first_flagged_cell(
+        values < -tolerance,
+        channel_names,
+        lambda r, k: (
+            f"{describe(r, k)} beyond the noise tolerance -{tolerance:.3g} "
+            f"(max({NEGATIVE_RTOL:g} × max|value|, {NEGATIVE_ATOL:g}))"
+        ),
+    )
+
+
 def clip_negatives(values: np.ndarray, source: str, what: str) -> np.ndarray:
     """``values`` with negatives set to 0, warning with their count and minimum if any."""
     negative = values < 0
@@ -119,15 +132,7 @@ def _table_cell_problem(angles, values, channel_names, weight, lines=None) -> Ce
     )
     if problem:
         return problem
-    tolerance = negative_noise_tolerance(values)
-    problem = first_flagged_cell(
-        values < -tolerance,
-        channel_names,
-        lambda r, k: (
-            f"negative BRDF value {values[r, k]:g} beyond the noise tolerance -{tolerance:.3g} "
-            f"(max({NEGATIVE_RTOL:g} × max|value|, {NEGATIVE_ATOL:g}))"
-        ),
-    )
+    problem = negative_value_problem(values, channel_names, lambda r, k: f"negative BRDF value {values[r, k]:g}")
     if problem:
         return problem
     if weight is not None:
