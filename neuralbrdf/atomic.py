@@ -238,16 +238,25 @@ def _commit(moves: list[tuple[Path, Path]]) -> None:
 
 
 @contextlib.contextmanager
-def atomic_paths(*targets: str | os.PathLike[str]) -> Iterator[list[Path]]:
+def atomic_paths(*targets: str | os.PathLike[str], replaces_input: bool = False) -> Iterator[list[Path]]:
     """Yield one temporary path per target; on success move them all onto their targets.
 
-    Every target is checked first (:func:`check_outputs`); each temporary file keeps its target's
-    suffix so that writers detecting the format by extension (matplotlib, Mitsuba) still work.
+    Every target is checked first (:func:`check_outputs`; ``replaces_input=True`` lets a target
+    be an input of the command, for a file a run updates in place such as a resumed run's
+    ``last.ckpt``); each temporary file keeps its target's suffix so that writers detecting the
+    format by extension (matplotlib, Mitsuba) still work.
     Raises :class:`~neuralbrdf.errors.OutputError` naming the target for refused outputs and for
     OS errors while writing; nothing is left behind on any error.
     """
     given = [Path(target) for target in targets]
-    reals = check_outputs(*given)
+    if replaces_input:
+        token = _INPUTS.set(None)
+        try:
+            reals = check_outputs(*given)
+        finally:
+            _INPUTS.reset(token)
+    else:
+        reals = check_outputs(*given)
     created: list[Path] = []
     temporaries: list[Path] = []
     current = given[0] if given else Path()
@@ -291,12 +300,12 @@ def _clean_up(temporaries: list[Path], created_folders: list[Path]) -> None:
 
 
 @contextlib.contextmanager
-def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
+def atomic_path(target: str | os.PathLike[str], replaces_input: bool = False) -> Iterator[Path]:
     """Yield a temporary path beside ``target``; move it onto ``target`` on success.
 
     Use this for writers that want a path (matplotlib, h5py, onnx); see :func:`atomic_paths`.
     """
-    with atomic_paths(target) as (tmp,):
+    with atomic_paths(target, replaces_input=replaces_input) as (tmp,):
         yield tmp
 
 

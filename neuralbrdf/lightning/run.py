@@ -12,7 +12,8 @@ else — for ``validate``/``test`` with ``--ckpt_path RUN/checkpoints/X.ckpt`` �
 there:
 
 * ``config.yaml`` — the resolved config (``SaveConfigCallback``);
-* ``checkpoints/`` — from the config's ``ModelCheckpoint`` (best and last);
+* ``checkpoints/`` — from the config's ``ModelCheckpoint`` (best and last), each written
+  whole or not at all (:class:`AtomicCheckpointIO`);
 * ``metrics.csv`` and ``hparams.yaml`` — the :class:`~pytorch_lightning.loggers.CSVLogger`
   (unless the config names another logger);
 * ``metrics.json`` — :class:`MetricsJson`.
@@ -62,8 +63,9 @@ from jsonargparse import ActionYesNo
 from pytorch_lightning.callbacks import ModelCheckpoint
 from pytorch_lightning.cli import LightningCLI
 from pytorch_lightning.loggers import CSVLogger
+from pytorch_lightning.plugins.io import TorchCheckpointIO
 
-from neuralbrdf.atomic import TEMP_MARKER, atomic_write, command_inputs
+from neuralbrdf.atomic import TEMP_MARKER, atomic_path, atomic_write, command_inputs
 from neuralbrdf.errors import InputError
 from neuralbrdf.lightning.checkpoint_io import one_line, read_checkpoint
 
@@ -279,6 +281,17 @@ class FitHealth(pl.Callback):
         write_metrics(path, merged, merge=False)
 
 
+class AtomicCheckpointIO(TorchCheckpointIO):
+    """Checkpoints written whole or not at all (:mod:`neuralbrdf.atomic`): a run killed while
+    saving never leaves a truncated ``last.ckpt`` or ``best.ckpt``."""
+
+    def save_checkpoint(self, checkpoint: dict, path, storage_options=None) -> None:
+        if storage_options is not None:
+            raise TypeError(f"{type(self).__name__} takes no storage_options")
+        with atomic_path(path, replaces_input=True) as tmp:  # a resumed run replaces its last.ckpt
+            torch.save(checkpoint, tmp)
+
+
 def holds_run(run_dir: Path) -> bool:
     """Whether ``run_dir`` holds the files of a run (:data:`RUN_ENTRIES`)."""
     return any((run_dir / entry).exists() for entry in RUN_ENTRIES)
@@ -448,6 +461,8 @@ class NeuralBrdfCLI(LightningCLI):
         if self._get(self.config_init, "trainer", {}).get("logger") in (None, True):
             version = "" if self.subcommand == "fit" else self.subcommand
             kwargs["logger"] = CSVLogger(self.run_dir, name="", version=version)
+        if not self._get(self.config_init, "trainer", default={}).get("plugins"):
+            kwargs["plugins"] = [AtomicCheckpointIO()]
         if self.subcommand == "fit":
             configured = self._get(self.config_init, "trainer", default={}).get("callbacks") or []
             configured = configured if isinstance(configured, list) else [configured]
