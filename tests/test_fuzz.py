@@ -171,3 +171,20 @@ def test_mutated_onnx_files_pass_or_fail_the_contract_check_cleanly(tmp_path, va
         else:
             raw[k:k] = data.draw(st.binary(min_size=1, max_size=8))
     _accepts_or_input_error(load_model, _write(tmp_path, "mutated.onnx", bytes(raw)))
+
+
+@FUZZ
+@given(data=st.data())
+def test_mutated_tables_convert_to_rgb_or_exit_2_and_no_output(valid_files, data):
+    mutated = data.draw(mutations(valid_files["spectral"]))
+    folder = Path(tempfile.mkdtemp())
+    try:
+        out = folder / "rgb.csv"
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            status = cli(["to-rgb", str(_write(folder, "t.csv", mutated)), "--out", str(out)])
+        assert status in (0, 2)
+        assert out.exists() == (status == 0)
+        assert len(list(folder.iterdir())) == 1 + (status == 0)  # no temporary left behind
+    finally:
+        shutil.rmtree(folder)
