@@ -228,3 +228,22 @@ def test_an_exact_repeat_is_kept_not_dropped(tmp_path):
     path = tmp_path / "t.csv"
     path.write_text(f"{RGB_HEADER}\n{GOOD_ROW}\n{GOOD_ROW}\n")
     assert read_table(path).n_rows == 2
+
+
+def test_oversized_and_endless_inputs_are_refused_before_reading(tmp_path, monkeypatch):
+    """Issue 13 class 5: a CSV above the documented limit, or a FIFO/device, is never read."""
+    import os
+
+    from neuralbrdf.data import csvio
+
+    path = tmp_path / "t.csv"
+    path.write_text(f"{RGB_HEADER}\n{GOOD_ROW}\n")
+    monkeypatch.setattr(csvio, "MAX_CSV_BYTES", 16)
+    with pytest.raises(InputError, match="exceeds the limit of .* MiB"):
+        read_table(path)
+    fifo = tmp_path / "pipe.csv"
+    os.mkfifo(fifo)  # opening it for reading would block forever
+    with pytest.raises(InputError, match="not a regular file"):
+        read_table(fifo)
+    with pytest.raises(InputError, match="not a regular file"):
+        read_table("/dev/zero")
