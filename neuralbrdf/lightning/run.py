@@ -26,7 +26,8 @@ and ``<run>/test/`` so the training logs survive, and merge their metrics into t
 (:data:`RUN_ENTRIES`) is refused unless ``--resume`` (continue from its
 ``checkpoints/last.ckpt``, or ``--ckpt_path``; ``metrics.csv`` is appended to, ``metrics.json``
 merged and ``fit/wall_time_s`` summed over the sessions) or ``--overwrite`` (the old run's
-files are replaced once the new run has started; a start that fails puts them back).  A start
+files are set aside and deleted when the command ends; a start that fails on bad input puts
+them back).  A start
 that fails (bad input) leaves no run directory behind.
 
 **A failed fit is a failure** (:class:`FitHealth`, added to every ``fit``): a non-finite
@@ -432,7 +433,8 @@ class NeuralBrdfCLI(LightningCLI):
         )
         parser.add_argument(
             "--overwrite", action=ActionYesNo, default=False,
-            help="fit: replace the run already in --run_dir (its files go once the new run has started).",
+            help="fit: replace the run already in --run_dir (its files are set aside, and put back if the new run "
+            "fails to start on bad input).",
         )
 
     def _resolve_run_dir(self, config) -> Path:
