@@ -33,8 +33,9 @@ that fails (bad input) leaves no run directory behind.
 **A failed fit is a failure** (:class:`FitHealth`, added to every ``fit``): a non-finite
 training loss or monitored metric, a network whose gradients are all exactly zero for a whole
 epoch (dead or saturated units, e.g. after a too-large learning rate), or a module that reports
-its own failure (``fit_failure()``, e.g. the ABC fit) ends the command with status 1 and one
-line ``error: fit failed: <cause>``; ``metrics.json`` then holds ``"status": "failed"`` and
+its own failure (``fit_failure()``, e.g. the ABC fit), or a :data:`DATA_FAILURES` error
+raised inside the fit (all-zero data leaves no sample to score) ends the command with status 1
+and one line ``error: fit failed: <cause>``; ``metrics.json`` then holds ``"status": "failed"`` and
 ``"cause"``, and no checkpoint named ``best*`` is left (``last.ckpt`` stays, for inspection).
 A successful fit writes ``"status": "ok"``.  ``metrics.json`` is strict JSON: a non-finite
 number is written as ``null``.
@@ -110,6 +111,12 @@ def write_metrics(path: Path, metrics: dict, merge: bool) -> None:
 
 class FitFailed(RuntimeError):
     """A fit that ran but produced no usable model; the message is the one-line cause."""
+
+
+#: Errors raised inside a fit that mean the data cannot support it (e.g. no measured value above
+#: the metric's floor in all-zero data): reported like :class:`FitFailed`, in one line, exit 1.
+#: Any other exception is a bug and keeps its traceback (``metrics.json`` still says failed).
+DATA_FAILURES = (ValueError, ArithmeticError)
 
 
 def _is_resuming(trainer: pl.Trainer) -> bool:
@@ -259,6 +266,8 @@ class FitHealth(pl.Callback):
         if trainer.state.fn != "fit" or _input_error(exception) is not None or not trainer.is_global_zero:
             return
         cause = str(exception) if isinstance(exception, FitFailed) else one_line(exception)
+        if isinstance(exception, Exception):
+            exception.neuralbrdf_fit_failure = cause  # read by main() for the one-line report
         for callback in trainer.checkpoint_callbacks:
             if isinstance(callback, ModelCheckpoint) and callback.dirpath and os.path.isdir(callback.dirpath):
                 for best in Path(callback.dirpath).glob("best*.ckpt"):
@@ -523,6 +532,10 @@ def main(args: list[str] | None = None) -> int:
         return 1
     except Exception as exc:
         error = _input_error(exc)
+        cause = getattr(exc, "neuralbrdf_fit_failure", None)
+        if error is None and cause is not None and isinstance(exc, DATA_FAILURES):
+            print(f"error: fit failed: {cause}", file=sys.stderr)
+            return 1
         if error is None:
             raise
         print(f"error: {error}", file=sys.stderr)
