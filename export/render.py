@@ -62,8 +62,7 @@ import numpy as np
 from tqdm import tqdm
 
 from neuralbrdf.atomic import atomic_paths, check_outputs, command_inputs
-from neuralbrdf.errors import InputError
-from neuralbrdf.lightning.checkpoint_io import one_line
+from neuralbrdf.errors import InputError, one_line
 from neuralbrdf.limits import DRJIT_MAX_MULTIPLY_ADDS
 from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE
 

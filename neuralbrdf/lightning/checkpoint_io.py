@@ -17,15 +17,8 @@ import torch
 from torch import nn
 
 from neuralbrdf.atomic import note_input
-from neuralbrdf.errors import InputError
+from neuralbrdf.errors import InputError, one_line
 from neuralbrdf.limits import MAX_CHECKPOINT_BYTES, MAX_MODEL_PARAMETERS, check_file_size
-
-
-def one_line(error: BaseException, limit: int = 300) -> str:
-    """``Type: message`` on one line, shortened to ``limit`` characters."""
-    text = " ".join(line.strip() for line in str(error).splitlines() if line.strip())
-    text = text if len(text) <= limit else text[: limit - 3] + "..."
-    return f"{type(error).__name__}: {text}" if text else type(error).__name__
 
 
 def read_checkpoint(path: str | os.PathLike[str], what: str = "checkpoint") -> dict:
