@@ -68,6 +68,7 @@ import onnx
 import onnxruntime
 import torch
 
+from neuralbrdf import onnx_export
 from neuralbrdf.atomic import atomic_write
 from neuralbrdf.models.abc import ABCParameters
 from neuralbrdf.models.directional import AbcOnDirections, NlbWithLatent
@@ -206,8 +207,8 @@ class FlatSpectrum(torch.nn.Module):
 
 def write_flat_model(path: Path) -> Path:
     metadata = contract_metadata("spectral_mlp", "flat", "benchmarks/run.py", wavelength_range_nm=(400.0, 700.0))
-    exportable = to_onnx.Exportable(FlatSpectrum(), "spectral_mlp", "flat", metadata, (400.0, 700.0))
-    onnx.save(to_onnx.trace(exportable), str(path))
+    exportable = onnx_export.Exportable(FlatSpectrum(), "spectral_mlp", "flat", metadata, (400.0, 700.0))
+    onnx.save(onnx_export.trace(exportable), str(path))
     return path
 
 
@@ -368,7 +369,7 @@ def _exportable(module: torch.nn.Module, kind: str):
         p = ABC_BENCH_PARAMETERS
         abc = AbcMetadata(kd=tuple(p.kd.tolist()), A=tuple(p.A.tolist()), B=p.B, C=p.C, eta=p.eta)
     metadata = contract_metadata(kind, "benchmark", "benchmarks/run.py", abc=abc)
-    return to_onnx.Exportable(module.eval(), kind, "benchmark", metadata, None)
+    return onnx_export.Exportable(module.eval(), kind, "benchmark", metadata, None)
 
 
 # --------------------------------------------------------------------------- report
@@ -446,7 +447,7 @@ def run(quick: bool, out: Path) -> dict:
         }
         results["throughput"] = {}
         for name, (exportable, note) in models.items():
-            proto = to_onnx.trace(exportable)
+            proto = onnx_export.trace(exportable)
             backends = bench_throughput(exportable.module, proto, exportable.is_spectral, settings)
             fastest = max(backends, key=lambda b: backends[b]["queries_per_s"])
             results["throughput"][name] = {"note": note, "backends": backends, "fastest": fastest}

@@ -153,6 +153,16 @@ def half_vector_above(wi, wo):
     return normalize(xp.where(above[..., None], wi + wo, pole)), above
 
 
+def _azimuth_cos_sin(xp, v):
+    """``(cos phi, sin phi)`` of the azimuth of ``v`` ``[..., 3]`` as ratios, without ``atan2``
+    (which ONNX lacks, so that models on directions export); ``(1, 0)`` on the pole, where
+    ``atan2(0, 0) = 0``."""
+    r = xp.sqrt(v[..., 0] ** 2 + v[..., 1] ** 2)
+    on_pole = r <= 0.0
+    safe_r = xp.where(on_pole, xp.ones_like(r), r)
+    return xp.where(on_pole, xp.ones_like(r), v[..., 0] / safe_r), xp.where(on_pole, xp.zeros_like(r), v[..., 1] / safe_r)
+
+
 def half_diff_vectors(wi, wo):
     """Rusinkiewicz half vector ``h`` and difference vector ``d`` (both unit, ``[..., 3]``).
 
@@ -169,8 +179,7 @@ def half_diff_vectors(wi, wo):
     cos_th = _clip_unit(xp, h[..., 2])
     sin_th = xp.sqrt(xp.clip(1.0 - cos_th * cos_th, 0.0, None))
     at_mirror = xp.sqrt(h[..., 0] ** 2 + h[..., 1] ** 2) < MIRROR_SIN_THETA_H
-    phi_h = xp.where(at_mirror, xp.atan2(wi[..., 1], wi[..., 0]), xp.atan2(h[..., 1], h[..., 0]))
-    cp, sp = xp.cos(phi_h), xp.sin(phi_h)
+    cp, sp = _azimuth_cos_sin(xp, xp.where(at_mirror[..., None], wi, h))
     # rotate wi by -phi_h about z
     x1 = cp * wi[..., 0] + sp * wi[..., 1]
     y1 = -sp * wi[..., 0] + cp * wi[..., 1]

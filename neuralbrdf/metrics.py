@@ -157,16 +157,38 @@ def _channel_mean(per_channel: np.ndarray) -> np.ndarray:
     return np.where(count > 0, total / np.maximum(count, 1), np.nan)
 
 
-def _glossy_ratios(pred, target, theta_i, theta_r, floor):
+def _masked_ratios(pred, target, rows, floor):
+    """``(valid, excluded, ratio_sq)`` ``[N, C]`` of Eq. 4.3 over the rows selected by ``rows`` ``[N]``."""
     if not floor > 0:
         raise ValueError(f"floor must be a positive BRDF value (sr⁻¹), got {floor}")
+    valid = rows[:, None] & (target >= floor)
+    excluded = rows[:, None] & ~valid
+    safe_target = np.where(valid, target, 1.0)
+    return valid, excluded, ((pred - target) / safe_target) ** 2
+
+
+def _glossy_ratios(pred, target, theta_i, theta_r, floor):
     pred, target, (theta_i, theta_r) = _values_and_angles(pred, target, theta_i, theta_r)
     glossy = is_glossy(theta_i, theta_r)
-    valid = glossy[:, None] & (target >= floor)
-    excluded = glossy[:, None] & ~valid
-    safe_target = np.where(valid, target, 1.0)
-    ratio_sq = ((pred - target) / safe_target) ** 2
-    return theta_i, glossy, valid, excluded, ratio_sq
+    return (theta_i, glossy, *_masked_ratios(pred, target, glossy, floor))
+
+
+def masked_relative_rmse(pred, target, rows, floor: float = DEFAULT_FLOOR, region: str = "selected") -> RelativeRmse:
+    """Relative RMSE (Eq. 4.3) over the samples where ``rows`` (``[N]`` bool) holds, averaged over
+    channels, entries below ``floor`` excluded and counted.  Raises :class:`ValueError` (naming
+    ``region``) when no entry reaches the floor."""
+    pred, target, _ = _values_and_angles(pred, target, None)
+    rows = np.asarray(rows, dtype=bool)
+    if rows.shape != (pred.shape[0],):
+        raise ValueError(f"rows has shape {rows.shape}, expected ({pred.shape[0]},)")
+    valid, excluded, ratio_sq = _masked_ratios(pred, target, rows, floor)
+    if not valid.any():
+        raise ValueError(
+            f"no {region} sample with a measured value >= floor {floor:g} sr⁻¹ "
+            f"({int(rows.sum())} {region} samples, {int(excluded.sum())} entries below the floor)"
+        )
+    per_channel = _rmse_over_rows(ratio_sq, valid, rows)
+    return RelativeRmse(float(_channel_mean(per_channel)), per_channel, int(valid.sum()), int(excluded.sum()))
 
 
 def relative_rmse(pred, target, theta_i, theta_r, floor: float = DEFAULT_FLOOR) -> RelativeRmse:
@@ -177,16 +199,8 @@ def relative_rmse(pred, target, theta_i, theta_r, floor: float = DEFAULT_FLOOR) 
     <neuralbrdf.data.table.BrdfTable.inplane_angles>` will do).  Raises :class:`ValueError`
     when no glossy entry reaches the floor.
     """
-    _, glossy, valid, excluded, ratio_sq = _glossy_ratios(pred, target, theta_i, theta_r, floor)
-    if not valid.any():
-        raise ValueError(
-            f"no glossy sample (|theta_i - theta_r| <= 10°) with a measured value >= floor {floor:g} sr⁻¹ "
-            f"({int(glossy.sum())} glossy samples, {int(excluded.sum())} entries below the floor)"
-        )
-    per_channel = _rmse_over_rows(ratio_sq, valid, glossy)
-    return RelativeRmse(
-        float(_channel_mean(per_channel)), per_channel, int(valid.sum()), int(excluded.sum())
-    )
+    _, _, (theta_i, theta_r) = _values_and_angles(pred, target, theta_i, theta_r)
+    return masked_relative_rmse(pred, target, is_glossy(theta_i, theta_r), floor, "glossy (|theta_i - theta_r| <= 10°)")
 
 
 def relative_rmse_by_theta_i(pred, target, theta_i, theta_r, floor: float = DEFAULT_FLOOR) -> RelativeRmseByThetaI:

@@ -135,7 +135,9 @@ def test_bad_input_exits_2_with_one_line(models, case, tmp_path, capsys):
 
 def test_user_errors_are_one_line_before_any_rendering(models, tmp_path, capsys, monkeypatch):
     """Issue 13 classes 1 and 8: outputs and sizes are checked before rendering starts."""
-    monkeypatch.setattr(render, "render_passes", lambda *a, **k: pytest.fail("rendered before refusing"))
+    from neuralbrdf.render import preview
+
+    monkeypatch.setattr(preview, "render_passes", lambda *a, **k: pytest.fail("rendered before refusing"))
     model_as_png = tmp_path / "model.png"
     model_as_png.write_bytes(Path(models["spectral"]).read_bytes())
     folder_png = tmp_path / "folder.png"

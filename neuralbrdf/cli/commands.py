@@ -93,3 +93,26 @@ def regenerate_default_data(args) -> None:
     written = instrument.regenerate_default_data(args.out_dir, progress=True)
     for path in written:
         print(path)
+
+
+def export_truth(args) -> None:
+    from neuralbrdf.evaluation.truth import export_truth as write_truth
+
+    report = write_truth(args.source, args.out)
+    print(
+        f"wrote {report.path}: reference model of {report.material!r}; onnxruntime vs PyTorch on {report.n_probes} "
+        f"probes: max error {report.max_abs_error:.2g} sr^-1, {report.max_rel_error:.2g} relative"
+    )
+
+
+def evaluate(args) -> None:
+    from neuralbrdf.evaluation.evaluate import RenderSettings, format_table
+    from neuralbrdf.evaluation.evaluate import evaluate as run_evaluation
+
+    settings = RenderSettings(args.variant, args.spp, args.resolution, args.seed, args.backend)
+    for name in ("spp", "resolution"):
+        if getattr(settings, name) < 1:
+            raise InputError(f"--{name} must be a positive integer, got {getattr(settings, name)}")
+    result = run_evaluation(args.model, args.truth, args.out_dir, settings, render_images=not args.no_render)
+    print(format_table(result))
+    print(f"-> {args.out_dir}/evaluation.json" + ("" if args.no_render else ", model.png, truth.png, error_map.png, comparison.png"))

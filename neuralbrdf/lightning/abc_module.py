@@ -5,7 +5,9 @@ minimisation of ``L_cus``, Eq. 4.2); this module runs it once on the material of
 :class:`SingleMaterialData`, logs its outcome and, where the source has a dense ground truth
 (NBRDF proxies, virtual stand-ins), the hemisphere log-cosine RMSE on ``eval_plan``.
 
-``metrics.json`` gets ``fit/abc/parameters`` (kd, A per channel; B, C, eta), ``fit/abc/success``
+``metrics.json`` gets the shared names of :func:`~neuralbrdf.evaluation.scores.fit_scores`
+(``fit/inplane_glossy_rel_rmse``, ``fit/inplane_diffuse_rel_rmse``, and
+``fit/hemisphere_logcos_rmse`` with a truth), ``fit/abc/parameters`` (kd, A per channel; B, C, eta), ``fit/abc/success``
 and ``fit/abc/failure_reason``: a failed fit is reported as failed (and warned about), never
 passed off as a result.  Checkpoints carry ``neuralbrdf_kind = "abc"``, ``abc_parameters`` and
 ``material`` for ``export/to_onnx.py``.
@@ -21,6 +23,7 @@ from pytorch_lightning.utilities import rank_zero_warn
 from torch.utils.data import DataLoader
 
 from neuralbrdf.data.sources import MaterialData, load_material
+from neuralbrdf.evaluation.scores import fit_scores
 from neuralbrdf.fitting.abc_fit import AbcBounds, AbcFitResult, fit_abc
 from neuralbrdf.metrics import hemisphere_logcos_rmse
 from neuralbrdf.models.abc import ABCParameters
@@ -90,6 +93,8 @@ class AbcFitModule(pl.LightningModule):
         self.result: AbcFitResult | None = None
         self.parameters_: ABCParameters | None = None
         self.material_name: str | None = None
+        #: :func:`~neuralbrdf.evaluation.scores.fit_scores` of the last evaluation.
+        self.scores: dict[str, float | None] = {}
 
     def configure_optimizers(self):
         return None  # the fit runs its own bounded optimiser (SciPy TNC)
@@ -114,16 +119,17 @@ class AbcFitModule(pl.LightningModule):
     def _evaluate(self, material: MaterialData, stage: str) -> None:
         if self.parameters_ is None:
             return  # sanity check before the fit
-        fit = material.fit
+        fit, truth = material.fit, material.truth
         pred = self.parameters_.evaluate(*fit.vectors())
         self.log(f"{stage}/fit_logcos_rmse", hemisphere_logcos_rmse(pred, fit.values, fit.theta_i), batch_size=1)
-        if material.truth is not None:
-            truth = material.truth
-            pred = self.parameters_.evaluate(*truth.vectors())
+        pred_truth = None
+        if truth is not None:
             if truth.is_spectral != fit.is_spectral:
                 raise ValueError(f"{material.name}: truth and fit data differ in channels")
-            rmse = hemisphere_logcos_rmse(pred, truth.values, truth.theta_i)
+            pred_truth = self.parameters_.evaluate(*truth.vectors())
+            rmse = hemisphere_logcos_rmse(pred_truth, truth.values, truth.theta_i)
             self.log(f"{stage}/hemisphere_logcos_rmse", rmse, batch_size=1)
+        self.scores = fit_scores(pred, fit, pred_truth, truth)
 
     def validation_step(self, material: MaterialData, batch_idx: int) -> None:
         self._evaluate(material, "val")
@@ -149,6 +155,7 @@ class AbcFitModule(pl.LightningModule):
         if self.result is None:
             return {}
         return {
+            **self.scores,
             "abc/material": self.material_name,
             "abc/parameters": self.result.parameters.to_dict(),
             "abc/success": bool(self.result.success),

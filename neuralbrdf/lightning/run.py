@@ -69,7 +69,8 @@ from pytorch_lightning.plugins.io import TorchCheckpointIO
 
 from neuralbrdf.atomic import TEMP_MARKER, atomic_path, atomic_write, command_inputs
 from neuralbrdf.errors import InputError
-from neuralbrdf.lightning.checkpoint_io import one_line, read_checkpoint
+from neuralbrdf.errors import one_line
+from neuralbrdf.lightning.checkpoint_io import read_checkpoint
 
 METRICS_FILE = "metrics.json"
 RUNS_ROOT = Path("runs")

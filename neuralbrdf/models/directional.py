@@ -113,15 +113,32 @@ class NlbWithLatent(nn.Module):
         return self.network(wi, wo, self.latent)
 
 
-def _hat_widths(grid: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Left and right widths (nm) of the linear-interpolation hat of each grid node.
+class LinearInWavelength(nn.Module):
+    """Weights ``[N, K]`` of piecewise-linear interpolation on an increasing wavelength grid ``[K]``.
 
-    The outer widths of the end nodes are irrelevant (queries are clamped into the grid) and
-    set to 1 so that no division by zero appears.
+    A sum of hat functions, ``w_k(λ) = clip(min(1 + (λ − λ_k)/w⁻_k, 1 − (λ − λ_k)/w⁺_k), 0, 1)``
+    (``w⁻_k, w⁺_k`` the grid steps left and right of node ``k``), with ``λ`` clamped to the grid:
+    exact linear interpolation on any increasing grid without ``floor`` or integer indexing, so
+    that it exports to ONNX and runs in the Dr.Jit backend.  ``weights @ table`` interpolates a
+    table ``[K]``.
     """
-    steps = grid[1:] - grid[:-1]
-    one = torch.ones(1, dtype=grid.dtype)
-    return torch.cat([one, steps]), torch.cat([steps, one])
+
+    def __init__(self, grid_nm) -> None:
+        super().__init__()
+        grid = torch.as_tensor(grid_nm, dtype=torch.float64).reshape(-1)
+        if grid.numel() > 1 and not bool(torch.all(grid[1:] > grid[:-1])):
+            raise ValueError(f"wavelength grid must increase, got {grid.tolist()}")
+        steps = grid[1:] - grid[:-1]
+        one = torch.ones(1, dtype=grid.dtype)  # outer widths of the end nodes: unused (clamped), not 0
+        self.register_buffer("grid", grid.float())
+        self.register_buffer("inv_left", (1.0 / torch.cat([one, steps])).float())
+        self.register_buffer("inv_right", (1.0 / torch.cat([steps, one])).float())
+        self.wavelength_range_nm = (float(grid[0]), float(grid[-1]))
+
+    def forward(self, wavelength: torch.Tensor) -> torch.Tensor:
+        low, high = self.wavelength_range_nm
+        offset = torch.clamp(wavelength, low, high)[:, None] - self.grid
+        return torch.clamp(torch.minimum(1.0 + offset * self.inv_left, 1.0 - offset * self.inv_right), 0.0, 1.0)
 
 
 class AbcOnDirections(nn.Module):
@@ -129,10 +146,7 @@ class AbcOnDirections(nn.Module):
 
     RGB parameters (``wavelengths is None``): ``forward(wi, wo) -> [N, 3]``.  Spectral
     parameters: ``forward(wi, wo, wavelength) -> [N]``, with ``kd`` and ``A`` interpolated
-    linearly between the parameter wavelengths (clamped to their range).  The interpolation is a
-    sum of hat functions, ``kd(λ) = Σ_k kd_k · clip(min(1 + (λ − λ_k)/w⁻_k, 1 − (λ − λ_k)/w⁺_k),
-    0, 1)``, which is exact piecewise-linear interpolation on any increasing grid and needs
-    neither ``floor`` nor integer indexing.
+    linearly between the parameter wavelengths (clamped to their range, :class:`LinearInWavelength`).
     """
 
     def __init__(self, parameters: ABCParameters) -> None:
@@ -142,20 +156,11 @@ class AbcOnDirections(nn.Module):
         self.register_buffer("A", torch.as_tensor(parameters.A, dtype=torch.float32))
         self.is_spectral = parameters.wavelengths is not None
         if self.is_spectral:
-            grid = torch.as_tensor(parameters.wavelengths, dtype=torch.float64)
-            if grid.numel() > 1 and not bool(torch.all(grid[1:] > grid[:-1])):
-                raise ValueError(f"ABC wavelengths must increase, got {parameters.wavelengths.tolist()}")
-            left, right = _hat_widths(grid)
-            self.register_buffer("grid", grid.float())
-            self.register_buffer("inv_left", (1.0 / left).float())
-            self.register_buffer("inv_right", (1.0 / right).float())
-            self.wavelength_range_nm = (float(grid[0]), float(grid[-1]))
-
-    def interpolation_weights(self, wavelength: torch.Tensor) -> torch.Tensor:
-        """``[N, K]`` weights of the K parameter wavelengths at ``wavelength`` ``[N]`` (rows sum to 1)."""
-        low, high = self.wavelength_range_nm
-        offset = torch.clamp(wavelength, low, high)[:, None] - self.grid
-        return torch.clamp(torch.minimum(1.0 + offset * self.inv_left, 1.0 - offset * self.inv_right), 0.0, 1.0)
+            try:
+                self.interpolation_weights = LinearInWavelength(parameters.wavelengths)
+            except ValueError as error:
+                raise ValueError(f"ABC wavelengths: {error}") from None
+            self.wavelength_range_nm = self.interpolation_weights.wavelength_range_nm
 
     def forward(self, wi: torch.Tensor, wo: torch.Tensor, wavelength: torch.Tensor | None = None) -> torch.Tensor:
         if not self.is_spectral:

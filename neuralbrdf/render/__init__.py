@@ -9,7 +9,16 @@
   :func:`register` after ``mi.set_variant``.
 """
 
-from neuralbrdf.render.mitsuba_bsdf import register
-from neuralbrdf.render.onnx_contract import OnnxModel, load_model
+import importlib
 
-__all__ = ["OnnxModel", "load_model", "register"]
+#: Public names -> the submodule defining them, imported on first use: checking or exporting a
+#: file must not load Mitsuba and Dr.Jit (seconds), which only the BSDF plugin needs.
+_LAZY = {"OnnxModel": "onnx_contract", "load_model": "onnx_contract", "register": "mitsuba_bsdf"}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name: str):
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)

@@ -19,7 +19,7 @@ Metadata (``ModelProto.metadata_props``, all values strings)
 =================================  ===========================================================
 key                                value
 =================================  ===========================================================
-``neuralbrdf.kind``                ``spectral_mlp``, ``nlb`` or ``abc``
+``neuralbrdf.kind``                ``spectral_mlp``, ``nlb``, ``abc`` or ``reference`` (a truth)
 ``neuralbrdf.format_version``      ``1`` (:data:`FORMAT_VERSION`)
 ``neuralbrdf.material``            material name, non-empty
 ``neuralbrdf.provenance``          short free text: config, data plan, training run
@@ -36,8 +36,8 @@ The ABC keys are the parameters of SPEC §4.1 that the graph itself implements; 
 reads them to build the analytic importance sampler (:mod:`neuralbrdf.render.sampling`).
 ``kd`` and ``A`` have one entry per RGB channel (3) for an RGB model, or one per wavelength of
 the fit's grid for a spectral one (the sampler only uses their means).  Spectral models are
-those with a ``wavelength`` input; the kind ``spectral_mlp`` must be spectral, ``nlb`` and
-``abc`` may be either.  Exporters should build the metadata with :func:`contract_metadata`,
+those with a ``wavelength`` input; the kind ``spectral_mlp`` must be spectral, the others may
+be either.  Exporters should build the metadata with :func:`contract_metadata`,
 which writes exactly what :func:`load_model` reads.
 """
 
@@ -74,7 +74,8 @@ ABC_B_KEY = "neuralbrdf.abc.B"
 ABC_C_KEY = "neuralbrdf.abc.C"
 ABC_ETA_KEY = "neuralbrdf.abc.eta"
 
-KINDS = ("spectral_mlp", "nlb", "abc")
+#: Model kinds: the three fitted ones (SPEC §4) and ``reference``, a ground-truth material (SPEC §9).
+KINDS = ("spectral_mlp", "nlb", "abc", "reference")
 REQUIRED_KEYS = (KIND_KEY, FORMAT_VERSION_KEY, MATERIAL_KEY, PROVENANCE_KEY)
 
 INPUT_WI = "wi"

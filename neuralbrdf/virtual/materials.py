@@ -7,7 +7,13 @@ goniochromatic), plus the Munsell N9 white reference of the calibration (report 
 
 Every material has a ``name`` and ``brdf(wi, wo, wavelengths_nm)``: unit directions ``[N, 3]``
 (local frame of :mod:`neuralbrdf.geometry`) and wavelengths ``[W]`` in nm to a float64 BRDF
-``[N, W]`` in sr⁻¹, zero when either direction is at or below the horizon.  Specular lobes are
+``[N, W]`` in sr⁻¹, zero when either direction is at or below the horizon.  The same formula is
+split in two for other evaluators: ``spectra(wavelengths_nm)``, the named per-wavelength
+quantities of the material (albedo, complex index, ...; ``[W]`` NumPy arrays), and
+``brdf_from_spectra(wi, wo, spectra)``, the BRDF from those quantities through the array API
+(NumPy or torch), with the spectra broadcasting against ``[N, 1]``: ``[1, W]`` gives the grid
+``[N, W]`` of ``brdf``, ``[N, 1]`` one wavelength per direction pair (the ground-truth models of
+:mod:`neuralbrdf.evaluation.truth`).  Specular lobes are
 GGX microfacet reflection (:func:`neuralbrdf.physics.microfacet.microfacet_brdf`, Walter et al.
 2007) with Smith shadowing, so every material is reciprocal and isotropic.  Diffuse spectra are
 ColorChecker patches from colour-science (``SDS_COLOURCHECKERS['BabelColor Average']``, 380–730
@@ -24,6 +30,7 @@ import colour
 import numpy as np
 
 from neuralbrdf.errors import InputError
+from neuralbrdf.geometry import array_namespace_of
 from neuralbrdf.physics.fresnel import fresnel_conductor, fresnel_dielectric
 from neuralbrdf.physics.microfacet import microfacet_brdf
 from neuralbrdf.physics.optical_constants import gold_complex_index
@@ -62,8 +69,17 @@ def _checked_inputs(wi, wo, wavelengths_nm) -> tuple[np.ndarray, np.ndarray, np.
     return wi, wo, wavelengths
 
 
-def _above_horizon(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
-    return (wi[:, 2] > 0.0) & (wo[:, 2] > 0.0)
+def _lambertian(wi, wo, albedo):
+    """``albedo / π`` where both directions are above the horizon, else 0 (array API)."""
+    xp = array_namespace_of(wi, wo, albedo)
+    above = (wi[..., 2] > 0.0) & (wo[..., 2] > 0.0)
+    one = xp.ones_like(wi[..., 2])
+    return xp.where(above, one / math.pi, one * 0.0)[..., None] * albedo
+
+
+def _grid_spectra(spectra: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Spectra ``[W]`` as ``[1, W]`` rows, so that ``brdf_from_spectra`` returns ``[N, W]``."""
+    return {name: np.asarray(values, dtype=np.float64)[None, :] for name, values in spectra.items()}
 
 
 @dataclass(frozen=True)
@@ -80,10 +96,15 @@ class LambertianReference:
     name: str = "munsell_n9"
     reflectance: float = 0.79
 
+    def spectra(self, wavelengths_nm) -> dict[str, np.ndarray]:
+        return {"albedo": np.full(np.shape(wavelengths_nm), self.reflectance)}
+
+    def brdf_from_spectra(self, wi, wo, spectra):
+        return _lambertian(wi, wo, spectra["albedo"])
+
     def brdf(self, wi, wo, wavelengths_nm) -> np.ndarray:
         wi, wo, wavelengths = _checked_inputs(wi, wo, wavelengths_nm)
-        value = np.where(_above_horizon(wi, wo), self.reflectance / math.pi, 0.0)
-        return np.broadcast_to(value[:, None], (wi.shape[0], wavelengths.size)).copy()
+        return self.brdf_from_spectra(wi, wo, _grid_spectra(self.spectra(wavelengths)))
 
 
 class _DiffuseAndSpecular(abc.ABC):
@@ -102,14 +123,25 @@ class _DiffuseAndSpecular(abc.ABC):
         """Lambertian albedo ``[W]`` of the base."""
 
     @abc.abstractmethod
-    def fresnel(self, cos_theta_d: np.ndarray, wavelengths_nm: np.ndarray) -> np.ndarray:
-        """Fresnel reflectance ``[N, W]`` of the microfacets at ``cos_theta_d = wi·h`` ``[N]``."""
+    def fresnel_spectra(self, wavelengths_nm: np.ndarray) -> dict[str, np.ndarray]:
+        """The per-wavelength quantities ``[W]`` the Fresnel term needs (may be empty)."""
+
+    @abc.abstractmethod
+    def fresnel(self, cos_theta_d, spectra):
+        """Fresnel reflectance of the microfacets at ``cos_theta_d = wi·h`` ``[N, 1]`` from
+        :meth:`spectra` shaped ``[1, W]`` or ``[N, 1]`` (array API); broadcasts to ``[N, W]``."""
+
+    def spectra(self, wavelengths_nm) -> dict[str, np.ndarray]:
+        return {"albedo": self.diffuse_albedo(wavelengths_nm), **self.fresnel_spectra(wavelengths_nm)}
+
+    def brdf_from_spectra(self, wi, wo, spectra):
+        lobe = microfacet_brdf(wi, wo, self.alpha, lambda cos_d: self.fresnel(cos_d[..., None], spectra))
+        return _lambertian(wi, wo, spectra["albedo"]) + self.specular_weight * lobe
 
     def brdf(self, wi, wo, wavelengths_nm) -> np.ndarray:
         wi, wo, wavelengths = _checked_inputs(wi, wo, wavelengths_nm)
-        lobe = microfacet_brdf(wi, wo, self.alpha, lambda cos_d: self.fresnel(cos_d, wavelengths))
-        lambertian = np.where(_above_horizon(wi, wo), 1.0 / math.pi, 0.0)
-        return lambertian[:, None] * self.diffuse_albedo(wavelengths) + self.specular_weight * lobe
+        values = self.brdf_from_spectra(wi, wo, _grid_spectra(self.spectra(wavelengths)))
+        return np.broadcast_to(values, (wi.shape[0], wavelengths.size)).copy()
 
 
 @dataclass(frozen=True)
@@ -133,9 +165,11 @@ class GlossyInk(_DiffuseAndSpecular):
     def diffuse_albedo(self, wavelengths_nm):
         return colourchecker_reflectance(self.patch, wavelengths_nm)
 
-    def fresnel(self, cos_theta_d, wavelengths_nm):
-        f = fresnel_dielectric(cos_theta_d, self.eta)
-        return np.broadcast_to(f[:, None], (f.shape[0], wavelengths_nm.size))
+    def fresnel_spectra(self, wavelengths_nm):
+        return {}
+
+    def fresnel(self, cos_theta_d, spectra):
+        return fresnel_dielectric(cos_theta_d, self.eta)
 
 
 @dataclass(frozen=True)
@@ -163,9 +197,12 @@ class MetallicInk(_DiffuseAndSpecular):
         binder = colourchecker_reflectance(self.binder_patch, wavelengths_nm)
         return (1.0 - self.metal_fraction) * binder
 
-    def fresnel(self, cos_theta_d, wavelengths_nm):
+    def fresnel_spectra(self, wavelengths_nm):
         n, k = gold_complex_index(wavelengths_nm)
-        return fresnel_conductor(cos_theta_d[:, None], n[None, :], k[None, :])
+        return {"n": n, "k": k}
+
+    def fresnel(self, cos_theta_d, spectra):
+        return fresnel_conductor(cos_theta_d, spectra["n"], spectra["k"])
 
 
 @dataclass(frozen=True)
@@ -194,10 +231,12 @@ class GoniochromaticInk(_DiffuseAndSpecular):
     def diffuse_albedo(self, wavelengths_nm):
         return self.base_scale * colourchecker_reflectance(self.base_patch, wavelengths_nm)
 
-    def fresnel(self, cos_theta_d, wavelengths_nm):
+    def fresnel_spectra(self, wavelengths_nm):
+        return {"wavelength_nm": np.asarray(wavelengths_nm, dtype=np.float64)}
+
+    def fresnel(self, cos_theta_d, spectra):
         return thin_film_reflectance(
-            cos_theta_d[:, None], wavelengths_nm[None, :],
-            self.film_index, self.film_thickness_nm, self.substrate_index,
+            cos_theta_d, spectra["wavelength_nm"], self.film_index, self.film_thickness_nm, self.substrate_index
         )
 
 

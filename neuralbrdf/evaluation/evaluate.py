@@ -1,0 +1,184 @@
+"""``neuralbrdf evaluate``: a model file scored against a truth file where users look (SPEC §9).
+
+Direction metrics (:mod:`neuralbrdf.evaluation.scores`: whole hemisphere, in-plane glossy and
+diffuse regions) and image metrics (:mod:`neuralbrdf.evaluation.images`) from rendering model
+and truth in the material-preview scene (:mod:`neuralbrdf.render.preview`) with the same
+variant, backend, seeds and passes.  Monte Carlo noise is stated, not hidden: the truth is
+rendered a second time with other seeds and the same image metrics between the two truth
+renders are reported as ``noise`` — a model cannot be told apart from the truth below them.
+
+Outputs in ``DIR`` (all written together, or none): ``evaluation.json`` (strict JSON),
+``model.png``, ``truth.png``, ``error_map.png`` (ΔE2000 per pixel, colour bar in ΔE units) and
+``comparison.png`` (truth | model | ΔE side by side).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from neuralbrdf.atomic import atomic_path
+from neuralbrdf.evaluation.images import IMAGE_METRICS, image_scores
+from neuralbrdf.evaluation.scores import DIRECTION_METRICS, OnnxEvaluator, direction_scores
+
+DEFAULT_VARIANT = "llvm_ad_spectral"
+DEFAULT_SPP = 256
+DEFAULT_RESOLUTION = 128
+#: Seed of the second truth render that measures the noise (the renders themselves use ``seed``).
+NOISE_SEED_OFFSET = 1_000_003
+#: ΔE2000 range of the error map's colour scale (fixed, so that maps compare across models).
+ERROR_MAP_MAX_DELTA_E = 10.0
+FILES = ("evaluation.json", "model.png", "truth.png", "error_map.png", "comparison.png")
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """How model and truth are rendered (the same for both)."""
+
+    variant: str = DEFAULT_VARIANT
+    spp: int = DEFAULT_SPP
+    resolution: int = DEFAULT_RESOLUTION
+    seed: int = 0
+    backend: str = "drjit"
+
+
+def _render(path: Path, settings: RenderSettings, seed: int) -> np.ndarray:
+    from neuralbrdf.render.preview import Material, render
+
+    image = render(Material(model=path, backend=settings.backend), settings.variant, settings.spp,
+                   settings.resolution, seed)
+    if not np.all(np.isfinite(image)):
+        raise ValueError(f"the render of {path} is not finite")
+    return image
+
+
+def _display(image: np.ndarray) -> np.ndarray:
+    import colour
+
+    return np.clip(colour.RGB_COLOURSPACES["sRGB"].cctf_encoding(np.clip(image, 0.0, 1.0)), 0.0, 1.0)
+
+
+def _write_png(image: np.ndarray, path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    plt.imsave(path, _display(image))
+
+
+def _error_axes(ax, delta_e: np.ndarray, fig) -> None:
+    shown = ax.imshow(delta_e, cmap="magma", vmin=0.0, vmax=ERROR_MAP_MAX_DELTA_E)
+    ax.set_axis_off()
+    bar = fig.colorbar(shown, ax=ax, fraction=0.046, pad=0.04, extend="max")
+    bar.set_label("CIEDE2000 ΔE (1 ≈ just noticeable)")
+
+
+def _write_error_map(delta_e: np.ndarray, title: str, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.2, 4.4))
+    _error_axes(ax, delta_e, fig)
+    ax.set_title(title, fontsize=9)
+    fig.savefig(path, dpi=100, bbox_inches="tight", format="png")
+    plt.close(fig)
+
+
+def _write_comparison(model: np.ndarray, truth: np.ndarray, delta_e: np.ndarray, names: tuple[str, str],
+                      summary: str, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4.4))
+    for ax, image, label in ((axes[0], truth, f"truth: {names[1]}"), (axes[1], model, f"model: {names[0]}")):
+        ax.imshow(_display(image))
+        ax.set_title(label, fontsize=9)
+        ax.set_axis_off()
+    _error_axes(axes[2], delta_e, fig)
+    axes[2].set_title("ΔE2000 model vs truth", fontsize=9)
+    fig.suptitle(summary, fontsize=9)
+    fig.savefig(path, dpi=100, bbox_inches="tight", format="png")
+    plt.close(fig)
+
+
+def _json_number(value):
+    return None if value is None or not math.isfinite(value) else value
+
+
+def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path,
+             settings: RenderSettings = RenderSettings(), render_images: bool = True) -> dict:
+    """Score ``model_path`` against ``truth_path`` and write ``out_dir`` (module docstring)."""
+    model_path, truth_path, out_dir = Path(model_path), Path(truth_path), Path(out_dir)
+    started = time.perf_counter()
+    model, truth = OnnxEvaluator(model_path), OnnxEvaluator(truth_path)
+    directions = direction_scores(model, truth)
+    timings = {"directions_s": time.perf_counter() - started}
+    result = {
+        "model": str(model_path),
+        "truth": str(truth_path),
+        "model_kind": model.model.kind,
+        "model_material": model.model.material,
+        "truth_material": truth.model.material,
+        **{name: directions.metrics[name] for name in DIRECTION_METRICS},
+    }
+    images = None
+    if render_images:
+        render_started = time.perf_counter()
+        model_image = _render(model_path, settings, settings.seed)
+        truth_image = _render(truth_path, settings, settings.seed)
+        truth_again = _render(truth_path, settings, settings.seed + NOISE_SEED_OFFSET)
+        timings["render_s"] = time.perf_counter() - render_started
+        image_metrics, delta_e = image_scores(model_image, truth_image)
+        noise, _ = image_scores(truth_again, truth_image)
+        result.update(image_metrics)
+        result["noise"] = {**noise, "what": "the same metrics between two renders of the truth with other seeds"}
+        images = (model_image, truth_image, delta_e)
+    result.update(
+        variant=settings.variant if render_images else None,
+        backend=settings.backend if render_images else None,
+        spp=settings.spp if render_images else None,
+        resolution=settings.resolution if render_images else None,
+        seed=settings.seed,
+        direction_details=directions.to_dict(),
+        timings_s={**timings, "total_s": time.perf_counter() - started},
+    )
+    result = {key: _json_number(value) if isinstance(value, float) else value for key, value in result.items()}
+    _write_outputs(result, images, (model_path.name, truth_path.name), out_dir)
+    return result
+
+
+def _write_outputs(result: dict, images, names: tuple[str, str], out_dir: Path) -> None:
+    with contextlib.ExitStack() as stack:
+        paths = {name: stack.enter_context(atomic_path(out_dir / name)) for name in FILES[: 5 if images else 1]}
+        paths["evaluation.json"].write_text(json.dumps(result, indent=2, allow_nan=False) + "\n")
+        if images is not None:
+            model_image, truth_image, delta_e = images
+            _write_png(model_image, paths["model.png"])
+            _write_png(truth_image, paths["truth.png"])
+            mean, p95 = result["image_delta_e2000_mean"], result["image_delta_e2000_p95"]
+            summary = (f"ΔE2000 mean {mean:.2f}, p95 {p95:.2f} (noise: mean {result['noise']['image_delta_e2000_mean']:.2f}); "
+                       f"hemisphere log-cos RMSE {result['hemisphere_logcos_rmse']:.4f}; {result['variant']}, "
+                       f"{result['spp']} spp")
+            _write_error_map(delta_e, summary, paths["error_map.png"])
+            _write_comparison(model_image, truth_image, delta_e, names, summary, paths["comparison.png"])
+
+
+def format_table(result: dict) -> str:
+    """The metrics of ``result`` as a plain-text table (what the command prints)."""
+    rows = [(name, result.get(name)) for name in (*DIRECTION_METRICS, *IMAGE_METRICS) if name in result]
+    noise = result.get("noise") or {}
+    lines = [f"{'metric':<28}{'value':>12}{'noise (truth vs truth)':>26}"]
+    for name, value in rows:
+        shown = "inf" if value is None else f"{value:.4g}"
+        noise_value = noise.get(name)
+        noise_shown = "" if name not in noise else ("inf" if noise_value is None else f"{noise_value:.4g}")
+        lines.append(f"{name:<28}{shown:>12}{noise_shown:>26}")
+    return "\n".join(lines)

@@ -1,0 +1,248 @@
+"""A model scored against its truth over the whole hemisphere and the in-plane grid (SPEC §5, §9).
+
+Metric names are fixed (:data:`DIRECTION_METRICS`) and shared by ``neuralbrdf evaluate``,
+training runs' ``metrics.json`` and the study:
+
+* ``hemisphere_logcos_rmse`` — ``sqrt(mean((ln(1 + f cos θi) − ln(1 + f̂ cos θi))²))`` (SPEC §5) and
+  ``hemisphere_rel_rmse`` — relative RMSE (report Eq. 4.3, channel mean, truth values below
+  :data:`~neuralbrdf.metrics.DEFAULT_FLOOR` excluded) — over :func:`hemisphere_pairs`:
+  :data:`HEMISPHERE_STRATA` jittered strata of ``(cos θ, φ)`` per direction, every incident
+  stratum paired with every outgoing one (102 400 pairs), ``θ <= 80°``, fixed seed;
+* ``inplane_glossy_rel_rmse`` (``|θi − θr| <= 10°``, the report's region) and
+  ``inplane_diffuse_rel_rmse`` (the rest) over the in-plane grid :func:`inplane_pairs`: signed
+  ``θi, θr`` every 1° within ±60°.
+
+**What is compared.** Two spectral models compare their spectra at the 31 wavelengths 400, 410,
+…, 700 nm (every wavelength a channel; the in-plane errors are also given per wavelength).
+Otherwise both sides compare in linear sRGB: a spectral side is converted through
+:mod:`neuralbrdf.data.colorimetry` (CIE 1931 2°, D65, SPEC §2.3).
+
+Models are :class:`Evaluator` objects: an ``.onnx`` file through onnxruntime
+(:class:`OnnxEvaluator`) or a torch module on directions (:class:`TorchEvaluator`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+import torch
+
+from neuralbrdf.data.colorimetry import spectral_to_linear_srgb
+from neuralbrdf.data.plans import is_glossy
+from neuralbrdf.geometry import inplane_to_vectors, spherical_to_vector
+from neuralbrdf.metrics import DEFAULT_FLOOR, hemisphere_logcos_rmse, masked_relative_rmse
+
+#: Wavelengths (nm) at which spectra are compared: the measurement grid (SPEC §2.2).
+COMPARISON_WAVELENGTHS_NM = np.arange(400.0, 701.0, 10.0)
+#: Largest polar angle (degrees) of the hemisphere pairs.
+HEMISPHERE_MAX_THETA_DEG = 80.0
+#: ``(cos θ, φ)`` strata per direction; pairs = (product)².
+HEMISPHERE_STRATA = (16, 20)
+#: In-plane grid: signed angles within ±limit, every step (degrees).
+INPLANE_LIMIT_DEG = 60.0
+INPLANE_STEP_DEG = 1.0
+#: The fixed names of the direction metrics.
+DIRECTION_METRICS = (
+    "hemisphere_logcos_rmse",
+    "hemisphere_rel_rmse",
+    "inplane_glossy_rel_rmse",
+    "inplane_diffuse_rel_rmse",
+)
+#: Rows per evaluation call (bounds memory for 31-wavelength spectra).
+CHUNK_ROWS = 2**16
+
+
+class Evaluator(Protocol):
+    """A BRDF model on directions: ``values(wi, wo, wavelength)`` -> ``[N]`` (spectral) or ``[N, 3]``."""
+
+    is_spectral: bool
+
+    def values(self, wi: np.ndarray, wo: np.ndarray, wavelength: np.ndarray | None) -> np.ndarray: ...
+
+
+class OnnxEvaluator:
+    """An ``.onnx`` model file (SPEC §6) evaluated with onnxruntime."""
+
+    def __init__(self, path: str | Path) -> None:
+        import onnxruntime
+
+        from neuralbrdf.render.onnx_contract import load_model
+
+        self.model = load_model(path)
+        self.is_spectral = self.model.is_spectral
+        self.session = onnxruntime.InferenceSession(
+            self.model.proto.SerializeToString(), providers=["CPUExecutionProvider"]
+        )
+
+    def values(self, wi, wo, wavelength=None):
+        feeds = {"wi": wi.astype(np.float32), "wo": wo.astype(np.float32)}
+        if self.is_spectral:
+            feeds["wavelength"] = wavelength.astype(np.float32)
+        return self.session.run(["f"], feeds)[0].astype(np.float64)
+
+
+@dataclass
+class TorchEvaluator:
+    """A torch module on directions (:mod:`neuralbrdf.models.directional`, a truth), evaluated in float64."""
+
+    module: torch.nn.Module
+    is_spectral: bool
+
+    def values(self, wi, wo, wavelength=None):
+        module = self.module.double()
+        inputs = [torch.from_numpy(np.asarray(wi, dtype=np.float64)), torch.from_numpy(np.asarray(wo, dtype=np.float64))]
+        if self.is_spectral:
+            inputs.append(torch.from_numpy(np.asarray(wavelength, dtype=np.float64)))
+        with torch.no_grad():
+            return module(*inputs).numpy()
+
+
+def hemisphere_pairs(seed: int = 0, strata: tuple[int, int] = HEMISPHERE_STRATA) -> tuple[np.ndarray, np.ndarray]:
+    """Stratified direction pairs ``wi, wo`` ``[N, 3]`` (module docstring), ``N = (16·20)²`` by default."""
+    rng = np.random.default_rng(seed)
+    n_cos, n_phi = strata
+    per_direction = n_cos * n_phi
+    cos_low = np.cos(np.radians(HEMISPHERE_MAX_THETA_DEG))
+    cos_cell, phi_cell = np.meshgrid(np.arange(n_cos), np.arange(n_phi), indexing="ij")
+    cells = np.stack([cos_cell.ravel(), phi_cell.ravel()], axis=1)
+    i_cell = np.repeat(cells, per_direction, axis=0)
+    o_cell = np.tile(cells, (per_direction, 1))
+
+    def directions(cell):
+        u = (cell + rng.uniform(size=cell.shape)) / np.array([n_cos, n_phi])
+        cos_theta = cos_low + u[:, 0] * (1.0 - cos_low)
+        return spherical_to_vector(np.degrees(np.arccos(cos_theta)), 360.0 * u[:, 1])
+
+    return directions(i_cell), directions(o_cell)
+
+
+def inplane_pairs() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(theta_i, theta_r, wi, wo)`` of the in-plane grid (signed degrees; module docstring)."""
+    steps = round(2 * INPLANE_LIMIT_DEG / INPLANE_STEP_DEG) + 1
+    angles = np.linspace(-INPLANE_LIMIT_DEG, INPLANE_LIMIT_DEG, steps)
+    theta_i, theta_r = (a.ravel() for a in np.meshgrid(angles, angles, indexing="ij"))
+    wi, wo = inplane_to_vectors(theta_i, theta_r)
+    return theta_i, theta_r, wi, wo
+
+
+def compares_spectra(model: Evaluator, truth: Evaluator) -> bool:
+    """Whether the two are compared as spectra (both spectral) rather than in linear sRGB."""
+    return model.is_spectral and truth.is_spectral
+
+
+def compared_values(evaluator: Evaluator, wi: np.ndarray, wo: np.ndarray, spectral: bool) -> np.ndarray:
+    """``[N, 31]`` spectra at :data:`COMPARISON_WAVELENGTHS_NM` (``spectral``) or ``[N, 3]`` linear sRGB."""
+    chunks = []
+    for start in range(0, len(wi), CHUNK_ROWS):
+        chunk_wi, chunk_wo = wi[start : start + CHUNK_ROWS], wo[start : start + CHUNK_ROWS]
+        if not evaluator.is_spectral:
+            chunks.append(evaluator.values(chunk_wi, chunk_wo, None))
+            continue
+        n, w = len(chunk_wi), len(COMPARISON_WAVELENGTHS_NM)
+        spectra = evaluator.values(
+            np.repeat(chunk_wi, w, axis=0), np.repeat(chunk_wo, w, axis=0), np.tile(COMPARISON_WAVELENGTHS_NM, n)
+        ).reshape(n, w)
+        chunks.append(spectra if spectral else spectral_to_linear_srgb(spectra, COMPARISON_WAVELENGTHS_NM))
+    values = np.concatenate(chunks)
+    if not np.all(np.isfinite(values)):
+        raise ValueError("the model returned non-finite BRDF values")
+    return values
+
+
+@dataclass(frozen=True)
+class DirectionScores:
+    """The four direction metrics and what they were computed on."""
+
+    metrics: dict[str, float]
+    comparison: str
+    n_hemisphere_pairs: int
+    n_inplane_pairs: int
+    #: Spectral comparisons: in-plane glossy/diffuse relative RMSE per wavelength.
+    per_wavelength: dict[str, list[float]] | None
+
+    def to_dict(self) -> dict:
+        return {
+            **self.metrics,
+            "comparison": self.comparison,
+            "n_hemisphere_pairs": self.n_hemisphere_pairs,
+            "n_inplane_pairs": self.n_inplane_pairs,
+            "per_wavelength": self.per_wavelength,
+        }
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if np.isfinite(value) else None
+
+
+def hemisphere_scores(
+    model: Evaluator, truth: Evaluator, seed: int = 0, strata: tuple[int, int] = HEMISPHERE_STRATA
+) -> dict[str, float]:
+    """``hemisphere_logcos_rmse`` and ``hemisphere_rel_rmse`` over :func:`hemisphere_pairs`."""
+    spectral = compares_spectra(model, truth)
+    wi, wo = hemisphere_pairs(seed, strata)
+    pred, target = compared_values(model, wi, wo, spectral), compared_values(truth, wi, wo, spectral)
+    theta_i = np.degrees(np.arccos(np.clip(wi[:, 2], -1.0, 1.0)))
+    rows = np.ones(len(wi), dtype=bool)
+    return {
+        "hemisphere_logcos_rmse": hemisphere_logcos_rmse(np.clip(pred, 0.0, None), target, theta_i),
+        "hemisphere_rel_rmse": masked_relative_rmse(pred, target, rows, DEFAULT_FLOOR, "hemisphere").value,
+    }
+
+
+def inplane_scores(pred: np.ndarray, target: np.ndarray, theta_i: np.ndarray, theta_r: np.ndarray):
+    """``(metrics, per_channel)``: glossy and diffuse relative RMSE of in-plane samples ``[N, C]``."""
+    glossy = is_glossy(theta_i, theta_r)
+    regions = {"inplane_glossy_rel_rmse": (glossy, "glossy"), "inplane_diffuse_rel_rmse": (~glossy, "diffuse")}
+    metrics, per_channel = {}, {}
+    for name, (rows, region) in regions.items():
+        result = masked_relative_rmse(pred, target, rows, DEFAULT_FLOOR, region)
+        metrics[name], per_channel[name] = result.value, [_finite_or_none(v) for v in result.per_channel]
+    return metrics, per_channel
+
+
+def direction_scores(
+    model: Evaluator, truth: Evaluator, seed: int = 0, strata: tuple[int, int] = HEMISPHERE_STRATA
+) -> DirectionScores:
+    """The four metrics of :data:`DIRECTION_METRICS` of ``model`` against ``truth``
+    (``strata``: fewer hemisphere pairs, for quick checks; the fixed names mean the default)."""
+    spectral = compares_spectra(model, truth)
+    theta_i, theta_r, wi, wo = inplane_pairs()
+    inplane, per_channel = inplane_scores(
+        compared_values(model, wi, wo, spectral), compared_values(truth, wi, wo, spectral), theta_i, theta_r
+    )
+    per_wavelength = {"wavelength_nm": COMPARISON_WAVELENGTHS_NM.tolist(), **per_channel} if spectral else None
+    n_cos, n_phi = strata
+    return DirectionScores(
+        metrics={**hemisphere_scores(model, truth, seed, strata), **inplane},
+        comparison="spectral (31 wavelengths, 400-700 nm)" if spectral else "linear sRGB",
+        n_hemisphere_pairs=(n_cos * n_phi) ** 2,
+        n_inplane_pairs=len(theta_i),
+        per_wavelength=per_wavelength,
+    )
+
+
+def fit_scores(pred_fit, fit, pred_truth=None, truth=None) -> dict[str, float | None]:
+    """The metrics every training run writes to ``metrics.json`` under these names (SPEC §9).
+
+    ``inplane_glossy_rel_rmse`` and ``inplane_diffuse_rel_rmse`` of ``pred_fit`` against the
+    :class:`~neuralbrdf.data.table.BrdfTable` ``fit`` the model was given (rows off the plane of
+    incidence count by their in-plane equivalent, ``|θi − θr| = 2 θh``); a region without a sample
+    above the floor gives ``None``.  With a ``truth`` table (the dense Low set of a virtual
+    material or NBRDF proxy, SPEC §5) and the model's values on it, ``hemisphere_logcos_rmse``.
+    """
+    theta_i, theta_r = fit.inplane_angles()
+    glossy = is_glossy(theta_i, theta_r)
+    metrics: dict[str, float | None] = {}
+    for name, rows, region in (("inplane_glossy_rel_rmse", glossy, "glossy"),
+                               ("inplane_diffuse_rel_rmse", ~glossy, "diffuse")):
+        try:
+            metrics[name] = masked_relative_rmse(pred_fit, fit.values, rows, DEFAULT_FLOOR, region).value
+        except ValueError:
+            metrics[name] = None
+    if truth is not None:
+        metrics["hemisphere_logcos_rmse"] = hemisphere_logcos_rmse(np.clip(pred_truth, 0.0, None), truth.values,
+                                                                   truth.theta_i)
+    return metrics

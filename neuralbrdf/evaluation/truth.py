@@ -1,0 +1,146 @@
+"""Ground-truth materials as models on directions, exportable to the ONNX contract (SPEC §9, §6).
+
+Every material the project ships or reads has a truth: the analytic BRDF of a virtual material
+(:mod:`neuralbrdf.virtual.materials`, SPEC §2.5) or the network of an NBRDF proxy of a MERL
+material (:mod:`neuralbrdf.data.nbrdf`, Sztrajman et al. 2021, SPEC §2.4).  Here each becomes an
+``nn.Module`` with the interface of :mod:`neuralbrdf.models.directional`, so that it exports to
+one ``.onnx`` file of kind ``reference`` and renders through the same plugin, sampler and seeds
+as a fitted model: image differences then measure the model, not the renderer.
+
+* :class:`VirtualMaterialTruth` — spectral, ``f(wi, wo, λ) [N]``.  The material's per-wavelength
+  quantities (albedo, gold's complex index, ...) are tabulated every :data:`TRUTH_STEP_NM` nm on
+  :data:`TRUTH_RANGE_NM` and interpolated linearly in wavelength; the BRDF formula itself is the
+  library's own (``brdf_from_spectra``), evaluated in the graph.  On the grid the truth equals
+  the library's evaluation to float32 rounding; between nodes the interpolation differs from
+  colour-science's Sprague interpolation of the ColorChecker spectra by well under 1 %.  The
+  range is that of the project's colour pipeline (SPEC §2.3, 400–700 nm) and of every fitted
+  spectral model; wavelengths outside are clamped to it, as the contract says.
+* :class:`NbrdfTruth` — RGB, ``f(wi, wo) [N, 3]``: the NBRDF network (6→21→21→3, ReLU, ``exp(x) −
+  1``) on the Rusinkiewicz half/difference vectors, clamped at 0 and 0 below the horizon.
+
+``SOURCE`` strings name a truth: ``virtual:NAME`` (``gold``, ``gonio``, ``cyan``, ``magenta``,
+``munsell_n9``) or the path of an NBRDF weight file ``NAME.h5``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from neuralbrdf.data.nbrdf import DENSE_LAYERS, NbrdfNetwork, nbrdf_input
+from neuralbrdf.errors import InputError
+from neuralbrdf.models.directional import LinearInWavelength
+from neuralbrdf.models.nlb import above_horizon
+from neuralbrdf.onnx_export import Exportable, ExportReport, write_model
+from neuralbrdf.render.onnx_contract import contract_metadata
+from neuralbrdf.virtual.materials import MATERIALS, get_material
+
+#: Wavelength range (nm) of the virtual truths: the project's colour pipeline (SPEC §2.3).
+TRUTH_RANGE_NM = (400.0, 700.0)
+#: Spacing (nm) of the wavelength tables a virtual truth interpolates.
+TRUTH_STEP_NM = 5.0
+VIRTUAL_PREFIX = "virtual:"
+#: The kind written to ``neuralbrdf.kind`` (SPEC §6).
+REFERENCE_KIND = "reference"
+
+
+def truth_grid_nm() -> np.ndarray:
+    """The wavelength nodes (nm) of the virtual truths' tables."""
+    low, high = TRUTH_RANGE_NM
+    return np.linspace(low, high, round((high - low) / TRUTH_STEP_NM) + 1)
+
+
+class VirtualMaterialTruth(nn.Module):
+    """``f(wi, wo, λ)`` ``[N]`` in sr⁻¹ of a virtual material (module docstring)."""
+
+    def __init__(self, material, grid_nm=None) -> None:
+        super().__init__()
+        grid = truth_grid_nm() if grid_nm is None else np.asarray(grid_nm, dtype=np.float64)
+        self.material = material
+        self.interpolation_weights = LinearInWavelength(grid)
+        self.wavelength_range_nm = self.interpolation_weights.wavelength_range_nm
+        self.spectrum_names = tuple(material.spectra(grid))
+        for name, values in material.spectra(grid).items():
+            self.register_buffer(f"spectrum_{name}", torch.as_tensor(np.asarray(values, dtype=np.float64)).float())
+
+    def forward(self, wi: torch.Tensor, wo: torch.Tensor, wavelength: torch.Tensor) -> torch.Tensor:
+        weights = self.interpolation_weights(wavelength)
+        spectra = {name: (weights @ getattr(self, f"spectrum_{name}"))[:, None] for name in self.spectrum_names}
+        f = self.material.brdf_from_spectra(wi, wo, spectra)[:, 0]
+        return torch.where(above_horizon(wi, wo), f, torch.zeros_like(f))
+
+
+class NbrdfTruth(nn.Module):
+    """``f(wi, wo)`` ``[N, 3]`` (linear sRGB, sr⁻¹) of an NBRDF proxy network."""
+
+    def __init__(self, network: NbrdfNetwork) -> None:
+        super().__init__()
+        self.name = network.name
+        self.activations = tuple(activation for _, activation in DENSE_LAYERS)
+        for layer, (kernel, bias) in enumerate(zip(network.kernels, network.biases)):
+            self.register_buffer(f"kernel{layer}", torch.as_tensor(np.array(kernel)).float())
+            self.register_buffer(f"bias{layer}", torch.as_tensor(np.array(bias)).float())
+
+    def forward(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+        x = nbrdf_input(wi, wo)
+        for layer, activation in enumerate(self.activations):
+            x = x @ getattr(self, f"kernel{layer}") + getattr(self, f"bias{layer}")
+            if activation == "relu":
+                x = torch.relu(x)
+        f = torch.relu(torch.expm1(x))  # exp(x) - 1 without float32 cancellation near 0
+        return torch.where(above_horizon(wi, wo)[:, None], f, torch.zeros_like(f))
+
+
+@dataclass(frozen=True)
+class Truth:
+    """A ground truth: its module on directions, material name, provenance and spectral range."""
+
+    module: nn.Module
+    material: str
+    provenance: str
+    wavelength_range_nm: tuple[float, float] | None
+
+    @property
+    def is_spectral(self) -> bool:
+        return self.wavelength_range_nm is not None
+
+    def exportable(self) -> Exportable:
+        metadata = contract_metadata(
+            REFERENCE_KIND, self.material, self.provenance, wavelength_range_nm=self.wavelength_range_nm
+        )
+        return Exportable(self.module.eval().requires_grad_(False), REFERENCE_KIND, self.material, metadata,
+                          self.wavelength_range_nm)
+
+
+def load_truth(source: str) -> Truth:
+    """The truth named by ``source`` (``virtual:NAME`` or an NBRDF ``NAME.h5``; module docstring)."""
+    source = str(source)
+    if source.startswith(VIRTUAL_PREFIX):
+        material = get_material(source[len(VIRTUAL_PREFIX):])
+        module = VirtualMaterialTruth(material)
+        provenance = (
+            f"ground truth {source}: analytic BRDF of neuralbrdf.virtual ({type(material).__name__}), "
+            f"spectra tabulated every {TRUTH_STEP_NM:g} nm and interpolated linearly"
+        )
+        return Truth(module, material.name, provenance, module.wavelength_range_nm)
+    path = Path(source)
+    if path.suffix not in (".h5", ".json"):
+        raise InputError(
+            f"unknown truth source {source!r}; expected virtual:NAME ({', '.join(MATERIALS)}) or an NBRDF "
+            "weight file NAME.h5"
+        )
+    network = NbrdfNetwork.load(path)
+    provenance = (
+        f"ground truth NBRDF proxy {path.name} (Sztrajman et al. 2021, fit of the MERL material "
+        f"{network.name}, Matusik et al. 2003, CC BY-SA 4.0)"
+    )
+    return Truth(NbrdfTruth(network), network.name, provenance, None)
+
+
+def export_truth(source: str, out: str | Path) -> ExportReport:
+    """Write the truth named by ``source`` to ``out`` as a ``reference`` model (SPEC §6, §9)."""
+    return write_model(load_truth(source).exportable(), out)
