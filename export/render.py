@@ -102,7 +102,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--resolution", type=int, default=256,
         help=f"image width = height in pixels (default 256; refused before rendering if the image and one pass "
-        f"would need more than {MEMORY_FRACTION:.0%} of this machine's memory)",
+        f"would need more than {MEMORY_FRACTION * 100:.0f}%% of this machine's memory)",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the pass seeds (default 0)")
     parser.add_argument(

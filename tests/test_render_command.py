@@ -193,3 +193,8 @@ def test_negative_model_values_are_clamped_and_counted(tmp_path, monkeypatch, ca
     import mitsuba as mi
 
     assert np.asarray(mi.Bitmap(str(out.with_suffix(".exr")))).min() >= 0
+
+
+def test_help_states_how_outputs_and_sizes_are_checked():
+    text = " ".join(render.build_parser().format_help().split())
+    assert "symbolic link is written through" in text and "75% of this machine's memory" in text
