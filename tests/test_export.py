@@ -405,29 +405,25 @@ def _saved(directory: Path, obj) -> Path:
     return path
 
 
-def _resized_spectral_mlp(directory: Path) -> Path:
-    path = spectral_mlp_checkpoint(directory / "resized.ckpt")
-    checkpoint = torch.load(path, weights_only=True)
-    checkpoint["state_dict"]["network.layers.0.weight"] = torch.zeros(4, 3)
-    torch.save(checkpoint, path)
-    return path
+def _edited(make, edit):
+    """A case maker: the checkpoint ``make(path)`` writes, changed in place by ``edit(checkpoint)``."""
+
+    def build(directory: Path) -> Path:
+        path = make(directory / "edited.ckpt")
+        checkpoint = torch.load(path, weights_only=True)
+        edit(checkpoint)
+        torch.save(checkpoint, path)
+        return path
+
+    return build
 
 
-def _huge_spectral_mlp(directory: Path) -> Path:
-    """Issue 13 class 5: hyper-parameters asking for 7e9 weights, refused before allocation."""
-    path = spectral_mlp_checkpoint(directory / "huge.ckpt")
-    checkpoint = torch.load(path, weights_only=True)
-    checkpoint["hyper_parameters"]["hidden"] = 60_000
-    torch.save(checkpoint, path)
-    return path
-
-
-def _huge_nlb(directory: Path) -> Path:
-    path = nlb_checkpoint(directory / "huge.ckpt")
-    checkpoint = torch.load(path, weights_only=True)
-    checkpoint["nlb_config"]["width"] = 60_000
-    torch.save(checkpoint, path)
-    return path
+_resized_spectral_mlp = _edited(
+    spectral_mlp_checkpoint, lambda c: c["state_dict"].__setitem__("network.layers.0.weight", torch.zeros(4, 3))
+)
+#: Issue 13 class 5: hyper-parameters asking for ~7e9 weights, refused before allocation.
+_huge_spectral_mlp = _edited(spectral_mlp_checkpoint, lambda c: c["hyper_parameters"].__setitem__("hidden", 60_000))
+_huge_nlb = _edited(nlb_checkpoint, lambda c: c["nlb_config"].__setitem__("width", 60_000))
 
 
 def test_out_equal_to_the_checkpoint_is_refused_and_the_checkpoint_kept(tmp_path, capsys):
