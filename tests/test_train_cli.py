@@ -278,7 +278,7 @@ def test_all_zero_data_fails_the_fit(tmp_path, capsys):
     run_dir = tmp_path / "run"
     args = ["fit", "--config", str(CONFIG), "--data.path", str(tmp_path / "zeros.csv"), *quick("--run_dir", str(run_dir))]
     assert main(args) == 1
-    _assert_failed_run(run_dir, "no glossy sample", capsys)
+    _assert_failed_run(run_dir, "with a measured value >= floor", capsys)
 
 
 @pytest.mark.parametrize("name, value", [("gamma", "-1"), ("gamma", "-1e-12"), ("rel_rmse_floor", "-1e-4")])
