@@ -214,3 +214,168 @@ def test_full_training_fits_glossy_and_diffuse_against_the_truth(tmp_path, mater
     scores, _ = inplane_scores(pred.double().numpy().reshape(n, -1), truth.values, theta_i, theta_r)
     assert scores["inplane_glossy_rel_rmse"] <= 0.05
     assert scores["inplane_diffuse_rel_rmse"] <= 0.10
+
+
+# --------------------------------------------------------------------------- issue 13: runs and failures
+
+
+def _fit(run_dir, gcms_session, *extra):
+    return main(["fit", "--config", str(CONFIG), *data_args(gcms_session), *quick("--run_dir", str(run_dir)), *extra])
+
+
+def _snapshot(run_dir):
+    return {p.relative_to(run_dir): p.read_bytes() for p in sorted(run_dir.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture
+def short_run(tmp_path, gcms_session):
+    run_dir = tmp_path / "run"
+    assert _fit(run_dir, gcms_session) == 0
+    return run_dir
+
+
+def test_a_run_is_never_overwritten_without_resume_or_overwrite(short_run, gcms_session, capsys):
+    """Issue 13 class 2."""
+    before = _snapshot(short_run)
+    assert _fit(short_run, gcms_session) == 2
+    err = capsys.readouterr().err
+    assert "already holds a run" in err and "--resume" in err and "--overwrite" in err
+    assert _snapshot(short_run) == before
+
+
+def test_overwrite_replaces_a_run_but_a_failed_start_puts_it_back(short_run, gcms_session, tmp_path):
+    before = _snapshot(short_run)
+    missing = ["--data.path", str(tmp_path / "missing.csv"), "--data.reference", gcms_session[1]]
+    assert main(["fit", "--config", str(CONFIG), *quick("--run_dir", str(short_run)), *missing, "--overwrite"]) == 2
+    assert _snapshot(short_run) == before  # the old run is back, nothing of the failed start
+    assert _fit(short_run, gcms_session, "--overwrite", "--seed_everything", "1") == 0
+    assert read_metrics(short_run)["status"] == "ok"
+    assert _snapshot(short_run) != before
+    assert not [p for p in short_run.iterdir() if "neuralbrdf-tmp" in p.name]
+
+
+def test_resume_continues_from_last_appending_the_log_and_summing_wall_time(short_run, gcms_session):
+    first = read_metrics(short_run)
+    rows_before = (short_run / "metrics.csv").read_text().splitlines()
+    args = ["fit", "--config", str(CONFIG), *data_args(gcms_session), "--run_dir", str(short_run),
+            "--trainer.max_epochs", "2", "--trainer.limit_train_batches", "2", "--resume"]
+    assert main(args) == 0
+    metrics = read_metrics(short_run)
+    assert metrics["status"] == "ok" and metrics["fit/epochs"] == 2
+    assert metrics["fit/wall_time_s"] > first["fit/wall_time_s"]
+    rows = (short_run / "metrics.csv").read_text().splitlines()
+    assert rows[: len(rows_before)][1:] == rows_before[1:] and len(rows) > len(rows_before)
+    epochs = {row.split(",")[rows[0].split(",").index("epoch")] for row in rows[1:]}
+    assert epochs == {"0", "1"}
+
+
+@pytest.mark.parametrize("damage", ["missing", "truncated"])
+def test_resume_from_a_missing_or_truncated_checkpoint_is_one_line(short_run, gcms_session, damage):
+    """Issue 13 class 8: no traceback."""
+    last = short_run / "checkpoints" / "last.ckpt"
+    if damage == "missing":
+        last.unlink()
+    else:
+        last.write_bytes(last.read_bytes()[:1000])
+    proc = subprocess.run(
+        [sys.executable, str(REPO / "train.py"), "fit", "--config", str(CONFIG), *data_args(gcms_session),
+         "--run_dir", str(short_run), "--resume"],
+        capture_output=True, text=True,
+    )
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and ("last.ckpt not found" in errors[0] or "not a readable PyTorch checkpoint" in errors[0])
+
+
+def test_binary_config_and_missing_evaluation_checkpoint_are_one_line(tmp_path):
+    binary = tmp_path / "config.yaml"
+    binary.write_bytes(b"\x00\x01binary\xff\xfe")
+    for args in (["fit", "--config", str(binary)],
+                 ["validate", "--config", str(CONFIG), "--ckpt_path", str(tmp_path / "none.ckpt")]):
+        proc = subprocess.run([sys.executable, str(REPO / "train.py"), *args], capture_output=True, text=True, cwd=tmp_path)
+        assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+        assert len([line for line in proc.stderr.splitlines() if line.startswith("error:")]) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["config.yaml"]
+
+
+def _assert_failed_run(run_dir, cause_fragment, capsys):
+    err = capsys.readouterr().err
+    assert f"error: fit failed: " in err and cause_fragment in err, err
+    text = (run_dir / "metrics.json").read_text()
+    metrics = json.loads(text, parse_constant=lambda c: pytest.fail(f"not strict JSON: {c}"))
+    assert metrics["status"] == "failed" and cause_fragment in metrics["cause"]
+    assert "fit/best_model_path" not in metrics
+    assert not list(run_dir.rglob("best*.ckpt"))
+
+
+@pytest.mark.parametrize(
+    "extra, cause",
+    [
+        (["--model.init_args.optimizer.init_args.lr", "10", "--trainer.limit_train_batches", "20"],
+         "no better than predicting 0"),
+        (["--model.init_args.optimizer.init_args.lr", "1e30"], "non-finite training loss"),
+    ],
+    ids=["dead network after a huge learning rate", "non-finite loss"],
+)
+def test_a_failed_fit_exits_1_with_its_cause_and_no_best_checkpoint(tmp_path, gcms_session, capsys, extra, cause):
+    """Issue 13 class 3."""
+    run_dir = tmp_path / "run"
+    assert _fit(run_dir, gcms_session, *extra) == 1
+    _assert_failed_run(run_dir, cause, capsys)
+
+
+def test_all_zero_data_fails_the_fit(tmp_path, capsys):
+    from neuralbrdf.data.table import read_table, write_table
+
+    source = tmp_path / "truth.csv"
+    from neuralbrdf.cli.main import main as cli
+
+    assert cli(["simulate", "--material", "gold", "--plan", "DS1", "--truth", "--out", str(source)]) == 0
+    table = read_table(source)
+    table.values[:] = 0.0
+    write_table(table, tmp_path / "zeros.csv")
+    run_dir = tmp_path / "run"
+    args = ["fit", "--config", str(CONFIG), "--data.path", str(tmp_path / "zeros.csv"), *quick("--run_dir", str(run_dir))]
+    assert main(args) == 1
+    _assert_failed_run(run_dir, "with a measured value >= floor", capsys)
+
+
+@pytest.mark.parametrize("name, value", [("gamma", "-1"), ("gamma", "-1e-12"), ("rel_rmse_floor", "-1e-4")])
+def test_parameters_outside_their_domain_fail_before_a_run_exists(tmp_path, gcms_session, capsys, name, value):
+    run_dir = tmp_path / "run"
+    assert _fit(run_dir, gcms_session, f"--model.init_args.{name}={value}") == 2
+    assert f"model.{name} must be a finite number >= 0" in capsys.readouterr().err
+    assert not run_dir.exists()
+
+
+def test_a_successful_fit_is_marked_ok_in_strict_json(fitted_run):
+    text = (fitted_run / "metrics.json").read_text()
+    assert json.loads(text, parse_constant=lambda c: pytest.fail(c))["status"] == "ok"
+
+
+def test_metrics_json_writes_non_finite_numbers_as_null(tmp_path):
+    class Trainer:
+        default_root_dir = str(tmp_path)
+        is_global_zero = True
+        callback_metrics = {"test/loss": torch.tensor(float("nan")), "test/x": torch.tensor(float("inf"))}
+
+    MetricsJson().on_test_end(Trainer(), None)
+    assert json.loads((tmp_path / "metrics.json").read_text()) == {"test/loss": None, "test/x": None}
+
+
+def test_checkpoints_are_written_whole_or_not_at_all(tmp_path, monkeypatch):
+    """A save that dies half-way leaves the previous checkpoint, never a truncated one."""
+    from neuralbrdf.lightning import run
+
+    path = tmp_path / "checkpoints" / "last.ckpt"
+    run.AtomicCheckpointIO().save_checkpoint({"epoch": 1}, path)
+
+    def dying_save(obj, target):
+        Path(target).write_bytes(b"PK\x03\x04 half")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(run.torch, "save", dying_save)
+    with pytest.raises(KeyboardInterrupt):
+        run.AtomicCheckpointIO().save_checkpoint({"epoch": 2}, path)
+    assert torch.load(path, weights_only=True) == {"epoch": 1}
+    assert [p.name for p in path.parent.iterdir()] == ["last.ckpt"]

@@ -144,6 +144,12 @@ class AbcFitModule(pl.LightningModule):
         if callback is not None and callback.dirpath is not None:
             self.trainer.save_checkpoint(os.path.join(callback.dirpath, f"{callback.filename or 'best'}.ckpt"))
 
+    def fit_failure(self) -> str | None:
+        """Why the fit failed, if it did (read by :class:`~neuralbrdf.lightning.run.FitHealth`)."""
+        if self.result is None or self.result.success:
+            return None
+        return f"ABC fit of {self.material_name}: {self.result.failure_reason}"
+
     def metrics_json_extras(self) -> dict:
         """Non-scalar results for ``metrics.json`` (read by :class:`~neuralbrdf.lightning.run.MetricsJson`)."""
         if self.result is None:

@@ -61,7 +61,7 @@ from neuralbrdf.data.plans import PLAN_NAMES
 from neuralbrdf.data.sources import load_material
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
-from neuralbrdf.lightning.checkpoint_io import read_checkpoint
+from neuralbrdf.lightning.checkpoint_io import check_weights_match, read_checkpoint
 from neuralbrdf.lightning.nlb_module import check_loss_domain, load_pretrained, nlb_loss, scheduled_optimizer
 from neuralbrdf.models.abc import load_low2012_parameters
 from neuralbrdf.models.nlb import LatentTable, NLBNetwork
@@ -401,6 +401,7 @@ def load_fitted(path: str | os.PathLike[str]) -> FittedNLB:
     checkpoint = read_checkpoint(path, "fitted NLB checkpoint")
     try:
         names, state = checkpoint["material_names"], checkpoint["state_dict"]
+        check_weights_match(lambda: NLBNetwork(**checkpoint["nlb_config"]), state, path, "network.")
         network = NLBNetwork(**checkpoint["nlb_config"])
         latents = state["latents.latents"].float()
     except (KeyError, TypeError) as exc:

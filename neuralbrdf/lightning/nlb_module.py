@@ -36,7 +36,7 @@ from pytorch_lightning.cli import LRSchedulerCallable, OptimizerCallable
 
 from neuralbrdf import metrics
 from neuralbrdf.errors import InputError
-from neuralbrdf.lightning.checkpoint_io import read_checkpoint
+from neuralbrdf.lightning.checkpoint_io import check_weights_match, read_checkpoint
 from neuralbrdf.lightning.corpus_data import CorpusSamples
 from neuralbrdf.losses import l1_loss
 from neuralbrdf.models.nlb import COMPACT, LatentTable, NLBConfig, NLBNetwork
@@ -192,8 +192,9 @@ def load_pretrained(path: str | os.PathLike[str]) -> PretrainedNLB:
         latents = state["latents.latents"].float()
     except KeyError as exc:
         raise InputError(f"not an NLB pretraining checkpoint: missing {exc.args[0]!r}", path=path) from None
-    network = NLBNetwork(**asdict(config))
     prefix = "network."
+    check_weights_match(lambda: NLBNetwork(**asdict(config)), state, path, prefix)
+    network = NLBNetwork(**asdict(config))
     try:
         network.load_state_dict({k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)})
     except RuntimeError as exc:

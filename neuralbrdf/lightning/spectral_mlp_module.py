@@ -132,6 +132,9 @@ class SpectralMlpModule(pl.LightningModule):
                 f"residual_epsilon_sr must be > 0 sr⁻¹ and weight_floor in [0, 1], got {residual_epsilon_sr} "
                 f"and {weight_floor}"
             )
+        for name, value in (("gamma", gamma), ("rel_rmse_floor", rel_rmse_floor)):
+            if not (np.isfinite(value) and value >= 0):
+                raise InputError(f"model.{name} must be a finite number >= 0, got {value}", column=name)
 
     def forward(self, theta_i_deg, theta_r_deg, wavelength_nm):
         return self.network(theta_i_deg, theta_r_deg, wavelength_nm)
