@@ -198,3 +198,24 @@ def test_negative_model_values_are_clamped_and_counted(tmp_path, monkeypatch, ca
 def test_help_states_how_outputs_and_sizes_are_checked():
     text = " ".join(render.build_parser().format_help().split())
     assert "symbolic link is written through" in text and "75% of this machine's memory" in text
+
+
+OLD_LLVM = Path("/usr/lib/x86_64-linux-gnu/libLLVM-15.so.1")
+
+
+@pytest.mark.skipif(not OLD_LLVM.is_file(), reason="no LLVM 15 on this machine to stand for an old LLVM")
+def test_an_llvm_older_than_19_is_one_line_before_rendering(models, tmp_path):
+    """With LLVM 15 Dr.Jit starts but aborts (rc 134, 56 lines of 'Cannot select') in render kernels."""
+    import os
+    import subprocess
+    import sys
+
+    out = tmp_path / "x.png"
+    proc = subprocess.run(
+        [sys.executable, str(Path(render.__file__)), "--model", str(models["grey"]), "--out", str(out),
+         "--resolution", "8", "--spp", "1", "--quiet"],
+        capture_output=True, text=True, env={**os.environ, "DRJIT_LIBLLVM_PATH": str(OLD_LLVM)}, timeout=300,
+    )
+    assert proc.returncode == 2, proc.stderr[-500:]
+    assert proc.stderr.count("\n") == 1 and "libllvm19" in proc.stderr and "LLVM 15" in proc.stderr
+    assert not out.exists()

@@ -23,6 +23,7 @@ Models are :class:`Evaluator` objects: an ``.onnx`` file through onnxruntime
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -84,15 +85,16 @@ class OnnxEvaluator:
         return self.session.run(["f"], feeds)[0].astype(np.float64)
 
 
-@dataclass
 class TorchEvaluator:
-    """A torch module on directions (:mod:`neuralbrdf.models.directional`, a truth), evaluated in float64."""
+    """A torch module on directions (:mod:`neuralbrdf.models.directional`, a truth), evaluated in
+    float64 on a copy (the module itself is left as it is)."""
 
-    module: torch.nn.Module
-    is_spectral: bool
+    def __init__(self, module: torch.nn.Module, is_spectral: bool) -> None:
+        self.module = copy.deepcopy(module).double().eval()
+        self.is_spectral = is_spectral
 
     def values(self, wi, wo, wavelength=None):
-        module = self.module.double()
+        module = self.module
         inputs = [torch.from_numpy(np.asarray(wi, dtype=np.float64)), torch.from_numpy(np.asarray(wo, dtype=np.float64))]
         if self.is_spectral:
             inputs.append(torch.from_numpy(np.asarray(wavelength, dtype=np.float64)))

@@ -84,12 +84,35 @@ def dr_mode(wavefront: bool) -> Iterator[None]:
         dr.set_flag(dr.JitFlag.SymbolicCalls, saved[1])
 
 
+#: Oldest LLVM whose shared library Mitsuba's ``llvm_*`` variants can render with: older ones
+#: fail while compiling render kernels ("LLVM ERROR: Cannot select ... fmaximum", abort).
+MIN_LLVM_VERSION = (19, 0, 0)
+
+
+def check_llvm(variant: str) -> None:
+    """One clear :class:`InputError` before rendering when an ``llvm_*`` variant would run on an
+    LLVM older than :data:`MIN_LLVM_VERSION` (instead of an abort deep in kernel compilation)."""
+    if not variant.startswith("llvm_"):
+        return
+    try:
+        version = tuple(dr.detail.llvm_version())
+    except Exception:  # no LLVM at all: mi.set_variant says so itself
+        return
+    if version < MIN_LLVM_VERSION:
+        raise InputError(
+            f"Mitsuba's {variant} needs LLVM >= 19 as a shared library, but Dr.Jit loaded LLVM "
+            f"{'.'.join(map(str, version))}, which aborts while compiling render kernels: install LLVM 19 "
+            "(Debian: apt-get install libllvm19) or set DRJIT_LIBLLVM_PATH to its libLLVM.so.19"
+        )
+
+
 def set_variant(variant: str) -> None:
     """Select a Mitsuba variant and register the ``neuralbrdf`` BSDF in it."""
     from neuralbrdf.render import register
 
     if variant not in mi.variants():
         raise InputError(f"unknown Mitsuba variant {variant!r}; this build has {', '.join(mi.variants())}")
+    check_llvm(variant)
     try:
         mi.set_variant(variant)
         register()
