@@ -195,8 +195,9 @@ class MetricsJson(pl.Callback):
 #: Validation metrics whose name holds this are relative errors (report Eq. 4.3): predicting 0
 #: everywhere scores exactly 1 ...
 RELATIVE_ERROR_MARK = "rel_rmse"
-#: ... so a best score at or above this is a model that learned nothing.
-NO_BETTER_THAN_ZERO = 0.999
+#: ... so best scores all within this of 1 mark a model whose output collapsed to 0 (a model that
+#: overshoots scores above 1 and is merely bad, not dead).
+ZERO_PREDICTION_BAND = 1e-3
 
 
 class FitHealth(pl.Callback):
@@ -205,7 +206,7 @@ class FitHealth(pl.Callback):
     Checks, in order of occurrence: every training loss is finite; some parameter gradient is
     non-zero in every epoch (automatic optimisation only); the monitored metric of every
     validation is finite; after training, the best validation relative error (``val/*rel_rmse*``,
-    monitored or not) is better than :data:`NO_BETTER_THAN_ZERO` (1 is the score of predicting 0:
+    monitored or not) is not within :data:`ZERO_PREDICTION_BAND` of 1 (the score of predicting 0:
     the mark of a dead network) and the module's optional ``fit_failure()`` returns no reason.  On any error of a started fit (except bad input) it removes the ``best*``
     checkpoints and writes ``metrics.json`` with ``"status": "failed"`` and ``"cause"``.
     """
@@ -256,7 +257,9 @@ class FitHealth(pl.Callback):
                 )
 
     def on_train_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
-        if self._best_relative_errors and min(self._best_relative_errors.values()) >= NO_BETTER_THAN_ZERO:
+        if self._best_relative_errors and all(
+            abs(best - 1.0) <= ZERO_PREDICTION_BAND for best in self._best_relative_errors.values()
+        ):
             name, best = min(self._best_relative_errors.items(), key=lambda item: item[1])
             raise FitFailed(
                 f"the model is no better than predicting 0 (best {name} = {best:.4g}): "
