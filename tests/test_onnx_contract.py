@@ -290,3 +290,14 @@ def test_a_constant_shape_creating_a_huge_tensor_is_refused_before_onnxruntime(t
     monkeypatch.setattr(onnx_contract, "_check_trial_evaluation", lambda *a: pytest.fail("ran the graph"))
     with pytest.raises(InputError, match="ConstantOfShape node 'fill' creates a tensor of 10000000000 elements"):
         load_model(path)
+
+
+def test_a_name_that_is_not_utf8_is_an_input_error(tmp_path):
+    """Found by tests/test_fuzz.py: one flipped bit in a node name made the ONNX checker raise
+    UnicodeDecodeError (its message quotes the name) instead of a located InputError."""
+    raw = bytearray(fx.tiny_rgb_model().SerializeToString())
+    raw[9] ^= 1 << 7
+    path = tmp_path / "flipped.onnx"
+    path.write_bytes(bytes(raw))
+    with pytest.raises(InputError, match="not UTF-8 text"):
+        load_model(path)

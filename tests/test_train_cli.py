@@ -313,7 +313,8 @@ def _assert_failed_run(run_dir, cause_fragment, capsys):
     [
         (["--model.init_args.optimizer.init_args.lr", "10", "--trainer.limit_train_batches", "20"],
          "no better than predicting 0"),
-        (["--model.init_args.optimizer.init_args.lr", "1e30"], "non-finite training loss"),
+        (["--model.init_args.optimizer.init_args.lr", "1e30", "--model.init_args.residual", "linear"],
+         "non-finite training loss"),
     ],
     ids=["dead network after a huge learning rate", "non-finite loss"],
 )

@@ -192,11 +192,12 @@ class MetricsJson(pl.Callback):
         self._evaluation_end(trainer, "test")
 
 
-#: Monitored metrics whose name holds this are relative errors (report Eq. 4.3): predicting 0
+#: Validation metrics whose name holds this are relative errors (report Eq. 4.3): predicting 0
 #: everywhere scores exactly 1 ...
 RELATIVE_ERROR_MARK = "rel_rmse"
-#: ... so a best score at or above this is a model that learned nothing.
-NO_BETTER_THAN_ZERO = 0.999
+#: ... so best scores all within this of 1 mark a model whose output collapsed to 0 (a model that
+#: overshoots scores above 1 and is merely bad, not dead).
+ZERO_PREDICTION_BAND = 1e-3
 
 
 class FitHealth(pl.Callback):
@@ -204,9 +205,9 @@ class FitHealth(pl.Callback):
 
     Checks, in order of occurrence: every training loss is finite; some parameter gradient is
     non-zero in every epoch (automatic optimisation only); the monitored metric of every
-    validation is finite; after training, a monitored relative error (``*rel_rmse*``) is better
-    than :data:`NO_BETTER_THAN_ZERO` (1 is the score of predicting 0: the mark of a dead network)
-    and the module's optional ``fit_failure()`` returns no reason.  On any error of a started fit (except bad input) it removes the ``best*``
+    validation is finite; after training, the best validation relative error (``val/*rel_rmse*``,
+    monitored or not) is not within :data:`ZERO_PREDICTION_BAND` of 1 (the score of predicting 0:
+    the mark of a dead network) and the module's optional ``fit_failure()`` returns no reason.  On any error of a started fit (except bad input) it removes the ``best*``
     checkpoints and writes ``metrics.json`` with ``"status": "failed"`` and ``"cause"``.
     """
 
@@ -214,6 +215,7 @@ class FitHealth(pl.Callback):
         self.filename = filename
         self._steps = 0
         self._learning = False
+        self._best_relative_errors: dict[str, float] = {}
 
     def on_train_epoch_start(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
         self._steps, self._learning = 0, False
@@ -241,6 +243,11 @@ class FitHealth(pl.Callback):
     def on_validation_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
         if trainer.sanity_checking or trainer.state.fn != "fit":
             return
+        for name, value in trainer.callback_metrics.items():
+            if name.startswith("val/") and RELATIVE_ERROR_MARK in name and "excluded" not in name:
+                value = _number(value)
+                if math.isfinite(value):
+                    self._best_relative_errors[name] = min(value, self._best_relative_errors.get(name, math.inf))
         for callback in trainer.checkpoint_callbacks:
             value = trainer.callback_metrics.get(callback.monitor) if callback.monitor else None
             if value is not None and not math.isfinite(_number(value)):
@@ -250,14 +257,14 @@ class FitHealth(pl.Callback):
                 )
 
     def on_train_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
-        for callback in trainer.checkpoint_callbacks:
-            score = callback.best_model_score
-            if score is not None and RELATIVE_ERROR_MARK in (callback.monitor or ""):
-                if _number(score) >= NO_BETTER_THAN_ZERO:
-                    raise FitFailed(
-                        f"the model is no better than predicting 0 (best {callback.monitor} = {_number(score):.4g}): "
-                        "the network stopped learning (dead or saturated units, e.g. a too-large learning rate)"
-                    )
+        if self._best_relative_errors and all(
+            abs(best - 1.0) <= ZERO_PREDICTION_BAND for best in self._best_relative_errors.values()
+        ):
+            name, best = min(self._best_relative_errors.items(), key=lambda item: item[1])
+            raise FitFailed(
+                f"the model is no better than predicting 0 (best {name} = {best:.4g}): "
+                "the network stopped learning (dead or saturated units, e.g. a too-large learning rate)"
+            )
         fit_failure = getattr(pl_module, "fit_failure", None)
         reason = fit_failure() if fit_failure is not None else None
         if reason:

@@ -190,6 +190,8 @@ def load_model(path: str | os.PathLike[str]) -> OnnxModel:
         onnx.checker.check_model(proto)
     except onnx.checker.ValidationError as error:
         raise InputError(f"invalid ONNX graph: {error}", path=path) from None
+    except UnicodeDecodeError:  # the checker's message quotes a name that is not UTF-8 (found by fuzzing)
+        raise InputError("invalid ONNX graph: a name or string in it is not UTF-8 text", path=path) from None
 
     is_spectral = _check_interface(proto.graph, path)
     metadata = {entry.key: entry.value for entry in proto.metadata_props}
