@@ -127,10 +127,16 @@ class NLBPretrainModule(pl.LightningModule):
         corpus_size = getattr(data, "n_materials", None)
         if corpus_size is not None and corpus_size != len(self.latents):
             raise InputError(
-                f"the model has {len(self.latents)} latents but the corpus has {corpus_size} materials; "
-                "set model.n_materials to data.n_materials",
+                f"the model has {len(self.latents)} latents but the corpus has {corpus_size} materials "
+                "(analytic + MERL proxies); set model.n_materials to that",
                 column="model.n_materials",
             )
+        self.material_names = list(getattr(data, "material_names", ()))
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        """Store the latents' material names (``analytic:<i>``, ``merl:<name>``), when known."""
+        if getattr(self, "material_names", None):
+            checkpoint["material_names"] = self.material_names
 
     def forward(self, batch: CorpusSamples) -> torch.Tensor:
         return self.network(batch.wi, batch.wo, self.latents(batch.material))
@@ -164,11 +170,16 @@ class NLBPretrainModule(pl.LightningModule):
 
 @dataclass(frozen=True)
 class PretrainedNLB:
-    """A pretrained NLB: the ``network`` (eval mode) and its corpus ``latents`` ``[M, latent_dim]``."""
+    """A pretrained NLB: the ``network`` (eval mode) and its corpus ``latents`` ``[M, latent_dim]``.
+
+    ``names`` label the latents (``analytic:<i>``, ``merl:<name>``); empty for checkpoints
+    written before the names were stored.
+    """
 
     network: NLBNetwork
     latents: torch.Tensor
     source: str
+    names: tuple[str, ...] = ()
 
     @property
     def latent_mean(self) -> torch.Tensor:
@@ -199,4 +210,7 @@ def load_pretrained(path: str | os.PathLike[str]) -> PretrainedNLB:
     except RuntimeError as exc:
         raise InputError(f"network weights do not match its hyper-parameters: {exc}", path=path) from None
     network.eval()
-    return PretrainedNLB(network, latents, str(path))
+    names = tuple(str(n) for n in checkpoint.get("material_names", ()))
+    if names and len(names) != len(latents):
+        raise InputError(f"{len(names)} material names for {len(latents)} latents", path=path)
+    return PretrainedNLB(network, latents, str(path), names)
