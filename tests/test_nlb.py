@@ -220,6 +220,21 @@ def test_load_pretrained_round_trip(tmp_path):
     torch.testing.assert_close(pretrained.network(wi, wo, latent), module.network(wi, wo, latent), rtol=0, atol=0)
 
 
+def test_warm_start_copies_the_network_and_the_latents_of_the_same_material(tmp_path):
+    previous = tiny_module()
+    checkpoint = save_checkpoint(previous, tmp_path / "tiny.ckpt")  # unnamed: analytic:0..5
+    module = NLBPretrainModule(n_materials=3, latent_dim=4, width=16, depth=2, warm_start=str(checkpoint))
+    module._warm_start(["analytic:4", "merl:new", "analytic:1"])
+    for key, value in previous.network.state_dict().items():
+        assert torch.equal(module.network.state_dict()[key], value)
+    old = previous.latents.latents.detach()
+    expected = torch.stack([old[4], old.mean(0), old[1]])
+    torch.testing.assert_close(module.latents.latents.detach(), expected, rtol=0, atol=1e-7)
+    wider = NLBPretrainModule(n_materials=3, latent_dim=4, width=8, depth=2, warm_start=str(checkpoint))
+    with pytest.raises(InputError, match="warm start"):
+        wider._warm_start(["analytic:0"])
+
+
 def test_load_pretrained_rejects_bad_files(tmp_path):
     with pytest.raises(InputError, match="not found"):
         load_pretrained(tmp_path / "missing.ckpt")

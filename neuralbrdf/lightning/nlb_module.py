@@ -93,6 +93,10 @@ class NLBPretrainModule(pl.LightningModule):
         Learning rate of the latents relative to the network's.
     loss_domain:
         ``"log_cosine"`` (default) or ``"linear"`` (Fan et al.'s raw L1).
+    warm_start:
+        A pretraining checkpoint of the same architecture to continue from: its network
+        weights, and its latents for the materials of the same name (unnamed checkpoints:
+        the first rows, the analytic materials); the other latents start at its centroid.
     optimizer, lr_scheduler:
         Factories from the config; the scheduler steps once per epoch.
     """
@@ -108,6 +112,7 @@ class NLBPretrainModule(pl.LightningModule):
         latent_init: float = 0.0,
         latent_lr_scale: float = 1.0,
         loss_domain: str = "log_cosine",
+        warm_start: str | None = None,
         optimizer: OptimizerCallable = torch.optim.Adam,
         lr_scheduler: LRSchedulerCallable | None = None,
     ) -> None:
@@ -121,6 +126,23 @@ class NLBPretrainModule(pl.LightningModule):
         self.optimizer_factory = optimizer
         self.lr_scheduler_factory = lr_scheduler
         self._val_sums: list[torch.Tensor] = []
+        self.material_names: list[str] = []
+
+    def _warm_start(self, names: list[str]) -> None:
+        """Copy the network and the matching latents of ``hparams.warm_start`` (class docstring)."""
+        path = self.hparams.warm_start
+        previous = load_pretrained(path)
+        if previous.network.config != self.network.config:
+            raise InputError(f"warm start from a {previous.network.config} network into a {self.network.config} one",
+                             path=path)
+        self.network.load_state_dict(previous.network.state_dict())
+        known = previous.names or tuple(f"analytic:{i}" for i in range(len(previous.latents)))
+        rows = {name: i for i, name in enumerate(known)}
+        with torch.no_grad():
+            self.latents.latents.copy_(previous.latent_mean.expand_as(self.latents.latents))
+            for i, name in enumerate(names):
+                if name in rows:
+                    self.latents.latents[i] = previous.latents[rows[name]]
 
     def setup(self, stage: str) -> None:
         data = getattr(self.trainer, "datamodule", None)
@@ -132,10 +154,12 @@ class NLBPretrainModule(pl.LightningModule):
                 column="model.n_materials",
             )
         self.material_names = list(getattr(data, "material_names", ()))
+        if self.hparams.warm_start and stage == "fit":
+            self._warm_start(self.material_names)
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         """Store the latents' material names (``analytic:<i>``, ``merl:<name>``), when known."""
-        if getattr(self, "material_names", None):
+        if self.material_names:
             checkpoint["material_names"] = self.material_names
 
     def forward(self, batch: CorpusSamples) -> torch.Tensor:
