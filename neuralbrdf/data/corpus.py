@@ -2,9 +2,9 @@
 
 Fan et al. (2022, "Neural Layered BRDFs") pretrain their representation network on many
 materials; this project generates its own from physically based analytic families with
-randomised parameters.  No measured material enters the corpus — in particular none of the MERL
-proxies of ``../shared/data/merl-nbrdf`` (SPEC §2.4), which measure how the network
-generalises to real materials.
+randomised parameters.  No measured material enters this corpus; the pretraining config mixes
+in MERL proxies separately (:mod:`neuralbrdf.data.proxy_corpus`), never the held-out subset or
+the report's five materials, which measure how the network generalises to real materials.
 
 A material is a diffuse base plus up to :data:`MAX_LOBES` specular lobes, all RGB, in sr⁻¹::
 
