@@ -70,3 +70,12 @@ def test_proxy_batches_are_the_proxies_values_and_follow_the_analytic_materials(
     np.testing.assert_allclose(batch.f[row].numpy(), expected[0], rtol=1e-5, atol=1e-7)
     again = data.train_dataloader().dataset[0]
     assert torch.equal(again.f, batch.f)
+
+
+def test_shipped_checkpoint_never_saw_a_held_out_or_report_material():
+    from neuralbrdf.lightning.latent_fit_module import PRETRAINED_COMPACT
+    from neuralbrdf.lightning.nlb_module import load_pretrained
+
+    names = load_pretrained(PRETRAINED_COMPACT).names
+    proxies = {n.removeprefix("merl:") for n in names if n.startswith("merl:")}
+    assert proxies and not proxies & set(NEVER_PRETRAINED)
