@@ -561,6 +561,13 @@ def test_latent_config_evaluates_nbrdf_sources_on_the_low_plan(pretrained_run, t
         assert 0 < metrics[f"fit/abc_low2012/hemisphere_logcos_rmse/{material}"] < 0.1
     assert metrics["fit/hemisphere_logcos_rmse/mean"] == pytest.approx(
         (metrics["fit/hemisphere_logcos_rmse/brass"] + metrics["fit/hemisphere_logcos_rmse/nylon"]) / 2)
+    # the shared names of SPEC §9: per material, and their mean under the bare names
+    for material in ("brass", "nylon"):
+        logged = metrics[f"fit/hemisphere_logcos_rmse/{material}"]
+        assert metrics[f"fit/materials/{material}/hemisphere_logcos_rmse"] == pytest.approx(logged, rel=1e-5)
+        assert metrics[f"fit/materials/{material}/inplane_glossy_rel_rmse"] > 0
+        assert metrics[f"fit/materials/{material}/inplane_diffuse_rel_rmse"] > 0
+    assert metrics["fit/hemisphere_logcos_rmse"] == pytest.approx(metrics["fit/hemisphere_logcos_rmse/mean"], rel=1e-5)
 
 
 @pytest.mark.filterwarnings("ignore:.*negative linear-sRGB value")  # cyan lies partly outside sRGB

@@ -129,7 +129,8 @@ class AbcFitModule(pl.LightningModule):
             pred_truth = self.parameters_.evaluate(*truth.vectors())
             rmse = hemisphere_logcos_rmse(pred_truth, truth.values, truth.theta_i)
             self.log(f"{stage}/hemisphere_logcos_rmse", rmse, batch_size=1)
-        self.scores = fit_scores(pred, fit, pred_truth, truth)
+        self.scores = fit_scores(pred, fit.values, *fit.inplane_angles(), pred_truth,
+                                 None if truth is None else truth.values, None if truth is None else truth.theta_i)
 
     def validation_step(self, material: MaterialData, batch_idx: int) -> None:
         self._evaluate(material, "val")

@@ -432,10 +432,12 @@ class LatentFitModule(pl.LightningModule):
         fit_pred = self.predict(item.fit)
         fit_rmse = metrics.hemisphere_logcos_rmse(fit_pred, item.fit.f, _theta_i_deg(item.fit.wi))
         self.log(f"fit_logcos_rmse/{item.name}", fit_rmse, batch_size=1)
+        truth_pred = None if item.truth is None else self.predict(item.truth)
+        self._record_scores(item, fit_pred, truth_pred)
         if item.truth is None:
             return
         theta_i = _theta_i_deg(item.truth.wi)
-        rmse = metrics.hemisphere_logcos_rmse(self.predict(item.truth), item.truth.f, theta_i)
+        rmse = metrics.hemisphere_logcos_rmse(truth_pred, item.truth.f, theta_i)
         self.log(f"hemisphere_logcos_rmse/{item.name}", rmse, batch_size=1)
         self._eval_rmse.append(rmse)
         if item.abc is not None:
@@ -444,6 +446,30 @@ class LatentFitModule(pl.LightningModule):
 
     def on_validation_epoch_start(self) -> None:
         self._eval_rmse: list[float] = []
+        self._scores: dict[str, dict[str, float | None]] = {}
+
+    def _record_scores(self, item: EvalSet, fit_pred: torch.Tensor, truth_pred: torch.Tensor | None) -> None:
+        """The shared metric names (SPEC §9) of one material, kept for :meth:`metrics_json_extras`."""
+        from neuralbrdf.evaluation.scores import fit_scores
+        from neuralbrdf.geometry import inplane_equivalent
+
+        as_numpy = lambda t: t.detach().cpu().double().numpy()  # noqa: E731
+        theta_i, theta_r = inplane_equivalent(as_numpy(item.fit.wi), as_numpy(item.fit.wo))
+        truth = {}
+        if item.truth is not None:
+            truth = dict(pred_truth=as_numpy(truth_pred), truth_values=as_numpy(item.truth.f),
+                         truth_theta_i=as_numpy(_theta_i_deg(item.truth.wi)))
+        self._scores[item.name] = fit_scores(as_numpy(fit_pred), as_numpy(item.fit.f), theta_i, theta_r, **truth)
+
+    def metrics_json_extras(self) -> dict:
+        """Per material ``materials/<name>/<metric>`` and, under the bare names, the mean over the
+        materials (the material itself for a single fit) of the last validation (the fitted model)."""
+        scores = getattr(self, "_scores", {})
+        extras = {f"materials/{name}/{key}": value for name, values in scores.items() for key, value in values.items()}
+        for key in sorted({key for values in scores.values() for key in values}):
+            present = [values[key] for values in scores.values() if values.get(key) is not None]
+            extras[key] = float(np.mean(present)) if present else None
+        return extras
 
     def on_validation_epoch_end(self) -> None:
         if self._eval_rmse:

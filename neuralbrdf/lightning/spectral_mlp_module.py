@@ -206,7 +206,7 @@ class SpectralMlpModule(pl.LightningModule):
                 *(torch.as_tensor(np.repeat(a, len(table.wavelengths)), dtype=torch.float32) for a in (theta_i, theta_r)),
                 torch.as_tensor(np.tile(table.wavelengths, rows), dtype=torch.float32),
             ).numpy().reshape(rows, -1)
-        scores = fit_scores(pred.astype(np.float64), table)
+        scores = fit_scores(pred.astype(np.float64), table.values, theta_i, theta_r)
         if datamodule.hparams.path is None:
             truth = load_truth(f"virtual:{datamodule.hparams.virtual_material}")
             hemisphere = hemisphere_scores(TorchEvaluator(SpectralMlpOnDirections(network), True),
