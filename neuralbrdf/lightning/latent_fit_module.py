@@ -527,6 +527,9 @@ def load_fitted(path: str | os.PathLike[str]) -> FittedNLB:
     """
     path = Path(path)
     checkpoint = read_checkpoint(path, "fitted NLB checkpoint")
+    missing = [key for key in ("nlb_config", "material_names", "state_dict") if key not in checkpoint]
+    if missing:  # e.g. a pretraining checkpoint: it names its materials but has no nlb_config
+        raise InputError(f"not a latent-fit checkpoint (LatentFitModule): missing {missing[0]!r}", path=path)
     try:
         names, state = checkpoint["material_names"], checkpoint["state_dict"]
         check_weights_match(lambda: NLBNetwork(**checkpoint["nlb_config"]), state, path, "network.")
