@@ -25,7 +25,7 @@ import numpy as np
 
 from neuralbrdf.atomic import atomic_path
 from neuralbrdf.evaluation.images import IMAGE_METRICS, image_scores
-from neuralbrdf.evaluation.scores import DIRECTION_METRICS, OnnxEvaluator, direction_scores
+from neuralbrdf.evaluation.scores import DIRECTION_METRICS, HEMISPHERE_STRATA, OnnxEvaluator, direction_scores
 
 DEFAULT_VARIANT = "llvm_ad_spectral"
 DEFAULT_SPP = 256
@@ -114,12 +114,14 @@ def _json_number(value):
 
 
 def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path,
-             settings: RenderSettings = RenderSettings(), render_images: bool = True) -> dict:
-    """Score ``model_path`` against ``truth_path`` and write ``out_dir`` (module docstring)."""
+             settings: RenderSettings = RenderSettings(), render_images: bool = True,
+             strata: tuple[int, int] = HEMISPHERE_STRATA) -> dict:
+    """Score ``model_path`` against ``truth_path`` and write ``out_dir`` (module docstring);
+    ``strata``: fewer hemisphere pairs than the default, for quick studies and tests."""
     model_path, truth_path, out_dir = Path(model_path), Path(truth_path), Path(out_dir)
     started = time.perf_counter()
     model, truth = OnnxEvaluator(model_path), OnnxEvaluator(truth_path)
-    directions = direction_scores(model, truth)
+    directions = direction_scores(model, truth, strata=strata)
     timings = {"directions_s": time.perf_counter() - started}
     result = {
         "model": str(model_path),
