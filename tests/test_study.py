@@ -190,7 +190,7 @@ def test_tiny_study_end_to_end(tmp_path, capsys):
     again = json.loads((out / "study.json").read_text())
     assert again["run"]["cells_run"] == 0 and again["run"]["cells_cached"] == 2
     assert [p["error"] for p in again["points"]] == [p["error"] for p in points]
-    assert time.perf_counter() - started < 30
+    assert time.perf_counter() - started < 60  # seconds idle; imports dominate
 
 
 def test_killed_cell_is_rerun(tmp_path):
@@ -228,3 +228,18 @@ def test_shipped_profiles_are_valid():
         pytest.skip("full.yaml names configs of branches not merged yet")
     full = load_profile("full")
     assert len(full.materials) == 9 and {"abc", "nlb_compact", "spectral_mlp"} <= set(full.stability.variants)
+
+
+def test_parameter_count_counts_float_initializers():
+    import numpy as np
+    import onnx
+    from onnx import helper, numpy_helper
+
+    from neuralbrdf.study.cost import parameter_count
+
+    weights = [numpy_helper.from_array(np.zeros((3, 7), np.float32), "w"),
+               numpy_helper.from_array(np.zeros(7, np.float32), "b"),
+               numpy_helper.from_array(np.array([1, 2], np.int64), "shape")]  # not a parameter
+    graph = helper.make_graph([], "g", [], [], initializer=weights)
+    assert parameter_count(helper.make_model(graph)) == 3 * 7 + 7
+    assert isinstance(onnx.TensorProto.FLOAT, int)

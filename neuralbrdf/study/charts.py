@@ -49,7 +49,7 @@ def speed_accuracy(entries: list[dict], fronts: dict[str, list[str]], title: str
             ax.scatter(x, y, color=METHOD_COLOURS.get(e["method"], "grey"), s=30, zorder=3)
             ax.annotate(e["model"], (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
         _front_line(ax, named, fronts.get(cost_key, []))
-        ax.set_xscale("log")
+        _cost_scale(ax, [x for x, _ in named.values()])
         ax.set_xlabel(COST_AXES[cost_key])
         ax.set_ylabel("mean ΔE2000 vs truth render")
         ax.set_title("Pareto: " + (", ".join(fronts.get(cost_key, [])) or "none"), fontsize=8)
@@ -58,6 +58,16 @@ def speed_accuracy(entries: list[dict], fronts: dict[str, list[str]], title: str
     axes[1].legend(handles=handles, fontsize=7, loc="best")
     fig.suptitle(title, fontsize=10)
     return _save(fig, path)
+
+
+def _cost_scale(ax, values: list[float]) -> None:
+    """Logarithmic when the costs span more than a decade; plain numbers on the ticks either way."""
+    from matplotlib.ticker import FormatStrFormatter, NullFormatter
+
+    if values and min(values) > 0 and max(values) / min(values) > 10:
+        ax.set_xscale("log")
+        ax.xaxis.set_minor_formatter(NullFormatter())
+    ax.xaxis.set_major_formatter(FormatStrFormatter("%g"))
 
 
 def box_by_condition(points: list[dict], models: list[str], conditions: list, condition_of, label_of,
@@ -141,7 +151,7 @@ def rel_rmse_vs_angle(results: list[dict], material: str, path: Path) -> str:
 
 def per_channel_boxes(results: list[dict], material: str, path: Path) -> str:
     """Box plots over incident angles of the glossy relative RMSE per wavelength (report Fig. 5.3)."""
-    fig, axes = plt.subplots(len(results), 1, figsize=(9, 2.4 * len(results)), squeeze=False)
+    fig, axes = plt.subplots(len(results), 1, figsize=(9, 2.6 * len(results)), squeeze=False, constrained_layout=True)
     for ax, r in zip(axes[:, 0], results):
         matrix = np.array([[np.nan if v is None else v for v in row] for row in r["per_angle"]["per_channel"]])
         channels = r["per_angle"]["channels"]
@@ -157,12 +167,10 @@ def per_channel_boxes(results: list[dict], material: str, path: Path) -> str:
 
 
 def renders_grid(rows: list[tuple[str, Path]], material: str, path: Path) -> str:
-    """Truth | model | ΔE map per model (from each main cell's evaluation folder)."""
-    fig, axes = plt.subplots(len(rows), 3, figsize=(7.5, 2.4 * len(rows)), squeeze=False)
-    for (model, folder), row in zip(rows, axes):
-        for ax, name, label in zip(row, ("truth.png", "model.png", "error_map.png"), ("truth", model, "ΔE2000")):
-            ax.imshow(plt.imread(folder / name))
-            ax.set_title(label, fontsize=8)
-            ax.set_axis_off()
-    fig.suptitle(f"{material}: renders", fontsize=9)
+    """Truth | model | ΔE map per model: each main cell's ``comparison.png`` (``neuralbrdf evaluate``)."""
+    fig, axes = plt.subplots(len(rows), 1, figsize=(10, 3.2 * len(rows)), squeeze=False)
+    for (model, folder), ax in zip(rows, axes[:, 0]):
+        ax.imshow(plt.imread(folder / "comparison.png"))
+        ax.set_title(f"{material} / {model}", fontsize=9)
+        ax.set_axis_off()
     return _save(fig, path)

@@ -118,7 +118,7 @@ def write_report(study: dict, out_dir: Path) -> Path:
     parts.append("<h2>The report's figures from our data</h2>")
     for kind in ("rel_rmse_vs_angle", "per_channel", "renders"):
         parts += [figure(name, f"{kind} {m}") for m, name in figs[kind].items()]
-    parts += ["<h2>Every point</h2>", _points_table(study)]
+    parts += ["<h2>Every point</h2>", "<div style=\"overflow-x:auto\">" + _points_table(study) + "</div>"]
     machine = study["machine"]
     versions = ", ".join(f"{k} {v}" for k, v in machine["versions"].items())
     parts.append(f"<h2>Machine</h2><p>{html.escape(machine['cpu'])}, {machine['cores']} cores, "
