@@ -22,8 +22,9 @@ THRESHOLD_FACTOR = 2.0
 THRESHOLD_METRIC = "hemisphere_logcos_rmse"
 ACCURACY_METRIC = "image_delta_e2000_mean"
 BUDGETS_DELTA_E = (1.0, 2.0, 5.0, 10.0)
-CAUSES = ("non_finite_loss", "optimizer_failure", "error_above_2x_ds1", "export_refused", "evaluation_error",
-          "cell_crashed")
+#: Every failure cause a point can carry (:mod:`neuralbrdf.study.cell`, :func:`points_from_results`).
+CAUSES = ("non_finite_loss", "optimizer_failure", "fit_refused", "error_above_2x_ds1", "export_refused",
+          "evaluation_error", "cell_crashed")
 COST_FROM_MAIN = ("render_ratio", "mqueries_per_s", "parameters", "fastest_backend")
 
 

@@ -24,14 +24,18 @@ scratch.  Steps:
 
 Failure causes recorded (``failure``): ``non_finite_loss`` (a logged loss or the fit's own loss is
 NaN/inf), ``optimizer_failure`` (the fit reported failure, e.g. ABC's ``success: false``, or
-training stopped with an error), ``export_refused``, ``evaluation_error``.  The fourth cause of
+training stopped with an error), ``fit_refused`` (the fit rejected the data as bad input, exit
+status 2: e.g. a plan without samples in a required split), ``export_refused``,
+``evaluation_error``.  The fourth cause of
 the failure map, error above twice the method's DS1 noise-free error, is decided across cells
 by :mod:`neuralbrdf.study.aggregate`.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
 import dataclasses
 import json
 import math
@@ -131,14 +135,21 @@ def fit(spec: dict, table: Path, run_dir: Path) -> tuple[float, dict]:
     args = ["fit", "--config", variant["config"], *variant["args"], *_data_args(variant["method"], table),
             "--run_dir", str(run_dir), "--seed_everything", str(cell["seed"])]
     started = time.perf_counter()
+    captured = io.StringIO()
     try:
-        status = train(args)
+        with contextlib.redirect_stderr(captured):
+            status = train(args)
     except Exception as error:  # the fit's own exception: its message says why
         message = f"{type(error).__name__}: {error}"
         cause = "non_finite_loss" if _non_finite_logged_loss(run_dir) or "finite" in message.lower() \
             or "nan" in message.lower() else "optimizer_failure"
         raise CellFailure(cause, message.splitlines()[0][:300]) from None
+    finally:
+        sys.stderr.write(captured.getvalue())
     wall = time.perf_counter() - started
+    if status == 2:  # train.py's bad-input status: the fit refused these data (its one-line reason)
+        reason = [line for line in captured.getvalue().splitlines() if line.startswith("error:")][-1:] or ["?"]
+        raise CellFailure("fit_refused", reason[0][:300])
     if _non_finite_logged_loss(run_dir):
         raise CellFailure("non_finite_loss", "a logged training loss is NaN or infinite")
     if status != 0:

@@ -118,14 +118,14 @@ def failure_map(rows: list[dict], path: Path) -> str:
     ax.imshow(grid, cmap="Reds", vmin=0, vmax=1, aspect="auto")
     ax.set_xticks(range(len(conditions)), conditions, rotation=30, ha="right", fontsize=7)
     ax.set_yticks(range(len(models)), models, fontsize=7)
-    ax.set_title("failed cells / cells (N non-finite loss, O optimiser, E error > 2× DS1, X export, V evaluation)",
+    ax.set_title("failed cells / cells (N non-finite loss, O optimiser, R fit refused data, E error > 2× DS1, X export, V evaluation)",
                  fontsize=8)
     return _save(fig, path)
 
 
 def _short(cause: str) -> str:
-    return {"non_finite_loss": "N", "optimizer_failure": "O", "error_above_2x_ds1": "E", "export_refused": "X",
-            "evaluation_error": "V"}.get(cause, "C")
+    return {"non_finite_loss": "N", "optimizer_failure": "O", "fit_refused": "R", "error_above_2x_ds1": "E",
+            "export_refused": "X", "evaluation_error": "V"}.get(cause, "C")
 
 
 def _condition_order(condition: str):

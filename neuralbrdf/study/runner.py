@@ -168,6 +168,7 @@ def run_study(profile_name: str, out_dir: str | Path, jobs: int = 1, command: st
         "points": points,
         "pareto": aggregate.pareto(points),
         "failures": failure_rows,
+        "failure_causes": list(aggregate.CAUSES),
         "summary": aggregate.budgets(points),
         "sentences": aggregate.method_sentences(points, failure_rows),
         "machine": machine(),
