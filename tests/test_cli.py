@@ -67,6 +67,24 @@ def test_to_rgb_and_plot(tmp_path):
     assert (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_plot_formats_legend_and_non_positive_values(tmp_path, capsys):
+    """The legend names the channels and every incident angle (signed), values <= 0 are left out and
+    counted rather than drawn as a floor, and the format follows the suffix or is refused."""
+    table = "theta_i,phi_i,theta_o,phi_o,R,G,B\n" + "\n".join(
+        f"30,0,{t},{180 if t > 0 else 0},{0.0 if t == 50 else 0.5},0.3,0.1" for t in (10, 20, 30, 40, 50)
+    ) + "\n" + "\n".join(f"30,180,{t},0,0.4,0.3,0.2" for t in (10, 20, 30)) + "\n"
+    path = _write(tmp_path / "t.csv", table)
+    assert run("plot", path, "--theta-i", "30", "-30", "--out", tmp_path / "p.svg") == 0
+    svg = (tmp_path / "p.svg").read_text()
+    assert svg.startswith("<?xml")
+    for text in ("R channel", "G channel", "B channel", "θi = +30°", "θi = -30°", "1 value(s) ≤ 0 not drawn"):
+        assert text in svg, text
+    assert run("plot", path, "--out", tmp_path / "p.pdf") == 0
+    assert (tmp_path / "p.pdf").read_bytes()[:4] == b"%PDF"
+    assert run("plot", path, "--out", tmp_path / "p.jpg") == 2
+    assert "unsupported figure format '.jpg'" in capsys.readouterr().err and not (tmp_path / "p.jpg").exists()
+
+
 def test_demo_runs_on_the_shipped_data(tmp_path):
     assert run("demo", "--out-dir", tmp_path, "--material", "gold") == 0
     for suffix in ("_spectral.csv", "_rgb.csv", ".png"):

@@ -13,7 +13,9 @@ from neuralbrdf.data import plans
 from neuralbrdf.data.calibration import calibrate as calibrate_measurement
 from neuralbrdf.data.gcms import read_gcms, write_gcms
 from neuralbrdf.data.loading import load_measurement
+from neuralbrdf.data.merl_binary import MerlBrdf, sample_merl
 from neuralbrdf.data.nbrdf import NbrdfNetwork, sample_plan
+from neuralbrdf.data.sources import virtual_truth
 from neuralbrdf.data.table import read_table, write_table
 from neuralbrdf.errors import InputError
 from neuralbrdf.plotting import DEFAULT_THETA_I_DEG, plot_inplane
@@ -63,11 +65,16 @@ def to_rgb(args) -> None:
     print(f"linear sRGB table ({table.n_rows} rows) -> {args.out}")
 
 
-def sample_nbrdf(args) -> None:
-    network = NbrdfNetwork.load(args.material)
-    table = sample_plan(network, args.plan, progress=True)
+def sample(args) -> None:
+    source = str(args.material)
+    if source.startswith("virtual:"):
+        table = virtual_truth(source[len("virtual:"):], args.plan)
+    elif Path(source).suffix == ".binary":
+        table = sample_merl(MerlBrdf.load(source), args.plan)
+    else:
+        table = sample_plan(NbrdfNetwork.load(source), args.plan, progress=True)
     write_table(table, args.out)
-    print(f"{network.name} on {args.plan}: {table.n_rows} rows -> {args.out}")
+    print(f"{source} on {args.plan}: {table.n_rows} rows -> {args.out}")
 
 
 def plot(args) -> None:

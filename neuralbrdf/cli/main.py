@@ -95,28 +95,32 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("table", help="spectral BRDF table CSV")
     p.add_argument("--out", required=True, help="output RGB BRDF table CSV")
 
-    p = add(
-        "sample-nbrdf",
-        commands.sample_nbrdf,
-        "sample a MERL-proxy NBRDF network on a plan",
-        "Evaluate a MERL-proxy NBRDF network (Sztrajman et al. 2021; NAME.h5 with NAME.json beside it) on a "
-        "sampling plan and write an RGB BRDF table (1/sr).",
-    )
-    p.add_argument("material", help="NBRDF weights, NAME.h5 (or NAME.json)")
-    p.add_argument("--plan", required=True, choices=PLAN_NAMES)
-    p.add_argument("--out", required=True, help="output RGB BRDF table CSV")
+    for name, help_text in (("sample", "sample a measured or virtual material on a plan"),
+                            ("sample-nbrdf", "alias of sample (kept for NBRDF files)")):
+        p = add(
+            name,
+            commands.sample,
+            help_text,
+            "Sample a material on a sampling plan and write a BRDF table (1/sr): a MERL measurement NAME.binary "
+            "(Matusik et al. 2003; nearest cell, RGB), a MERL-proxy NBRDF network NAME.h5 with NAME.json beside it "
+            "(Sztrajman et al. 2021; RGB) or virtual:NAME, the noiseless ground truth of a virtual stand-in "
+            "(spectral, 400-700 nm).",
+        )
+        p.add_argument("material", help="NAME.binary, NAME.h5 (or NAME.json) or virtual:NAME")
+        p.add_argument("--plan", required=True, choices=PLAN_NAMES)
+        p.add_argument("--out", required=True, help="output BRDF table CSV")
 
     p = add(
         "plot",
         commands.plot,
-        "plot a BRDF table's in-plane slices to PNG",
+        "plot a BRDF table's in-plane slices (PNG, PDF or SVG)",
         "Plot a BRDF table (RGB or spectral; GCMS raw files need --reference) against the signed outgoing "
         "angle for a few incident angles, and the mirror-direction spectra of spectral tables.",
     )
     p.add_argument("table", help="BRDF table CSV (or GCMS raw CSV with --reference)")
     p.add_argument("--reference", help="Munsell N9 GCMS raw CSV, when TABLE is a GCMS raw file")
     p.add_argument("--theta-i", type=float, nargs="+", help="incident angles to show (degrees, signed)")
-    p.add_argument("--out", required=True, help="output PNG")
+    p.add_argument("--out", required=True, help="output figure: .png, .pdf or .svg")
 
     p = add(
         "demo",
