@@ -105,6 +105,9 @@ def test_threshold_failures_and_budgets():
     assert points[3]["cost"]["render_ratio"] == 2.0  # the variant's main-cell cost
     rows = {(r["model"], r["condition"]): r for r in aggregate.failures(points)}
     assert rows[("x", "DS4")]["causes"] == {"error_above_2x_ds1": 1} and rows[("x", "DS1")]["failed"] == 0
+    assert math.isclose(rows[("x", "DS1")]["median_error"], 0.011)
+    assert math.isclose(rows[("x", "DS1")]["seed_std_error"], 0.002 / math.sqrt(2))
+    assert rows[("x", "DS4")]["seed_std_error"] is None
     budget = {b["budget_delta_e"]: b["model"] for b in aggregate.budgets(points)}
     assert budget == {1.0: None, 2.0: "x", 5.0: "x", 10.0: "z"}
     assert aggregate.pareto(points)["render_ratio"]["per_material"]["m"] == ["z", "x"]

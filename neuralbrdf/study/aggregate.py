@@ -104,7 +104,8 @@ def pareto(points: list[dict]) -> dict:
 
 
 def failures(points: list[dict]) -> list[dict]:
-    """Per (model, condition): cells, failures and counts by cause."""
+    """Per (model, condition): cells, failures and counts by cause, and the seed-to-seed spread of
+    :data:`THRESHOLD_METRIC` (median and sample standard deviation over the cells with a value)."""
     cells: dict[tuple[str, str], list[dict]] = defaultdict(list)
     for p in points:
         condition = p["plan"] + (f" {p['noise'] * 100:g}% noise" if p["noise"] else "")
@@ -112,9 +113,12 @@ def failures(points: list[dict]) -> list[dict]:
     rows = []
     for (model, condition), ps in cells.items():
         counts = Counter(p["failure"] for p in ps if p["failure"])
+        values = [p["error"][THRESHOLD_METRIC] for p in ps if p["error"].get(THRESHOLD_METRIC) is not None]
         rows.append({"model": model, "method": ps[0]["method"], "condition": condition, "cells": len(ps),
                      "failed": sum(counts.values()), "causes": dict(counts),
-                     "materials": sorted({p["material"] for p in ps})})
+                     "materials": sorted({p["material"] for p in ps}),
+                     "median_error": statistics.median(values) if values else None,
+                     "seed_std_error": statistics.stdev(values) if len(values) > 1 else None})
     return rows
 
 

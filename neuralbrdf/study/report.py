@@ -70,11 +70,14 @@ def _budget_table(study: dict) -> str:
 
 
 def _failure_table(study: dict) -> str:
-    rows = ["<tr><th>model</th><th>condition</th><th>cells</th><th>failed</th><th>causes</th></tr>"]
+    rows = ["<tr><th>model</th><th>condition</th><th>cells</th><th>failed</th><th>causes</th>"
+            "<th>median log-cos RMSE</th><th>std over cells</th></tr>"]
     for i, f in enumerate(study["failures"]):
         causes = ", ".join(f"{c}: {n}" for c, n in sorted(f["causes"].items())) or "–"
         rows.append("<tr>" + text(f["model"]) + text(f["condition"]) + number(f["cells"], f"failures.{i}.cells")
-                    + number(f["failed"], f"failures.{i}.failed") + text(causes) + "</tr>")
+                    + number(f["failed"], f"failures.{i}.failed") + text(causes)
+                    + number(f.get("median_error"), f"failures.{i}.median_error")
+                    + number(f.get("seed_std_error"), f"failures.{i}.seed_std_error") + "</tr>")
     return "<table>" + "".join(rows) + "</table>"
 
 
