@@ -139,7 +139,7 @@ def check_in_browser(out_dir: Path) -> dict:
     """Open index.html (with a probe script added) in headless Chromium; assert images, console, numbers."""
     page = (out_dir / "index.html").read_text(encoding="utf-8")
     assert "<script" not in page and "http://" not in page and "https://" not in page  # static, nothing fetched
-    probe = out_dir / "probe.html"
+    probe = out_dir.resolve() / "probe.html"
     probe.write_text(page.replace("<head>", "<head>" + PROBE, 1), encoding="utf-8")
     try:
         run = subprocess.run(

@@ -114,7 +114,8 @@ def failure_map(rows: list[dict], path: Path) -> str:
         i, j = models.index(r["model"]), conditions.index(r["condition"])
         grid[i, j] = r["failed"] / r["cells"]
         short = ",".join(_short(c) + str(n) for c, n in sorted(r["causes"].items()))
-        ax.text(j, i, f"{r['failed']}/{r['cells']}\n{short}", ha="center", va="center", fontsize=6)
+        ax.text(j, i, f"{r['failed']}/{r['cells']}\n{short}", ha="center", va="center", fontsize=7,
+                color="white" if grid[i, j] > 0.5 else "black")
     ax.imshow(grid, cmap="Reds", vmin=0, vmax=1, aspect="auto")
     ax.set_xticks(range(len(conditions)), conditions, rotation=30, ha="right", fontsize=7)
     ax.set_yticks(range(len(models)), models, fontsize=7)

@@ -50,8 +50,9 @@ def _points_table(study: dict) -> str:
     for i, p in enumerate(study["points"]):
         cells = [text(p["material"]), text(p["model"]), text(p["plan"]), number(p["noise"], f"points.{i}.noise"),
                  number(p["seed"], f"points.{i}.seed")]
-        cells += [number(p["cost"].get(k), f"points.{i}.cost.{k}") for k in COST_COLUMNS]
-        cells += [number(p["error"].get(k), f"points.{i}.error.{k}") for k in ERROR_COLUMNS]
+        cells += [number(p["cost"][k], f"points.{i}.cost.{k}") if k in p["cost"] else text(None) for k in COST_COLUMNS]
+        cells += [number(p["error"][k], f"points.{i}.error.{k}") if k in p["error"] else text(None)
+                  for k in ERROR_COLUMNS]
         failure = p["failure"]
         cells.append(f'<td class="t fail" title="{html.escape(p.get("message") or "")}">{html.escape(failure)}</td>'
                      if failure else text(None))
@@ -100,7 +101,7 @@ def write_report(study: dict, out_dir: Path) -> Path:
              "<h1>neuralbrdf study: speed against accuracy, and where methods fail</h1>",
              f"<p>Profile <code>{html.escape(run['profile'])}</code>; command <code>{html.escape(run['command'])}</code>; "
              f"{len(study['points'])} cells ({run['cells_run']} run now, {run['cells_cached']} from the cache), "
-             f"wall time {run['wall_time_s']:.0f} s; hemisphere metrics over {run['hemisphere_pairs']} direction pairs. "
+             f"wall time {run['wall_time_s']:.0f} s (the cells took {run['cells_time_s']:.0f} s together when they ran); hemisphere metrics over {run['hemisphere_pairs']} direction pairs. "
              "Data: <a href=\"study.json\">study.json</a>.</p>",
              "<h2>Best model per material under an error budget</h2>",
              "<p>Cheapest model (render time ÷ Mitsuba roughconductor in the same run) whose mean CIEDE2000 against "

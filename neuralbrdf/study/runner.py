@@ -149,6 +149,16 @@ def _group_figure(labelled: list[dict], labels: list[str], group: str, path: Pat
                                    f"{group}: error over seeds and materials (DS1, no noise)", path)
 
 
+def _shown_path(path: Path) -> str:
+    """``path`` relative to the repository when it lies inside (no machine-specific prefix)."""
+    from neuralbrdf.study.profile import REPO_ROOT
+
+    try:
+        return str(path.resolve().relative_to(REPO_ROOT))
+    except ValueError:
+        return str(path)
+
+
 def run_study(profile_name: str, out_dir: str | Path, jobs: int = 1, command: str | None = None,
               progress: bool = True) -> dict:
     """Run (or resume) the study of ``profile_name`` into ``out_dir``; the content of ``study.json``."""
@@ -172,9 +182,10 @@ def run_study(profile_name: str, out_dir: str | Path, jobs: int = 1, command: st
         "summary": aggregate.budgets(points),
         "sentences": aggregate.method_sentences(points, failure_rows),
         "machine": machine(),
-        "run": {"profile": str(profile.path), "command": command or f"neuralbrdf study --profile {profile_name}",
+        "run": {"profile": _shown_path(profile.path), "command": command or f"neuralbrdf study --profile {profile_name}",
                 "jobs": jobs, "seeds": sorted({p["seed"] for p in points}), "started": started_at,
                 "cells_run": ran, "cells_cached": len(results) - ran,
+                "cells_time_s": sum(r.get("cell_wall_time_s") or 0.0 for r in results),
                 "hemisphere_pairs": (profile.render.hemisphere_strata[0] * profile.render.hemisphere_strata[1]) ** 2},
     }
     study["figures"] = write_figures(profile, results, study, out_dir)
