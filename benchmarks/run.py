@@ -153,7 +153,7 @@ def train_and_export(settings: Settings, workdir: Path, activation: str = "tanh"
         "checkpoint": str(checkpoint),
         "epochs": settings.epochs,
         "train_command_s": train_s,
-        "val_rel_rmse_glossy_median": metrics.get("fit/best_model_score"),
+        "val_rel_rmse_glossy_median": metrics.get("fit/val/rel_rmse_glossy_median"),
         "export_s": export_s,
         "export_max_rel_error": report.max_rel_error,
     }

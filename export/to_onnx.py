@@ -30,8 +30,9 @@ import json
 import sys
 from pathlib import Path
 
-from neuralbrdf.errors import InputError
-from neuralbrdf.lightning.checkpoint_io import one_line, read_checkpoint
+from neuralbrdf.atomic import command_inputs
+from neuralbrdf.errors import InputError, one_line
+from neuralbrdf.lightning.checkpoint_io import check_weights_match, read_checkpoint
 from neuralbrdf.models.abc import ABCParameters
 from neuralbrdf.models.directional import AbcOnDirections, NlbWithLatent, SpectralMlpOnDirections
 from neuralbrdf.onnx_export import Exportable, ExportReport, ExportValidationError, write_model
@@ -108,6 +109,8 @@ def _spectral_mlp(checkpoint: dict, path: Path, material: str | None) -> Exporta
     for key in ("state_dict", "hyper_parameters"):
         if key not in checkpoint:
             raise InputError("spectral MLP checkpoint lacks this key", path=path, column=key)
+    hparams = {k: v for k, v in dict(checkpoint["hyper_parameters"]).items() if not str(k).startswith("_")}
+    check_weights_match(lambda: SpectralMlpModule(**hparams), checkpoint["state_dict"], path)
     module = SpectralMlpModule.load_from_checkpoint(path, map_location="cpu")
     name = _pick_material([_spectral_mlp_material(checkpoint)], material, path)
     directional = SpectralMlpOnDirections(module.network)
@@ -182,7 +185,10 @@ def build_parser() -> argparse.ArgumentParser:
         "validated against PyTorch with onnxruntime before it is written.",
     )
     parser.add_argument("--ckpt", required=True, help="checkpoint (.ckpt) of train.py or of a fit")
-    parser.add_argument("--out", required=True, help="output .onnx file")
+    parser.add_argument(
+        "--out", required=True,
+        help="output .onnx file (never the checkpoint itself; a symbolic link is written through)",
+    )
     parser.add_argument(
         "--material", default=None, help="material to export (required when the checkpoint holds several)"
     )
@@ -192,7 +198,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        report = export(args.ckpt, args.out, args.material)
+        with command_inputs():  # --out may not be the checkpoint it reads (neuralbrdf.atomic)
+            report = export(args.ckpt, args.out, args.material)
     except InputError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

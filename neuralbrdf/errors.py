@@ -49,3 +49,16 @@ class InputError(ValueError):
             where.append(f"column {self.column!r}")
         prefix = ", ".join(where)
         return f"{prefix}: {self.reason}" if prefix else self.reason
+
+
+class OutputError(InputError):
+    """An output path that cannot or must not be written: an input of the same command, an
+    existing non-regular file, an unwritable folder (see :mod:`neuralbrdf.atomic`).  ``path`` is
+    the output as the user gave it, never a temporary file."""
+
+
+def one_line(error: BaseException, limit: int = 300) -> str:
+    """``Type: message`` of any exception on one line, shortened to ``limit`` characters."""
+    text = " ".join(line.strip() for line in str(error).splitlines() if line.strip())
+    text = text if len(text) <= limit else text[: limit - 3] + "..."
+    return f"{type(error).__name__}: {text}" if text else type(error).__name__

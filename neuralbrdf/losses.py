@@ -10,6 +10,14 @@
 
   with the angle difference in radians by default (SPEC §4.4: in degrees, gamma = 3 gives
   weights below 1e-13 ten degrees off specular, so the diffuse region gets no gradient).
+* :func:`exp_weighted_loss` — Eq. 5.1's weighting with another residual ``r`` in place of
+  ``f_mea - f_pred`` (:data:`RESIDUALS`) and an optional floor on the weight::
+
+      L = mean(max(exp(-gamma |theta_i - theta_r|), weight_floor) · r(f_pred, f_mea)²)
+
+  On linear values Eq. 5.1 fits the glossy peak (many sr⁻¹) and leaves the off-specular
+  region (~0.01 sr⁻¹) almost unconstrained; a relative or logarithmic residual scores every
+  region by its *relative* error (the comparison is in the README, spectral MLP).
 * :func:`l1_loss` — mean absolute error (Fan et al. 2022, the NLB latent fits).
 
 Every function takes ``pred`` and ``target`` of the same shape, ``[N]`` or ``[N, C]`` (one
@@ -28,6 +36,15 @@ DEG = math.pi / 180.0
 
 #: Angle units accepted by :func:`exp_weighted_mse`.
 ANGLE_UNITS = ("radians", "degrees")
+
+#: Residuals of :func:`exp_weighted_loss` (``f`` measured, ``f̂`` predicted, sr⁻¹; ``eps`` the
+#: ``epsilon_sr`` argument, a BRDF value below which relative differences stop mattering):
+#:
+#: * ``linear`` — ``f̂ - f`` (Eq. 5.1 as written);
+#: * ``relative`` — ``(f̂ - f) / (f + eps)``;
+#: * ``log`` — ``ln(f̂ + eps) - ln(f + eps)``;
+#: * ``log_cosine`` — ``ln(1 + f̂ cos ti) - ln(1 + f cos ti)`` (the residual of Eq. 4.2).
+RESIDUALS = ("linear", "relative", "log", "log_cosine")
 
 
 def _check_pair(pred, target) -> None:
@@ -52,15 +69,55 @@ def exp_weighted_mse(pred, target, theta_i_deg, theta_r_deg, gamma: float = 3.0,
     theta_r|`` enters the exponent: ``"radians"`` (default, SPEC §4.4) or ``"degrees"`` (the
     report's literal form).
     """
+    return exp_weighted_loss(pred, target, theta_i_deg, theta_r_deg, gamma, angle_unit, residual="linear")
+
+
+def _residual(pred, target, theta_i_deg, residual: str, epsilon_sr: float, xp):
+    if residual == "linear":
+        return pred - target
+    if residual == "relative":
+        return (pred - target) / (target + epsilon_sr)
+    if residual == "log":
+        return xp.log(pred + epsilon_sr) - xp.log(target + epsilon_sr)
+    cos_i = _per_sample(xp.cos(theta_i_deg * DEG), pred)
+    return xp.log1p(cos_i * pred) - xp.log1p(cos_i * target)
+
+
+def exp_weighted_loss(
+    pred,
+    target,
+    theta_i_deg,
+    theta_r_deg,
+    gamma: float = 3.0,
+    angle_unit: str = "radians",
+    residual: str = "linear",
+    epsilon_sr: float = 1e-3,
+    weight_floor: float = 0.0,
+):
+    """Eq. 5.1's exponential weighting of a squared residual (module docstring).
+
+    ``mean(max(exp(-gamma |theta_i - theta_r|), weight_floor) · r²)`` with ``r`` one of
+    :data:`RESIDUALS`; ``residual="linear", weight_floor=0`` is :func:`exp_weighted_mse`.
+    ``epsilon_sr`` (> 0, sr⁻¹) enters the ``relative`` and ``log`` residuals; ``weight_floor``
+    (in [0, 1]) keeps a minimum weight far from the mirror direction.  Angles as in
+    :func:`exp_weighted_mse`.
+    """
     if angle_unit not in ANGLE_UNITS:
         raise ValueError(f"angle_unit must be one of {', '.join(ANGLE_UNITS)}, got {angle_unit!r}")
+    if residual not in RESIDUALS:
+        raise ValueError(f"residual must be one of {', '.join(RESIDUALS)}, got {residual!r}")
+    if not epsilon_sr > 0:
+        raise ValueError(f"epsilon_sr must be a positive BRDF value (sr⁻¹), got {epsilon_sr}")
+    if not 0.0 <= weight_floor <= 1.0:
+        raise ValueError(f"weight_floor must lie in [0, 1], got {weight_floor}")
     _check_pair(pred, target)
     xp = array_namespace(pred, target, theta_i_deg, theta_r_deg)
     difference = xp.abs(theta_i_deg - theta_r_deg)
     if angle_unit == "radians":
         difference = difference * DEG
-    weight = _per_sample(xp.exp(-gamma * difference), pred)
-    return xp.mean(weight * (target - pred) ** 2)
+    weight = _per_sample(xp.clip(xp.exp(-gamma * difference), weight_floor, None), pred)
+    r = _residual(pred, target, theta_i_deg, residual, epsilon_sr, xp)
+    return xp.mean(weight * r * r)
 
 
 def log_cosine_terms(pred, target, theta_i_deg, theta_o_deg):

@@ -200,7 +200,7 @@ def relative_rmse(pred, target, theta_i, theta_r, floor: float = DEFAULT_FLOOR) 
     when no glossy entry reaches the floor.
     """
     _, _, (theta_i, theta_r) = _values_and_angles(pred, target, theta_i, theta_r)
-    return masked_relative_rmse(pred, target, is_glossy(theta_i, theta_r), floor, "glossy (|theta_i - theta_r| <= 10°)")
+    return masked_relative_rmse(pred, target, is_glossy(theta_i, theta_r), floor, "glossy")
 
 
 def relative_rmse_by_theta_i(pred, target, theta_i, theta_r, floor: float = DEFAULT_FLOOR) -> RelativeRmseByThetaI:

@@ -70,6 +70,9 @@ def test_a_failed_fit_is_reported_as_failed(tmp_path):
     metrics = json.loads((run_dir / "metrics.json").read_text())
     assert metrics["fit/abc/success"] is False and metrics["fit/abc/failure_reason"]
     assert metrics["fit/train/success"] == 0.0
+    # Issue 13 class 3: the failure is also the command's (exit 1, status failed, no best).
+    assert status == 1 and metrics["status"] == "failed" and metrics["fit/abc/failure_reason"] in metrics["cause"]
+    assert not (run_dir / "checkpoints" / "best.ckpt").exists()
 
 
 def test_virtual_source_has_a_dense_truth_and_bad_sources_are_rejected(tmp_path, capsys):

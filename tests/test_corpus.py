@@ -254,9 +254,9 @@ def test_corpus_batches_are_generated_reproducibly_per_epoch_and_stream(material
 def test_corpus_data_module_checks_its_arguments():
     from neuralbrdf.lightning.corpus_data import CorpusDataModule
 
-    data = CorpusDataModule(n_materials=5, batch_size=8, batches_per_epoch=3, val_batches=2)
+    data = CorpusDataModule(n_analytic=5, batch_size=8, batches_per_epoch=3, val_batches=2)
     assert data.n_materials == 5
     assert len(data.train_dataloader()) == 3 and len(data.val_dataloader()) == 2
-    for bad in ({"n_materials": 0}, {"batch_size": 1.5}, {"uniform_fraction": -0.1}):
+    for bad in ({"n_analytic": 0}, {"batch_size": 1.5}, {"uniform_fraction": -0.1}):
         with pytest.raises(InputError):
             CorpusDataModule(**bad)

@@ -218,8 +218,10 @@ def test_nlb_with_latent_is_the_network_with_that_latent_as_a_constant():
     assert [name for name, _ in model.named_parameters()] == [f"network.{n}" for n, _ in network.named_parameters()]
     assert "latent" in dict(model.named_buffers())
     wi, wo, _ = (torch.from_numpy(a) for a in random_pairs(100))
-    with torch.no_grad():
-        torch.testing.assert_close(model(wi, wo), network(wi, wo, latent), rtol=0, atol=0)
+    with torch.no_grad():  # the latent folded into the input bias: equal up to rounding
+        torch.testing.assert_close(model(wi, wo), network(wi, wo, latent), rtol=1e-5, atol=1e-7)
+        below = wo * torch.tensor([1.0, 1.0, -1.0], dtype=wo.dtype)
+        assert torch.all(model(wi, below) == 0)
     with pytest.raises(ValueError, match="latent has 3 values"):
         NlbWithLatent(network, torch.zeros(3))
 
@@ -405,12 +407,36 @@ def _saved(directory: Path, obj) -> Path:
     return path
 
 
-def _resized_spectral_mlp(directory: Path) -> Path:
-    path = spectral_mlp_checkpoint(directory / "resized.ckpt")
-    checkpoint = torch.load(path, weights_only=True)
-    checkpoint["state_dict"]["network.layers.0.weight"] = torch.zeros(4, 3)
-    torch.save(checkpoint, path)
-    return path
+def _edited(make, edit):
+    """A case maker: the checkpoint ``make(path)`` writes, changed in place by ``edit(checkpoint)``."""
+
+    def build(directory: Path) -> Path:
+        path = make(directory / "edited.ckpt")
+        checkpoint = torch.load(path, weights_only=True)
+        edit(checkpoint)
+        torch.save(checkpoint, path)
+        return path
+
+    return build
+
+
+_resized_spectral_mlp = _edited(
+    spectral_mlp_checkpoint, lambda c: c["state_dict"].__setitem__("network.layers.0.weight", torch.zeros(4, 3))
+)
+#: Issue 13 class 5: hyper-parameters asking for ~7e9 weights, refused before allocation.
+_huge_spectral_mlp = _edited(spectral_mlp_checkpoint, lambda c: c["hyper_parameters"].__setitem__("hidden", 60_000))
+_huge_nlb = _edited(nlb_checkpoint, lambda c: c["nlb_config"].__setitem__("width", 60_000))
+
+
+def test_out_equal_to_the_checkpoint_is_refused_and_the_checkpoint_kept(tmp_path, capsys):
+    """Issue 13 class 1: ``--out c.ckpt --ckpt c.ckpt`` used to replace the checkpoint."""
+    path = spectral_mlp_checkpoint(tmp_path / "c.ckpt")
+    before = path.read_bytes()
+    assert to_onnx.main(["--ckpt", str(path), "--out", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "is also an input of this command" in err, err
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.ckpt"]
 
 
 NEGATIVE_ALBEDO = {**ABC_RGB.to_dict(), "kd": [0.1, -0.2, 0.3]}
@@ -426,7 +452,9 @@ BAD_CHECKPOINTS = {
         [],
         "lacks this key",
     ),
-    "spectral mlp of the wrong shape": (_resized_spectral_mlp, [], "size mismatch"),
+    "spectral mlp of the wrong shape": (_resized_spectral_mlp, [], "where the hyper-parameters need [10, 3]"),
+    "spectral mlp 60000 units wide": (_huge_spectral_mlp, [], "above the limit"),
+    "nlb 60000 units wide": (_huge_nlb, ["--material", "brass"], "above the limit"),
     "several nlb materials, none chosen": (lambda d: nlb_checkpoint(d / "n.ckpt"), [], "choose one with --material"),
     "unknown nlb material": (lambda d: nlb_checkpoint(d / "n.ckpt"), ["--material", "gold"], "no material 'gold'"),
     "nlb without latents": (

@@ -108,14 +108,41 @@ def test_reference_outside_400_700_is_not_used():
     np.testing.assert_allclose(calibrate(sample, reference).values, f, rtol=1e-9)
 
 
-def test_negative_calibrated_values_are_clipped_with_count():
+def test_negative_calibrated_values_within_the_table_tolerance_are_clipped_with_count():
+    """Noise within the BRDF table's tolerance (1e-6 × max|f| below 0) is clipped and counted."""
     f, sample, reference = _session()
-    sample.beta[0, 1] = -1e-3
-    sample.beta[3, 10] = -2e-3
+    sample.beta[0, 1] = -1e-8
+    sample.beta[3, 10] = -2e-8
     with pytest.warns(UserWarning, match="clipped 2 negative calibrated"):
         table = calibrate(sample, reference)
     assert table.values[0, 0] == 0.0 and table.values[3, 9] == 0.0
     np.testing.assert_allclose(table.values[1:3], f[1:3], rtol=1e-9)
+
+
+@pytest.mark.parametrize("beta", [-1e-3, -1000.0])
+def test_negative_calibrated_values_beyond_the_tolerance_are_refused_at_their_cell(tmp_path, beta):
+    """Issue 13 class 7: a cell of -1000 (or -1e-3 among values of ~1) is not sensor noise."""
+    _, sample, reference = _session()
+    sample.beta[3, 10] = beta
+    write_gcms(sample, tmp_path / "sample.csv")
+    with pytest.raises(InputError, match="calibrates to a negative BRDF of .* beyond the noise tolerance") as caught:
+        calibrate(read_gcms(tmp_path / "sample.csv"), reference)
+    assert caught.value.path == str(tmp_path / "sample.csv")
+    assert caught.value.line == 5 and caught.value.column == "490"  # beta column 10
+
+
+def test_huge_noise_calibration_is_refused_not_half_zeroed(tmp_path):
+    """``simulate --noise 1e6`` makes about half of beta negative: refused, not clipped to 0."""
+    from neuralbrdf.cli.main import main
+
+    for material in ("gold", "munsell_n9"):
+        noise = "1e6" if material == "gold" else "0"
+        assert main(["simulate", "--material", material, "--plan", "DS3", "--noise", noise,
+                     "--out", str(tmp_path / f"{material}.csv")]) == 0
+    out = tmp_path / "table.csv"
+    assert main(["calibrate", str(tmp_path / "gold.csv"), "--reference", str(tmp_path / "munsell_n9.csv"),
+                 "--out", str(out)]) == 2
+    assert not out.exists()
 
 
 GOOD_HEADER = ",".join(GCMS_HEADER)

@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 import torch
 
-from neuralbrdf.losses import exp_weighted_mse, l1_loss, log_cosine_loss, log_cosine_terms
+from neuralbrdf.losses import (
+    RESIDUALS,
+    exp_weighted_loss,
+    exp_weighted_mse,
+    l1_loss,
+    log_cosine_loss,
+    log_cosine_terms,
+)
 from neuralbrdf.metrics import (
     hemisphere_logcos_rmse,
     relative_rmse,
@@ -58,6 +65,93 @@ def test_exp_weighted_mse_gradient_matches_finite_differences():
     target = torch.tensor([[0.5, 0.0], [0.0, 0.0]], dtype=torch.float64)
     ti, tr = torch.tensor(TI, dtype=torch.float64), torch.tensor(TR, dtype=torch.float64)
     assert torch.autograd.gradcheck(lambda p: exp_weighted_mse(p, target, ti, tr), (pred,))
+
+
+# --------------------------------------------------------------------------- Eq. 5.1's weighting, other residuals
+
+# Three samples [N, 2]: on the mirror direction, 10° off it, 90° off it (signed in-plane angles).
+RES_TI = [20.0, 20.0, 30.0]
+RES_TR = [20.0, 30.0, -60.0]
+RES_PRED = [[2.0, 1.0], [0.5, 0.02], [0.03, 0.011]]
+RES_TARGET = [[1.5, 1.2], [0.4, 0.01], [0.01, 0.012]]
+
+
+def _residual_by_hand(residual, pred, target, theta_i, eps):
+    if residual == "linear":
+        return pred - target
+    if residual == "relative":
+        return (pred - target) / (target + eps)
+    if residual == "log":
+        return math.log(pred + eps) - math.log(target + eps)
+    c = math.cos(math.radians(theta_i))
+    return math.log(1.0 + c * pred) - math.log(1.0 + c * target)
+
+
+def _loss_by_hand(residual, gamma, eps, floor):
+    total = 0.0
+    for ti, tr, pred_row, target_row in zip(RES_TI, RES_TR, RES_PRED, RES_TARGET):
+        weight = max(math.exp(-gamma * abs(ti - tr) * math.pi / 180.0), floor)
+        for p, t in zip(pred_row, target_row):
+            total += weight * _residual_by_hand(residual, p, t, ti, eps) ** 2
+    return total / (len(RES_TI) * 2)
+
+
+@pytest.mark.parametrize("residual", RESIDUALS)
+@pytest.mark.parametrize("floor", [0.0, 0.3])
+def test_exp_weighted_loss_by_hand(residual, floor):
+    expected = _loss_by_hand(residual, 3.0, 1e-3, floor)
+    args = (RES_PRED, RES_TARGET, RES_TI, RES_TR)
+    got_np = exp_weighted_loss(*map(np.array, args), residual=residual, epsilon_sr=1e-3, weight_floor=floor)
+    got_torch = exp_weighted_loss(
+        *(torch.tensor(a, dtype=torch.float64) for a in args), residual=residual, epsilon_sr=1e-3, weight_floor=floor
+    )
+    assert float(got_np) == pytest.approx(expected, rel=1e-12)
+    assert float(got_torch) == pytest.approx(expected, rel=1e-12)
+
+
+def test_exp_weighted_loss_floor_changes_only_weights_below_it():
+    # The 90°-off sample's weight exp(-3 pi/2) = 0.009 is raised to 0.3; the 10°-off one (0.59) is not.
+    args = [np.array(a) for a in (RES_PRED, RES_TARGET, RES_TI, RES_TR)]
+    plain, floored = (exp_weighted_loss(*args, residual="relative", weight_floor=f) for f in (0.0, 0.3))
+    far = np.mean(((args[0][2] - args[1][2]) / (args[1][2] + 1e-3)) ** 2) / 3
+    assert float(floored - plain) == pytest.approx((0.3 - math.exp(-1.5 * math.pi)) * far, rel=1e-12)
+
+
+def test_relative_and_log_residuals_weigh_equal_ratios_alike_at_every_scale():
+    # A 10 % over-estimate costs the same at 10 sr⁻¹ (glossy peak) and 0.01 sr⁻¹ (diffuse) up to eps.
+    ti, tr = np.zeros(2), np.zeros(2)
+    target = np.array([10.0, 0.01])
+    for residual in ("relative", "log"):
+        terms = [float(exp_weighted_loss(1.1 * target[k : k + 1], target[k : k + 1], ti[:1], tr[:1], residual=residual, epsilon_sr=1e-9)) for k in range(2)]
+        assert terms[0] == pytest.approx(terms[1], rel=1e-6)
+    linear = [float(exp_weighted_mse(1.1 * target[k : k + 1], target[k : k + 1], ti[:1], tr[:1])) for k in range(2)]
+    assert linear[0] / linear[1] == pytest.approx(1e6)
+
+
+def test_exp_weighted_loss_linear_without_floor_is_eq_5_1():
+    args = [np.array(a) for a in (RES_PRED, RES_TARGET, RES_TI, RES_TR)]
+    for unit in ("radians", "degrees"):
+        assert float(exp_weighted_loss(*args, 2.0, unit)) == float(exp_weighted_mse(*args, 2.0, unit))
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [({"residual": "huber"}, "residual"), ({"epsilon_sr": 0.0}, "epsilon_sr"), ({"weight_floor": 1.5}, "weight_floor")],
+)
+def test_exp_weighted_loss_rejects_bad_options(kwargs, match):
+    a = np.array(RES_PRED)
+    with pytest.raises(ValueError, match=match):
+        exp_weighted_loss(a, a, np.array(RES_TI), np.array(RES_TR), **kwargs)
+
+
+@pytest.mark.parametrize("residual", RESIDUALS)
+def test_exp_weighted_loss_gradient_matches_finite_differences(residual):
+    pred = torch.tensor(RES_PRED, dtype=torch.float64, requires_grad=True)
+    target = torch.tensor(RES_TARGET, dtype=torch.float64)
+    ti, tr = torch.tensor(RES_TI, dtype=torch.float64), torch.tensor(RES_TR, dtype=torch.float64)
+    assert torch.autograd.gradcheck(
+        lambda p: exp_weighted_loss(p, target, ti, tr, residual=residual, weight_floor=0.1), (pred,)
+    )
 
 
 # --------------------------------------------------------------------------- Eq. 4.2

@@ -134,7 +134,7 @@ def test_unsupported_operator_fails_the_drjit_backend_only(variant, tmp_path, wa
     assert "onnxruntime" in str(load(path, "onnxruntime"))
 
 
-def test_drjit_backend_warns_about_networks_too_large_to_unroll():
+def _large_model():
     rng = np.random.default_rng(0)
     sizes = [6, 400, 300, 3]
     nodes = [helper.make_node("Concat", ["wi", "wo"], ["x0"], axis=1)]
@@ -153,8 +153,21 @@ def test_drjit_backend_warns_about_networks_too_large_to_unroll():
         ),
         opset_imports=[helper.make_opsetid("", fx.OPSET)],
     )
-    with pytest.warns(UserWarning, match="123300 multiply-adds"):
-        mitsuba_bsdf._DrJitBackend(DrJitGraph(model, "large.onnx"))
+    return model
+
+
+def test_drjit_backend_refuses_networks_above_its_budget_before_compiling(monkeypatch):
+    """Issue 13 class 5: the size is counted from the weights, and refused, before any unrolling."""
+    from types import SimpleNamespace
+
+    from neuralbrdf.errors import InputError
+
+    model = SimpleNamespace(proto=_large_model(), path="large.onnx")
+    assert mitsuba_bsdf.matrix_multiply_adds(model.proto) == 6 * 400 + 400 * 300 + 300 * 3
+    monkeypatch.setattr(mitsuba_bsdf.DrJitGraph, "from_model", lambda m: pytest.fail("compiled before the check"))
+    monkeypatch.setattr(mitsuba_bsdf, "DRJIT_MAX_MULTIPLY_ADDS", 100_000)
+    with pytest.raises(InputError, match="123300 multiply-adds .* budget of 100000 .* use backend 'onnxruntime'"):
+        mitsuba_bsdf._DrJitBackend(model)
 
 
 # --------------------------------------------------------------------------- values

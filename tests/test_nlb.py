@@ -17,12 +17,19 @@ import pytest
 import pytorch_lightning as pl
 import torch
 
+from neuralbrdf import metrics as metrics_module
 from neuralbrdf.data.loading import load_measurement
 from neuralbrdf.data.plans import plan_spherical
 from neuralbrdf.data.table import BrdfTable, write_table
 from neuralbrdf.errors import InputError
 from neuralbrdf.geometry import normalize, spherical_pair_to_vectors
-from neuralbrdf.lightning.latent_fit_module import PRETRAINED_COMPACT, LatentFitData, LatentFitModule, load_fitted
+from neuralbrdf.lightning.latent_fit_module import (
+    PRETRAINED_COMPACT,
+    LatentFitData,
+    LatentFitModule,
+    load_fitted,
+    start_candidates,
+)
 from neuralbrdf.lightning.nlb_module import NLBPretrainModule, load_pretrained, nlb_loss
 from neuralbrdf.lightning.run import main as train_main
 from neuralbrdf.models.nlb import COMPACT, LOG1P_F_MAX, PAPER, PRE_ACTIVATION_MIN, LatentTable, NLBNetwork
@@ -213,6 +220,21 @@ def test_load_pretrained_round_trip(tmp_path):
     torch.testing.assert_close(pretrained.network(wi, wo, latent), module.network(wi, wo, latent), rtol=0, atol=0)
 
 
+def test_warm_start_copies_the_network_and_the_latents_of_the_same_material(tmp_path):
+    previous = tiny_module()
+    checkpoint = save_checkpoint(previous, tmp_path / "tiny.ckpt")  # unnamed: analytic:0..5
+    module = NLBPretrainModule(n_materials=3, latent_dim=4, width=16, depth=2, warm_start=str(checkpoint))
+    module._warm_start(["analytic:4", "merl:new", "analytic:1"])
+    for key, value in previous.network.state_dict().items():
+        assert torch.equal(module.network.state_dict()[key], value)
+    old = previous.latents.latents.detach()
+    expected = torch.stack([old[4], old.mean(0), old[1]])
+    torch.testing.assert_close(module.latents.latents.detach(), expected, rtol=0, atol=1e-7)
+    wider = NLBPretrainModule(n_materials=3, latent_dim=4, width=8, depth=2, warm_start=str(checkpoint))
+    with pytest.raises(InputError, match="warm start"):
+        wider._warm_start(["analytic:0"])
+
+
 def test_load_pretrained_rejects_bad_files(tmp_path):
     with pytest.raises(InputError, match="not found"):
         load_pretrained(tmp_path / "missing.ckpt")
@@ -272,6 +294,31 @@ def test_latent_fit_leaves_every_network_weight_bit_identical(tmp_path):
         after = nlb_loss(fit.predict(samples), samples.f, samples.wi, "log_cosine")
     assert after < 0.2 * before
     assert fit.material_names == ["m1", "m4"]
+
+
+def test_latent_fit_starts_each_material_at_its_best_pretrained_code(tmp_path):
+    module = tiny_module()
+    names = ["analytic:0", "analytic:1", "merl:a", "analytic:3", "merl:b", "analytic:5"]
+    checkpoint = tmp_path / "tiny.ckpt"
+    torch.save({"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams),
+                "material_names": names}, checkpoint)
+    pretrained = load_pretrained(checkpoint)
+    assert pretrained.names == tuple(names)
+    candidates = start_candidates(pretrained, 2)  # centroid, merl:a, merl:b, analytic:0 and :5
+    expected = torch.stack([pretrained.latent_mean, *pretrained.latents[[2, 4, 0, 5]]])
+    torch.testing.assert_close(candidates, expected, rtol=0, atol=0)
+    # Tables made from merl:b and analytic:5: each start is exactly that code (zero loss).
+    sources = [{"table": str(network_table(module, k, "DS2", tmp_path / f"m{k}.csv"))} for k in (4, 5)]
+    data = LatentFitData(sources, eval_plan=None)
+    data.setup()
+    fit = LatentFitModule(str(checkpoint), init_candidates=2)
+    fit.build_latents(data.material_names)
+    fit.choose_starts(data.train_samples)
+    torch.testing.assert_close(fit.latents.latents.detach(), pretrained.latents[[4, 5]], rtol=0, atol=0)
+    with pytest.raises(InputError, match="exclude"):
+        LatentFitModule(str(checkpoint), init_candidates=2, latent_init=0.0)
+    with pytest.raises(InputError):
+        LatentFitModule(str(checkpoint), early_stop_patience=0)
 
 
 def test_latent_fit_detects_a_changed_weight(tmp_path):
@@ -358,7 +405,7 @@ DDP_SCRIPT = textwrap.dedent(
         out = sys.argv[1]
         torch.set_num_threads(1)
         pl.seed_everything(0)
-        data = CorpusDataModule(n_materials=8, batch_size=64, batches_per_epoch=4, val_batches=2)
+        data = CorpusDataModule(n_analytic=8, batch_size=64, batches_per_epoch=4, val_batches=2)
         model = NLBPretrainModule(n_materials=8, latent_dim=4, width=8, depth=2)
         first = FirstBatch()
         trainer = pl.Trainer(accelerator="cpu", devices=2, strategy="ddp", max_steps=2, logger=False,
@@ -413,7 +460,8 @@ def pretrained_run(tmp_path_factory):
     run_train("--config", str(CONFIGS / "nlb_pretrain.yaml"), "--run_dir", str(run_dir),
               "--trainer.max_epochs", "2", "--trainer.log_every_n_steps", "1",
               "--data.batches_per_epoch", "3", "--data.val_batches", "1", "--data.num_workers", "0",
-              "--data.batch_size", "256", "--data.n_materials", "16", "--model.n_materials", "16")
+              "--data.batch_size", "256", "--data.n_analytic", "16", "--model.n_materials", "16",
+              "--data.proxy_dir", "null")
     return run_dir
 
 
@@ -429,7 +477,8 @@ def test_paper_pretrain_config_runs(tmp_path):
     run_train("--config", str(CONFIGS / "nlb_pretrain_paper.yaml"), "--run_dir", str(tmp_path),
               "--trainer.max_epochs", "1", "--trainer.log_every_n_steps", "1",
               "--data.batches_per_epoch", "2", "--data.val_batches", "1", "--data.num_workers", "0",
-              "--data.batch_size", "64", "--data.n_materials", "8", "--model.n_materials", "8")
+              "--data.batch_size", "64", "--data.n_analytic", "8", "--model.n_materials", "8",
+              "--data.proxy_dir", "null")
     pretrained = load_pretrained(tmp_path / "checkpoints" / "last.ckpt")
     assert pretrained.network.config == PAPER
     assert math.isfinite(json.loads((tmp_path / "metrics.json").read_text())["fit/val/logcos_rmse"])
@@ -437,7 +486,7 @@ def test_paper_pretrain_config_runs(tmp_path):
 
 def test_pretrain_rejects_a_latent_table_of_the_wrong_size(tmp_path):
     status = train("--config", str(CONFIGS / "nlb_pretrain.yaml"), "--run_dir", str(tmp_path),
-                   "--data.n_materials", "16", "--model.n_materials", "17")
+                   "--data.n_analytic", "16", "--model.n_materials", "17", "--data.proxy_dir", "null")
     assert status == 2
 
 
@@ -448,6 +497,41 @@ def latent_run(pretrained_run, tmp_path, sources, *extra):
               "--trainer.log_every_n_steps", "1", "--data.steps_per_epoch", "3",
               "--data.sources", json.dumps(sources), *extra)
     return json.loads((tmp_path / "metrics.json").read_text())
+
+
+@pytest.mark.parametrize(
+    "extra, steps",
+    [
+        (("--trainer.max_epochs", "2"), 6),  # fewer epochs than check_val_every_n_epoch
+        (("--trainer.max_epochs", "5", "--trainer.check_val_every_n_epoch", "3"), 15),  # not a multiple
+        (("--trainer.max_epochs", "5", "--model.early_stop_patience", "1",  # early stop at step 2
+          "--model.early_stop_tolerance", "0.99"), 2),
+    ],
+    ids=["few-epochs", "uneven-epochs", "early-stop"],
+)
+def test_latent_fit_checkpoint_is_the_model_its_metrics_describe(pretrained_run, tmp_path, extra, steps):
+    """Issue 13, class 4: fitted.ckpt always exists and holds the final latents, which the
+    last-logged metrics describe (validation follows the last step whatever the epoch count)."""
+    module = tiny_module()
+    sources = [{"table": str(network_table(module, k, "DS2", tmp_path / f"m{k}.csv"))} for k in (1, 4)]
+    run_train("--config", str(CONFIGS / "nlb_latent.yaml"), "--run_dir", str(tmp_path / "run"),
+              "--model.checkpoint", str(pretrained_run / "checkpoints" / "last.ckpt"),
+              "--trainer.check_val_every_n_epoch", "10", "--data.steps_per_epoch", "3",
+              "--data.sources", json.dumps(sources), *extra)
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    checkpoint = tmp_path / "run" / "checkpoints" / "fitted.ckpt"
+    assert torch.load(checkpoint, weights_only=True)["global_step"] == steps
+    fitted = load_fitted(checkpoint)
+    data = LatentFitData(sources, eval_plan=None)
+    data.setup()
+    for index, name in enumerate(("m1", "m4")):
+        rows = data.train_samples.material == index
+        wi, wo, f = (column[rows] for column in data.train_samples[1:])
+        with torch.no_grad():
+            pred = fitted.network(wi, wo, fitted.latents[name])
+        theta_i = torch.rad2deg(torch.acos(wi[:, 2]))
+        assert metrics[f"fit/fit_logcos_rmse/{name}"] == pytest.approx(
+            float(metrics_module.hemisphere_logcos_rmse(pred, f, theta_i)), rel=1e-5)
 
 
 @pytest.mark.filterwarnings("ignore:.*negative linear-sRGB value")  # cyan lies partly outside sRGB
@@ -477,6 +561,13 @@ def test_latent_config_evaluates_nbrdf_sources_on_the_low_plan(pretrained_run, t
         assert 0 < metrics[f"fit/abc_low2012/hemisphere_logcos_rmse/{material}"] < 0.1
     assert metrics["fit/hemisphere_logcos_rmse/mean"] == pytest.approx(
         (metrics["fit/hemisphere_logcos_rmse/brass"] + metrics["fit/hemisphere_logcos_rmse/nylon"]) / 2)
+    # the shared names of SPEC §9: per material, and their mean under the bare names
+    for material in ("brass", "nylon"):
+        logged = metrics[f"fit/hemisphere_logcos_rmse/{material}"]
+        assert metrics[f"fit/materials/{material}/hemisphere_logcos_rmse"] == pytest.approx(logged, rel=1e-5)
+        assert metrics[f"fit/materials/{material}/inplane_glossy_rel_rmse"] > 0
+        assert metrics[f"fit/materials/{material}/inplane_diffuse_rel_rmse"] > 0
+    assert metrics["fit/hemisphere_logcos_rmse"] == pytest.approx(metrics["fit/hemisphere_logcos_rmse/mean"], rel=1e-5)
 
 
 @pytest.mark.filterwarnings("ignore:.*negative linear-sRGB value")  # cyan lies partly outside sRGB

@@ -4,6 +4,7 @@ with an InputError that names the file and the problem."""
 import math
 
 import numpy as np
+import torch
 import onnx
 import pytest
 from onnx import TensorProto
@@ -201,3 +202,102 @@ def test_contract_metadata_refuses_what_load_model_refuses():
         contract_metadata("gan", "m", "p")
     with pytest.raises(InputError, match="wavelength range"):
         contract_metadata("spectral_mlp", "m", "p", wavelength_range_nm=(700.0, 400.0))
+
+
+# --------------------------------------------------------------------------- issue 13: classes 5 and 6
+
+
+class _NegativeNearMirror(torch.nn.Module):
+    """0.2 sr^-1 everywhere except within ~1° of the mirror direction, where it dips to -0.3."""
+
+    def forward(self, wi, wo):
+        mirror = torch.stack([-wi[:, 0], -wi[:, 1], wi[:, 2]], dim=1)
+        cos = (mirror * wo).sum(dim=1, keepdim=True)
+        f = 0.2 - 0.5 * torch.exp(-(1.0 - cos) * 2.0e4)
+        above = (wi[:, 2:3] > 0) & (wo[:, 2:3] > 0)
+        return torch.where(above, f, torch.zeros_like(f)).expand(-1, 3)
+
+
+def test_the_old_80_direction_probe_misses_a_negative_mirror_spike_the_dense_probe_finds(tmp_path):
+    """Issue 13 class 6: a model negative only near the mirror direction is refused at load."""
+    import onnx_fixtures as fx
+    import onnxruntime
+
+    path = fx.export_module(_NegativeNearMirror(), tmp_path / "spike.onnx", fx.rgb_metadata("nlb"), spectral=False)
+    session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    wi, wo, _ = probe_directions()
+    assert session.run(["f"], {"wi": wi, "wo": wo})[0].min() >= 0  # the sparse probe sees nothing
+    with pytest.raises(InputError, match=r"negative .*near the mirror direction"):
+        load_model(path)
+
+
+def test_dense_probe_covers_mirror_and_grazing_directions():
+    from neuralbrdf.render.onnx_contract import dense_probe
+
+    wi, wo, near_mirror = dense_probe()
+    assert len(wi) > 10_000 and np.all(wi[:, 2] > 0) and np.all(wo[:, 2] > 0)
+    np.testing.assert_allclose(np.linalg.norm(wi, axis=1), 1, atol=1e-6)
+    mirror = wi * np.array([-1, -1, 1], dtype=np.float32)
+    offset = np.degrees(np.arccos(np.clip((mirror * wo).sum(axis=1), -1, 1)))
+    assert near_mirror.sum() > 3000 and offset[near_mirror].max() < 3.01 and np.sum(offset < 0.05) >= 90
+    theta = np.degrees(np.arccos(np.minimum(wi[:, 2], wo[:, 2])))
+    assert np.sum(theta > 85) > 1000
+
+
+def test_external_weight_data_is_refused_before_it_is_read(tmp_path):
+    """Issue 13 class 5: a file claiming GBs of external data is refused without reading them."""
+    from onnx import TensorProto
+
+    model = fx.tiny_rgb_model()
+    weight = model.graph.initializer[0]
+    weight.ClearField("raw_data")
+    del weight.float_data[:]
+    weight.data_location = TensorProto.EXTERNAL
+    for key, value in (("location", "/dev/zero"), ("offset", "0"), ("length", str(8 * 2**30))):
+        entry = weight.external_data.add()
+        entry.key, entry.value = key, value
+    path = tmp_path / "external.onnx"
+    path.write_bytes(model.SerializeToString())
+    with pytest.raises(InputError, match="external file .*'/dev/zero'.* self-contained"):
+        load_model(path)
+
+
+def test_declared_sizes_and_file_size_are_bounded(tmp_path, monkeypatch):
+    from neuralbrdf.render import onnx_contract
+
+    model = fx.tiny_rgb_model()
+    path = tmp_path / "m.onnx"
+    path.write_bytes(model.SerializeToString())
+    monkeypatch.setattr(onnx_contract, "MAX_ONNX_WEIGHT_ELEMENTS", 4)
+    with pytest.raises(InputError, match="declare more than 4 elements"):
+        load_model(path)
+    monkeypatch.setattr(onnx_contract, "MAX_ONNX_BYTES", 16)
+    with pytest.raises(InputError, match="exceeds the limit"):
+        load_model(path)
+
+
+def test_a_constant_shape_creating_a_huge_tensor_is_refused_before_onnxruntime(tmp_path, monkeypatch):
+    """A 1e10-element ``ConstantOfShape`` would be folded (allocated) by onnxruntime at session start."""
+    from onnx import helper, numpy_helper
+
+    from neuralbrdf.render import onnx_contract
+
+    model = fx.tiny_rgb_model()
+    model.graph.initializer.append(numpy_helper.from_array(np.array([100_000, 100_000], dtype=np.int64), "big"))
+    model.graph.node.append(helper.make_node("ConstantOfShape", ["big"], ["huge"], name="fill"))
+    path = tmp_path / "huge.onnx"
+    path.write_bytes(model.SerializeToString())
+    monkeypatch.setattr(onnx_contract, "_check_trial_evaluation", lambda *a: pytest.fail("ran the graph"))
+    with pytest.raises(InputError, match="ConstantOfShape node 'fill' creates a tensor of 10000000000 elements"):
+        load_model(path)
+
+
+def test_a_name_that_is_not_utf8_is_an_input_error(tmp_path):
+    """Found by tests/test_fuzz.py: one flipped bit in a node name made the ONNX checker raise
+    UnicodeDecodeError (its message quotes the name) instead of a located InputError."""
+    raw = bytearray(fx.tiny_rgb_model().SerializeToString())
+    raw[9] ^= 1 << 7
+    path = tmp_path / "flipped.onnx"
+    path.write_bytes(bytes(raw))
+    with pytest.raises(InputError, match="not UTF-8 text"):
+        load_model(path)

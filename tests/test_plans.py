@@ -74,6 +74,17 @@ def test_spectral_mlp_split_is_table_5_1():
         assert len(set(test[ti == angle].tolist())) == 1
 
 
+def test_every_third_theta_i_split_reproduces_table_5_1_on_ds1_and_generalises():
+    ti, _ = plans.in_plane_plan("DS1")
+    np.testing.assert_array_equal(plans.every_third_theta_i_split(ti), plans.spectral_mlp_split(ti))
+    # Any order and repeated angles: the distinct angles are counted, not the rows.
+    angles = np.array([40.0, -20.0, 0.0, 40.0, 10.0, 25.0, -20.0, 70.0])  # sorted: -20 0 10 25 40 70
+    np.testing.assert_array_equal(
+        plans.every_third_theta_i_split(angles), [False, False, False, False, True, False, False, True]
+    )
+    assert not plans.every_third_theta_i_split(np.array([30.0, 30.0, -30.0])).any()
+
+
 def test_unknown_plan_is_rejected_with_the_valid_names():
     with pytest.raises(InputError, match="DS1"):
         plans.plan_spherical("DS9")

@@ -128,3 +128,94 @@ def test_bad_input_exits_2_with_one_line(models, case, tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("error: ") and message in err, err
     assert list(tmp_path.iterdir()) == []
+
+
+# --------------------------------------------------------------------------- issue 13
+
+
+def test_user_errors_are_one_line_before_any_rendering(models, tmp_path, capsys, monkeypatch):
+    """Issue 13 classes 1 and 8: outputs and sizes are checked before rendering starts."""
+    from neuralbrdf.render import preview
+
+    monkeypatch.setattr(preview, "render_passes", lambda *a, **k: pytest.fail("rendered before refusing"))
+    model_as_png = tmp_path / "model.png"
+    model_as_png.write_bytes(Path(models["spectral"]).read_bytes())
+    folder_png = tmp_path / "folder.png"
+    folder_png.mkdir()
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    cases = {
+        "absurd resolution": (["--model", str(models["spectral"]), "--resolution", "1000000", "--out", str(tmp_path / "a.png")],
+                              "would need about"),
+        "out is the model": (["--model", str(model_as_png), "--out", str(model_as_png)], "is also an input"),
+        "out is a directory": (["--model", str(models["spectral"]), "--out", str(folder_png)], "a directory"),
+        "unwritable output": (["--model", str(models["spectral"]), "--out", str(blocker / "x.png")], "cannot write"),
+    }
+    for name, (arguments, message) in cases.items():
+        assert render.main(["--spp", "1", "--quiet", *arguments]) == 2, name
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith("error: ") and message in err, (name, err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "folder.png", "model.png"]
+
+
+def test_cuda_variant_without_a_gpu_is_one_line(models, tmp_path, capsys):
+    import subprocess as sp
+    import sys
+
+    probe = sp.run([sys.executable, "-c", "import mitsuba as mi; mi.set_variant('cuda_ad_rgb'); mi.Float(1).numpy()"],
+                   capture_output=True)
+    if probe.returncode == 0:
+        pytest.skip("this machine has a CUDA device")
+    assert render.main(["--model", str(models["spectral"]), "--variant", "cuda_ad_rgb", "--out", str(tmp_path / "x.png")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "cuda_ad_rgb" in err and "no CUDA device" in err, err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_negative_model_values_are_clamped_and_counted(tmp_path, monkeypatch, capsys):
+    """Issue 13 class 6: what the load-time probe misses never reaches the image as negative radiance."""
+    import torch
+    import onnx_fixtures as fx
+    from neuralbrdf.render import onnx_contract
+
+    class HalfNegative(torch.nn.Module):
+        def forward(self, wi, wo):
+            f = (wo[:, 0:1] - 0.2).expand(-1, 3)  # negative for half of the outgoing directions
+            above = (wi[:, 2:3] > 0) & (wo[:, 2:3] > 0)
+            return torch.where(above, f, torch.zeros_like(f))
+
+    path = fx.export_module(HalfNegative(), tmp_path / "neg.onnx", fx.rgb_metadata("nlb"), spectral=False)
+    monkeypatch.setattr(onnx_contract, "_check_trial_evaluation", lambda *a: None)  # a probe that missed it
+    out = tmp_path / "neg.png"
+    assert render.main(["--model", str(path), "--resolution", "16", "--spp", "2", "--quiet", "--exr", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "were negative or not finite and were clamped to 0" in err, err
+    import mitsuba as mi
+
+    assert np.asarray(mi.Bitmap(str(out.with_suffix(".exr")))).min() >= 0
+
+
+def test_help_states_how_outputs_and_sizes_are_checked():
+    text = " ".join(render.build_parser().format_help().split())
+    assert "symbolic link is written through" in text and "75% of this machine's memory" in text
+
+
+OLD_LLVM = Path("/usr/lib/x86_64-linux-gnu/libLLVM-15.so.1")
+
+
+@pytest.mark.skipif(not OLD_LLVM.is_file(), reason="no LLVM 15 on this machine to stand for an old LLVM")
+def test_an_llvm_older_than_19_is_one_line_before_rendering(models, tmp_path):
+    """With LLVM 15 Dr.Jit starts but aborts (rc 134, 56 lines of 'Cannot select') in render kernels."""
+    import os
+    import subprocess
+    import sys
+
+    out = tmp_path / "x.png"
+    proc = subprocess.run(
+        [sys.executable, str(Path(render.__file__)), "--model", str(models["grey"]), "--out", str(out),
+         "--resolution", "8", "--spp", "1", "--quiet"],
+        capture_output=True, text=True, env={**os.environ, "DRJIT_LIBLLVM_PATH": str(OLD_LLVM)}, timeout=300,
+    )
+    assert proc.returncode == 2, proc.stderr[-500:]
+    assert proc.stderr.count("\n") == 1 and "libllvm19" in proc.stderr and "LLVM 15" in proc.stderr
+    assert not out.exists()

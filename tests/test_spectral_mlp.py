@@ -112,6 +112,28 @@ def test_module_rejects_an_unknown_angle_unit():
         SpectralMlpModule(angle_unit="grad")
 
 
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [({"residual": "huber"}, "residual"), ({"residual_epsilon_sr": 0.0}, "residual_epsilon_sr"), ({"weight_floor": -0.1}, "weight_floor")],
+)
+def test_module_rejects_bad_loss_options(kwargs, match):
+    with pytest.raises(InputError, match=match):
+        SpectralMlpModule(**kwargs)
+
+
+@pytest.mark.parametrize("residual", ["linear", "log"])
+def test_module_loss_is_the_configured_residual(residual):
+    torch.manual_seed(0)
+    module = SpectralMlpModule(residual=residual, residual_epsilon_sr=1e-3, weight_floor=0.02)
+    theta_i, theta_r = torch.tensor([30.0, 30.0, -10.0]), torch.tensor([30.0, -40.0, 50.0])
+    wavelength, brdf = torch.tensor([450.0, 550.0, 650.0]), torch.tensor([5.0, 0.02, 0.01])
+    batch = SpectralSamples(theta_i, theta_r, wavelength, brdf, torch.arange(3))
+    pred, loss = module._loss(batch)
+    weight = torch.clamp(torch.exp(-3.0 * torch.deg2rad((theta_i - theta_r).abs())), min=0.02)
+    r = pred - brdf if residual == "linear" else torch.log(pred + 1e-3) - torch.log(brdf + 1e-3)
+    torch.testing.assert_close(loss, torch.mean(weight * r**2))
+
+
 # --------------------------------------------------------------------------- signed in-plane angles
 
 
@@ -216,12 +238,53 @@ def test_evaluation_batches_hold_whole_direction_pairs(gcms_session):
     torch.testing.assert_close(torch.cat([b.brdf for b in batches]), data.test_samples.brdf)
 
 
-def test_a_plan_without_test_angles_is_an_input_error(tmp_path):
+def test_table_5_1_on_a_plan_without_its_angles_is_an_input_error(tmp_path):
     ti, tr = in_plane_plan("DS2")  # theta_i every 15°: none of Table 5.1's test angles
     path = tmp_path / "ds2.csv"
     write_table(spectral_table(ti, tr), path)
-    with pytest.raises(InputError, match="no row falls in the Table 5.1 test split"):
-        MeasurementDataModule(str(path)).setup("fit")
+    with pytest.raises(InputError, match="no row falls in the Table 5.1 test split.*data.test_split"):
+        MeasurementDataModule(str(path), test_split="table_5_1").setup("fit")
+
+
+def test_every_third_split_needs_three_incident_angles(tmp_path):
+    ti, tr = in_plane_plan("DS4")
+    path = tmp_path / "ds4.csv"
+    write_table(spectral_table(ti, tr), path)
+    with pytest.raises(InputError, match="no row falls in the every_third_theta_i test split"):
+        MeasurementDataModule(str(path), test_split="every_third_theta_i").setup("fit")
+
+
+def test_unknown_test_split_is_an_input_error():
+    with pytest.raises(InputError, match="test_split"):
+        MeasurementDataModule(test_split="random")
+
+
+@pytest.mark.parametrize(
+    "plan, rule, test_theta_i",
+    [
+        ("DS1", "table_5_1", SPECTRAL_MLP_TEST_THETA_I),
+        ("DS2", "every_third_theta_i", (-30.0, 15.0, 60.0)),
+        ("DS3", "every_third_theta_i", (0.0,)),
+        ("DS4", "none", ()),
+    ],
+)
+def test_auto_split_per_plan(tmp_path, plan, rule, test_theta_i):
+    ti, tr = in_plane_plan(plan)
+    path = tmp_path / f"{plan}.csv"
+    write_table(spectral_table(ti, tr), path)
+    data = MeasurementDataModule(str(path))
+    data.setup("fit")
+    assert data.resolved_test_split == rule
+    train_angles = np.unique(data.train_samples.theta_i_deg.numpy())
+    if rule == "none":  # validation and test run on the training data
+        assert set(train_angles) == set(ti)
+        torch.testing.assert_close(data.test_samples.brdf, data.train_samples.brdf)
+        assert len(data.train_samples.brdf) == len(ti) * 31
+        return
+    test_angles = np.unique(data.test_samples.theta_i_deg.numpy())
+    np.testing.assert_allclose(test_angles, sorted(test_theta_i))
+    assert set(train_angles) == set(ti) - set(test_theta_i)
+    assert len(data.train_samples.brdf) + len(data.test_samples.brdf) == len(ti) * 31
 
 
 def test_default_data_is_the_shipped_virtual_gold():

@@ -183,6 +183,10 @@ BAD_TABLES = [
     ("mixed RGB and spectral", f"{RGB_HEADER},400\n{GOOD_ROW},1\n", 1, "400", "mixes RGB"),
     ("negative weight", f"{RGB_HEADER},weight\n{GOOD_ROW},1\n{GOOD_ROW},-0.5\n", 3, "weight", "negative weight"),
     ("gcms file", "theta_i,theta_r,390\n10,20,0.5\n", 1, "theta_r", "GCMS raw file?"),
+    ("repeat with other values", f"{RGB_HEADER}\n{GOOD_ROW}\n10,0,20,200,0.1,0.2,0.3\n10,0,20,180,0.1,0.25,0.3\n", 4,
+     None, "repeated geometry (theta_i, phi_i, theta_o, phi_o) = (10, 0, 20, 180) with different values than line 2"),
+    ("repeat with other weight", f"{RGB_HEADER},weight\n{GOOD_ROW},1\n{GOOD_ROW},2\n", 3, None,
+     "with different values than line 2"),
     ("line after blanks", f"{RGB_HEADER}\n\n{GOOD_ROW}\n\n\n10,0,20,180,x,0.2,0.3\n", 6, "R", "not a number"),
 ]
 
@@ -217,3 +221,29 @@ def test_failed_write_leaves_existing_file_untouched(tmp_path):
     with pytest.raises(ValueError):
         write_table(table, path)
     assert path.read_text() == "previous\n"
+
+
+def test_an_exact_repeat_is_kept_not_dropped(tmp_path):
+    """Issue 13 class 8: only repeats that disagree are refused; identical ones stay (no row dropped)."""
+    path = tmp_path / "t.csv"
+    path.write_text(f"{RGB_HEADER}\n{GOOD_ROW}\n{GOOD_ROW}\n")
+    assert read_table(path).n_rows == 2
+
+
+def test_oversized_and_endless_inputs_are_refused_before_reading(tmp_path, monkeypatch):
+    """Issue 13 class 5: a CSV above the documented limit, or a FIFO/device, is never read."""
+    import os
+
+    from neuralbrdf.data import csvio
+
+    path = tmp_path / "t.csv"
+    path.write_text(f"{RGB_HEADER}\n{GOOD_ROW}\n")
+    monkeypatch.setattr(csvio, "MAX_CSV_BYTES", 16)
+    with pytest.raises(InputError, match="exceeds the limit of .* MiB"):
+        read_table(path)
+    fifo = tmp_path / "pipe.csv"
+    os.mkfifo(fifo)  # opening it for reading would block forever
+    with pytest.raises(InputError, match="not a regular file"):
+        read_table(fifo)
+    with pytest.raises(InputError, match="not a regular file"):
+        read_table("/dev/zero")

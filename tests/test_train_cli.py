@@ -5,10 +5,15 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
 from neuralbrdf.data.gcms import write_gcms
+from neuralbrdf.data.plans import in_plane_plan, spectral_mlp_split
+from neuralbrdf.data.table import write_table
+from neuralbrdf.evaluation.scores import inplane_scores
+from neuralbrdf.lightning.measurement_data import MeasurementDataModule
 from neuralbrdf.lightning.run import MetricsJson, main
 from neuralbrdf.lightning.spectral_mlp_module import SpectralMlpModule
 from neuralbrdf.virtual import instrument
@@ -74,7 +79,11 @@ def test_fit_writes_config_checkpoints_csv_log_and_metrics(fitted_run, gcms_sess
         assert 0 < metrics[key] < float("inf")
     assert metrics["fit/epochs"] == 1
     assert metrics["fit/best_model_path"] == "checkpoints/best.ckpt"
-    assert metrics["fit/best_model_score"] == pytest.approx(metrics["fit/val/rel_rmse_glossy_median"])
+    assert metrics["fit/best_model_score"] == pytest.approx(metrics["fit/val/loss"])
+    # the shared names of SPEC §9 on the data it was given; a user's file has no truth
+    assert 0 < metrics["fit/inplane_glossy_rel_rmse"] < float("inf")
+    assert 0 < metrics["fit/inplane_diffuse_rel_rmse"] < float("inf")
+    assert "fit/hemisphere_logcos_rmse" not in metrics
     assert not list(fitted_run.glob(".*tmp*"))  # atomic writes leave no temporaries
 
 
@@ -85,7 +94,7 @@ def test_test_and_validate_with_a_checkpoint_merge_into_the_run(fitted_run, gcms
         assert (fitted_run / stage / "config.yaml").is_file() and (fitted_run / stage / "metrics.csv").is_file()
     metrics = read_metrics(fitted_run)
     # The best checkpoint was chosen on this very split: evaluating it again gives the same number.
-    assert metrics["test/rel_rmse_glossy_median"] == pytest.approx(metrics["fit/best_model_score"], rel=1e-6)
+    assert metrics["test/loss"] == pytest.approx(metrics["fit/best_model_score"], rel=1e-6)
     assert metrics["validate/rel_rmse_glossy_median"] == pytest.approx(metrics["test/rel_rmse_glossy_median"])
     assert "fit/train/loss" in metrics and "test/loss" in metrics
 
@@ -105,6 +114,42 @@ def test_default_run_dir_is_under_runs_by_config_stem(tmp_path, monkeypatch, gcm
     assert (run_dir / "checkpoints" / "last.ckpt").is_file()
     # The evaluation split came in several batches; the metrics see all of it.
     assert 0 < read_metrics(run_dir)["fit/val/rel_rmse_glossy_median"] < float("inf")
+
+
+@pytest.mark.parametrize("plan, split", [("DS2", "every_third_theta_i"), ("DS3", "every_third_theta_i"), ("DS4", "none")])
+def test_sparse_plans_train(tmp_path, plan, split):
+    """DS2–DS4 tables train with the default config: the test split follows the plan (``auto``)."""
+    table = tmp_path / f"gold_{plan}.csv"
+    write_table(instrument.VirtualGoniospectrophotometer.ground_truth("gold", *in_plane_plan(plan)), table)
+    run_dir = tmp_path / "run"
+    assert main(["fit", "--config", str(CONFIG), "--data.path", str(table), *quick("--run_dir", str(run_dir))]) == 0
+    metrics = read_metrics(run_dir)
+    assert metrics["fit/epochs"] == 1 and (run_dir / "checkpoints" / "best.ckpt").is_file()
+    assert 0 < metrics["fit/val/loss"] < float("inf")
+    module = SpectralMlpModule.load_from_checkpoint(run_dir / "checkpoints" / "best.ckpt")
+    f = module(torch.tensor([30.0]), torch.tensor([30.0]), torch.tensor([550.0]))
+    assert bool(torch.isfinite(f).all())
+    data = MeasurementDataModule(str(table))
+    data.setup("fit")
+    assert data.resolved_test_split == split
+
+
+def test_virtual_measurement_run_reports_the_hemisphere_against_its_truth(tmp_path):
+    """The shipped virtual measurements have a truth: metrics.json carries fit/hemisphere_logcos_rmse
+    for the best checkpoint, the same quantity ``neuralbrdf evaluate`` computes on more pairs."""
+    from neuralbrdf.evaluation.scores import TorchEvaluator, hemisphere_scores
+    from neuralbrdf.evaluation.truth import load_truth
+    from neuralbrdf.models.directional import SpectralMlpOnDirections
+
+    run_dir = tmp_path / "run"
+    assert main(["fit", "--config", str(CONFIG), "--data.virtual_material", "cyan", *quick("--run_dir", str(run_dir))]) == 0
+    metrics = read_metrics(run_dir)
+    module = SpectralMlpModule.load_from_checkpoint(run_dir / "checkpoints" / "best.ckpt")
+    truth = load_truth("virtual:cyan")
+    expected = hemisphere_scores(TorchEvaluator(SpectralMlpOnDirections(module.network), True),
+                                 TorchEvaluator(truth.module, True), strata=(8, 10))["hemisphere_logcos_rmse"]
+    assert metrics["fit/hemisphere_logcos_rmse"] == pytest.approx(expected, rel=1e-9)
+    assert metrics["fit/inplane_diffuse_rel_rmse"] > 0
 
 
 def test_bad_data_path_is_one_line_error_and_nonzero_exit(tmp_path):
@@ -143,9 +188,10 @@ def test_metrics_json_refuses_to_merge_into_a_corrupt_file(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("material", ["gold", "gonio"])
-def test_full_training_meets_the_accuracy_and_time_targets(tmp_path, material):
-    """30 epochs on the shipped DS1 data: median glossy relative RMSE <= 0.10 in <= 30 s."""
+@pytest.mark.parametrize("material", ["gold", "gonio", "cyan", "magenta"])
+def test_full_training_fits_glossy_and_diffuse_against_the_truth(tmp_path, material):
+    """30 epochs of the default config on the shipped DS1 data, scored against the noiseless truth on
+    the Table 5.1 test angles: glossy relative RMSE <= 0.05, diffuse <= 0.10 (issue 8 targets)."""
     shipped = instrument.default_data_path(material)
     if not shipped.is_file():
         pytest.skip(f"shipped measurement {shipped} not generated")
@@ -153,5 +199,184 @@ def test_full_training_meets_the_accuracy_and_time_targets(tmp_path, material):
     assert main(args) == 0
     metrics = read_metrics(tmp_path)
     assert metrics["fit/epochs"] == 30
-    assert metrics["fit/best_model_score"] <= 0.10
-    assert metrics["fit/wall_time_s"] <= 30.0
+    assert metrics["fit/wall_time_s"] <= 300.0  # 120-160 s measured at load average 15 on 2 cores
+    theta_i, theta_r = in_plane_plan("DS1")
+    held_out = spectral_mlp_split(theta_i)
+    theta_i, theta_r = theta_i[held_out], theta_r[held_out]
+    truth = instrument.VirtualGoniospectrophotometer.ground_truth(material, theta_i, theta_r)
+    module = SpectralMlpModule.load_from_checkpoint(tmp_path / "checkpoints" / "best.ckpt")
+    n, wavelengths = len(theta_i), truth.wavelengths
+    with torch.no_grad():
+        pred = module(
+            *(torch.tensor(np.repeat(a, len(wavelengths)), dtype=torch.float32) for a in (theta_i, theta_r)),
+            torch.tensor(np.tile(wavelengths, n), dtype=torch.float32),
+        )
+    scores, _ = inplane_scores(pred.double().numpy().reshape(n, -1), truth.values, theta_i, theta_r)
+    assert scores["inplane_glossy_rel_rmse"] <= 0.05
+    assert scores["inplane_diffuse_rel_rmse"] <= 0.10
+
+
+# --------------------------------------------------------------------------- issue 13: runs and failures
+
+
+def _fit(run_dir, gcms_session, *extra):
+    return main(["fit", "--config", str(CONFIG), *data_args(gcms_session), *quick("--run_dir", str(run_dir)), *extra])
+
+
+def _snapshot(run_dir):
+    return {p.relative_to(run_dir): p.read_bytes() for p in sorted(run_dir.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture
+def short_run(tmp_path, gcms_session):
+    run_dir = tmp_path / "run"
+    assert _fit(run_dir, gcms_session) == 0
+    return run_dir
+
+
+def test_a_run_is_never_overwritten_without_resume_or_overwrite(short_run, gcms_session, capsys):
+    """Issue 13 class 2."""
+    before = _snapshot(short_run)
+    assert _fit(short_run, gcms_session) == 2
+    err = capsys.readouterr().err
+    assert "already holds a run" in err and "--resume" in err and "--overwrite" in err
+    assert _snapshot(short_run) == before
+
+
+def test_overwrite_replaces_a_run_but_a_failed_start_puts_it_back(short_run, gcms_session, tmp_path):
+    before = _snapshot(short_run)
+    missing = ["--data.path", str(tmp_path / "missing.csv"), "--data.reference", gcms_session[1]]
+    assert main(["fit", "--config", str(CONFIG), *quick("--run_dir", str(short_run)), *missing, "--overwrite"]) == 2
+    assert _snapshot(short_run) == before  # the old run is back, nothing of the failed start
+    assert _fit(short_run, gcms_session, "--overwrite", "--seed_everything", "1") == 0
+    assert read_metrics(short_run)["status"] == "ok"
+    assert _snapshot(short_run) != before
+    assert not [p for p in short_run.iterdir() if "neuralbrdf-tmp" in p.name]
+
+
+def test_resume_continues_from_last_appending_the_log_and_summing_wall_time(short_run, gcms_session):
+    first = read_metrics(short_run)
+    rows_before = (short_run / "metrics.csv").read_text().splitlines()
+    args = ["fit", "--config", str(CONFIG), *data_args(gcms_session), "--run_dir", str(short_run),
+            "--trainer.max_epochs", "2", "--trainer.limit_train_batches", "2", "--resume"]
+    assert main(args) == 0
+    metrics = read_metrics(short_run)
+    assert metrics["status"] == "ok" and metrics["fit/epochs"] == 2
+    assert metrics["fit/wall_time_s"] > first["fit/wall_time_s"]
+    rows = (short_run / "metrics.csv").read_text().splitlines()
+    assert rows[: len(rows_before)][1:] == rows_before[1:] and len(rows) > len(rows_before)
+    epochs = {row.split(",")[rows[0].split(",").index("epoch")] for row in rows[1:]}
+    assert epochs == {"0", "1"}
+
+
+@pytest.mark.parametrize("damage", ["missing", "truncated"])
+def test_resume_from_a_missing_or_truncated_checkpoint_is_one_line(short_run, gcms_session, damage):
+    """Issue 13 class 8: no traceback."""
+    last = short_run / "checkpoints" / "last.ckpt"
+    if damage == "missing":
+        last.unlink()
+    else:
+        last.write_bytes(last.read_bytes()[:1000])
+    proc = subprocess.run(
+        [sys.executable, str(REPO / "train.py"), "fit", "--config", str(CONFIG), *data_args(gcms_session),
+         "--run_dir", str(short_run), "--resume"],
+        capture_output=True, text=True,
+    )
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    errors = [line for line in proc.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and ("last.ckpt not found" in errors[0] or "not a readable PyTorch checkpoint" in errors[0])
+
+
+def test_binary_config_and_missing_evaluation_checkpoint_are_one_line(tmp_path):
+    binary = tmp_path / "config.yaml"
+    binary.write_bytes(b"\x00\x01binary\xff\xfe")
+    for args in (["fit", "--config", str(binary)],
+                 ["validate", "--config", str(CONFIG), "--ckpt_path", str(tmp_path / "none.ckpt")]):
+        proc = subprocess.run([sys.executable, str(REPO / "train.py"), *args], capture_output=True, text=True, cwd=tmp_path)
+        assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+        assert len([line for line in proc.stderr.splitlines() if line.startswith("error:")]) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["config.yaml"]
+
+
+def _assert_failed_run(run_dir, cause_fragment, capsys):
+    err = capsys.readouterr().err
+    assert f"error: fit failed: " in err and cause_fragment in err, err
+    text = (run_dir / "metrics.json").read_text()
+    metrics = json.loads(text, parse_constant=lambda c: pytest.fail(f"not strict JSON: {c}"))
+    assert metrics["status"] == "failed" and cause_fragment in metrics["cause"]
+    assert "fit/best_model_path" not in metrics
+    assert not list(run_dir.rglob("best*.ckpt"))
+
+
+@pytest.mark.parametrize(
+    "extra, cause",
+    [
+        (["--model.init_args.optimizer.init_args.lr", "10", "--trainer.limit_train_batches", "20"],
+         "no better than predicting 0"),
+        (["--model.init_args.optimizer.init_args.lr", "1e30", "--model.init_args.residual", "linear"],
+         "non-finite training loss"),
+    ],
+    ids=["dead network after a huge learning rate", "non-finite loss"],
+)
+def test_a_failed_fit_exits_1_with_its_cause_and_no_best_checkpoint(tmp_path, gcms_session, capsys, extra, cause):
+    """Issue 13 class 3."""
+    run_dir = tmp_path / "run"
+    assert _fit(run_dir, gcms_session, *extra) == 1
+    _assert_failed_run(run_dir, cause, capsys)
+
+
+def test_all_zero_data_fails_the_fit(tmp_path, capsys):
+    from neuralbrdf.data.table import read_table, write_table
+
+    source = tmp_path / "truth.csv"
+    from neuralbrdf.cli.main import main as cli
+
+    assert cli(["simulate", "--material", "gold", "--plan", "DS1", "--truth", "--out", str(source)]) == 0
+    table = read_table(source)
+    table.values[:] = 0.0
+    write_table(table, tmp_path / "zeros.csv")
+    run_dir = tmp_path / "run"
+    args = ["fit", "--config", str(CONFIG), "--data.path", str(tmp_path / "zeros.csv"), *quick("--run_dir", str(run_dir))]
+    assert main(args) == 1
+    _assert_failed_run(run_dir, "with a measured value >= floor", capsys)
+
+
+@pytest.mark.parametrize("name, value", [("gamma", "-1"), ("gamma", "-1e-12"), ("rel_rmse_floor", "-1e-4")])
+def test_parameters_outside_their_domain_fail_before_a_run_exists(tmp_path, gcms_session, capsys, name, value):
+    run_dir = tmp_path / "run"
+    assert _fit(run_dir, gcms_session, f"--model.init_args.{name}={value}") == 2
+    assert f"model.{name} must be a finite number >= 0" in capsys.readouterr().err
+    assert not run_dir.exists()
+
+
+def test_a_successful_fit_is_marked_ok_in_strict_json(fitted_run):
+    text = (fitted_run / "metrics.json").read_text()
+    assert json.loads(text, parse_constant=lambda c: pytest.fail(c))["status"] == "ok"
+
+
+def test_metrics_json_writes_non_finite_numbers_as_null(tmp_path):
+    class Trainer:
+        default_root_dir = str(tmp_path)
+        is_global_zero = True
+        callback_metrics = {"test/loss": torch.tensor(float("nan")), "test/x": torch.tensor(float("inf"))}
+
+    MetricsJson().on_test_end(Trainer(), None)
+    assert json.loads((tmp_path / "metrics.json").read_text()) == {"test/loss": None, "test/x": None}
+
+
+def test_checkpoints_are_written_whole_or_not_at_all(tmp_path, monkeypatch):
+    """A save that dies half-way leaves the previous checkpoint, never a truncated one."""
+    from neuralbrdf.lightning import run
+
+    path = tmp_path / "checkpoints" / "last.ckpt"
+    run.AtomicCheckpointIO().save_checkpoint({"epoch": 1}, path)
+
+    def dying_save(obj, target):
+        Path(target).write_bytes(b"PK\x03\x04 half")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(run.torch, "save", dying_save)
+    with pytest.raises(KeyboardInterrupt):
+        run.AtomicCheckpointIO().save_checkpoint({"epoch": 2}, path)
+    assert torch.load(path, weights_only=True) == {"epoch": 1}
+    assert [p.name for p in path.parent.iterdir()] == ["last.ckpt"]

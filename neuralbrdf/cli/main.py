@@ -13,6 +13,7 @@ import argparse
 import sys
 import warnings
 
+from neuralbrdf.atomic import command_inputs
 from neuralbrdf.cli import commands
 from neuralbrdf.data.plans import PLAN_NAMES
 from neuralbrdf.errors import InputError
@@ -23,7 +24,9 @@ EPILOG = (
     "in [-90, 90] (wi = (sin ti, 0, cos ti), wo = (-sin tr, 0, cos tr); mirror at theta_r = theta_i) "
     "and the radiance factor beta at 390-730 nm every 10 nm. BRDF sample tables hold spherical "
     "theta_i, phi_i, theta_o, phi_o (theta in [0, 90], phi in [0, 360)) and R,G,B (linear sRGB) "
-    "or one column per wavelength (nm), BRDF in 1/sr without cosine."
+    "or one column per wavelength (nm), BRDF in 1/sr without cosine. Outputs: written whole or not at "
+    "all; an output that is one of the command's inputs, a directory, device or FIFO is refused; a "
+    "symbolic link is written through (the file it points to is replaced)."
 )
 
 
@@ -181,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), command_inputs():
             warnings.simplefilter("default")
             args.func(args)
     except InputError as err:

@@ -10,8 +10,10 @@ in sr⁻¹.  Rows are paired by geometry ``(theta_i, theta_r)`` (equal to 1e-6°
 Only 400–700 nm (31 bands) is kept; the reference must be strictly positive there on every row
 a sample uses, and anything else is an :class:`~neuralbrdf.errors.InputError` naming the
 reference file, line and wavelength.  Sensor noise on dark samples can make ``beta_sample``,
-hence ``f``, slightly negative: those values are clipped to 0 with a warning giving their count
-(noisy dark samples are normal, so this is not an error).
+hence ``f``, slightly negative: values within the BRDF table's noise tolerance
+(:func:`~neuralbrdf.data.table.negative_noise_tolerance`: ``max(1e-6 · max|f|, 1e-9)`` sr⁻¹ below
+zero) are clipped to 0 with a warning giving their count; anything more negative is an error
+naming the sample file, line and wavelength (a cell of −1000 is not sensor noise).
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ import numpy as np
 
 from neuralbrdf.data.gcms import GCMS_HEADER, GCMS_WAVELENGTHS_NM, GcmsMeasurement, pair_keys
 from neuralbrdf.data.csvio import CellProblem, first_flagged_cell
-from neuralbrdf.data.table import BrdfTable, clip_negatives
+from neuralbrdf.data.table import BrdfTable, clip_negatives, negative_value_problem
 from neuralbrdf.geometry import inplane_to_spherical
 
 #: Reflectance of the Munsell N9 reference relative to a perfect diffuser (report §2.1.1).
@@ -73,10 +75,14 @@ def calibrate(sample: GcmsMeasurement, reference: GcmsMeasurement) -> BrdfTable:
         raise CellProblem(int(rows[problem.row]), problem.column, problem.message).to_error(
             reference.source, reference.lines
         )
-    brdf = clip_negatives(
-        MUNSELL_N9_REFLECTANCE / math.pi * sample.beta[:, bands] / beta_reference,
-        sample.source,
-        "calibrated BRDF value(s) (sensor noise, sr^-1)",
+    brdf = MUNSELL_N9_REFLECTANCE / math.pi * sample.beta[:, bands] / beta_reference
+    problem = negative_value_problem(
+        brdf,
+        band_names,
+        lambda r, k: f"beta {sample.beta[r, bands][k]:g} calibrates to a negative BRDF of {brdf[r, k]:.4g} sr^-1,",
     )
+    if problem:
+        raise problem.to_error(sample.source, sample.lines)
+    brdf = clip_negatives(brdf, sample.source, "calibrated BRDF value(s) (sensor noise, sr^-1)")
     angles = inplane_to_spherical(sample.theta_i, sample.theta_r)
     return BrdfTable(*angles, brdf, CALIBRATED_WAVELENGTHS_NM.copy(), source=sample.source)

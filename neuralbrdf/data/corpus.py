@@ -2,9 +2,9 @@
 
 Fan et al. (2022, "Neural Layered BRDFs") pretrain their representation network on many
 materials; this project generates its own from physically based analytic families with
-randomised parameters.  No measured material enters the corpus — in particular none of the MERL
-proxies of ``../shared/data/merl-nbrdf`` (SPEC §2.4), which measure how the network
-generalises to real materials.
+randomised parameters.  No measured material enters this corpus; the pretraining config mixes
+in MERL proxies separately (:mod:`neuralbrdf.data.proxy_corpus`), never the held-out subset or
+the report's five materials, which measure how the network generalises to real materials.
 
 A material is a diffuse base plus up to :data:`MAX_LOBES` specular lobes, all RGB, in sr⁻¹::
 
@@ -258,7 +258,8 @@ def sample_ggx_normal(rng: np.random.Generator, alpha) -> np.ndarray:
 # ------------------------------------------------------------------------------- generation
 
 
-def _log_uniform(rng, low, high, size):
+def log_uniform(rng, low, high, size):
+    """``size`` draws log-uniform on ``[low, high]``."""
     return np.exp(rng.uniform(math.log(low), math.log(high), size=size))
 
 
@@ -278,7 +279,7 @@ def _abc_shape(rng, alpha):
     b = 2.0 * (2.0 ** (1.0 / c) - 1.0) / half_width**2
     tail = rng.random(n) < ABC_TAIL_PROBABILITY
     c = np.where(tail, rng.uniform(*ABC_TAIL_C_RANGE, size=n), c)
-    b = np.where(tail, _log_uniform(rng, *ABC_TAIL_B_RANGE, n), b)
+    b = np.where(tail, log_uniform(rng, *ABC_TAIL_B_RANGE, n), b)
     width = np.sqrt(2.0 * (2.0 ** (1.0 / c) - 1.0) / b)
     return b, c, width / GGX_HALF_WIDTH
 
@@ -340,29 +341,29 @@ def generate_materials(n_materials: int, seed: int, archetype_weights=DEFAULT_AR
         "lobe_b": np.zeros((m, slots)),
         "lobe_c": np.zeros((m, slots)),
     }
-    albedo = _colour(rng, _log_uniform(rng, *ALBEDO_RANGE, m), m)
+    albedo = _colour(rng, log_uniform(rng, *ALBEDO_RANGE, m), m)
     coat_eta = np.zeros(m)
     all_kinds = (LOBE_GGX, LOBE_BECKMANN, LOBE_ABC)
 
     plastic = np.flatnonzero(archetype == ARCHETYPES.index("plastic"))
-    eta = _fill_lobe(rng, params, plastic, 0, all_kinds, _log_uniform(rng, *ALPHA_RANGE, plastic.size),
+    eta = _fill_lobe(rng, params, plastic, 0, all_kinds, log_uniform(rng, *ALPHA_RANGE, plastic.size),
                      np.zeros(plastic.size, bool), _white(plastic.size))
     coat_eta[plastic] = eta
 
     metal = np.flatnonzero(archetype == ARCHETYPES.index("metal"))
-    _fill_lobe(rng, params, metal, 0, (LOBE_GGX, LOBE_BECKMANN), _log_uniform(rng, *ALPHA_RANGE, metal.size),
+    _fill_lobe(rng, params, metal, 0, (LOBE_GGX, LOBE_BECKMANN), log_uniform(rng, *ALPHA_RANGE, metal.size),
                np.ones(metal.size, bool), _white(metal.size) * rng.uniform(0.7, 1.0, size=(metal.size, 1)))
     faint = rng.random(metal.size) < 0.5
     albedo[metal] = np.where(faint[:, None], albedo[metal] * 0.03, 0.0)
 
     layered = np.flatnonzero(archetype == ARCHETYPES.index("layered"))
     n = layered.size
-    eta = _fill_lobe(rng, params, layered, 0, all_kinds, _log_uniform(rng, *COAT_ALPHA_RANGE, n),
+    eta = _fill_lobe(rng, params, layered, 0, all_kinds, log_uniform(rng, *COAT_ALPHA_RANGE, n),
                      np.zeros(n, bool), _white(n))
     coat_eta[layered] = eta
     metallic = rng.random(n) < 0.5
     base_weight = np.where(metallic[:, None], _colour(rng, rng.uniform(0.1, 0.5, size=n), n), 1.0)
-    _fill_lobe(rng, params, layered, 1, all_kinds, _log_uniform(rng, *BASE_ALPHA_RANGE, n), metallic, base_weight)
+    _fill_lobe(rng, params, layered, 1, all_kinds, log_uniform(rng, *BASE_ALPHA_RANGE, n), metallic, base_weight)
     albedo[layered] *= 0.6
 
     return CorpusMaterials(archetype=archetype, albedo=albedo, coat_eta=coat_eta, **params)

@@ -14,8 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from neuralbrdf.atomic import atomic_write
+from neuralbrdf.atomic import atomic_write, note_input
 from neuralbrdf.errors import InputError
+from neuralbrdf.limits import MAX_CSV_BYTES, check_file_size
 
 #: Wavelength steps may differ by this fraction of the first step and still count as regular.
 REGULAR_GRID_RTOL = 1e-6
@@ -46,6 +47,8 @@ def read_csv_rows(
 ) -> tuple[list[str] | None, list[list[str]], list[int]]:
     """Header row, data rows and their file lines; blank lines skipped; OS errors → InputError."""
     rows, lines = [], []
+    note_input(path)
+    check_file_size(path, MAX_CSV_BYTES, "CSV file")
     try:
         with open(path, newline="", encoding="utf-8-sig") as handle:
             reader = csv.reader(handle)

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from neuralbrdf.atomic import note_input
 from neuralbrdf.data.plans import plan_spherical
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
@@ -49,6 +50,7 @@ class MerlBrdf:
         path = Path(path)
         if not path.is_file():
             raise InputError("no such MERL .binary file", path=path)
+        note_input(path)
         size = path.stat().st_size
         expected_size = HEADER_BYTES + 3 * int(np.prod(MERL_SHAPE)) * 8
         with open(path, "rb") as handle:

@@ -38,9 +38,11 @@ import numpy as np
 from array_api_compat import array_namespace, device
 from tqdm.auto import tqdm
 
+from neuralbrdf.atomic import note_input
 from neuralbrdf.data.plans import plan_spherical
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
+from neuralbrdf.limits import MAX_JSON_BYTES, check_file_size
 from neuralbrdf.geometry import half_diff_vectors, normalize, spherical_pair_to_vectors
 
 #: The report's five MERL materials: latent-fitting test materials, never pretraining data.
@@ -100,6 +102,9 @@ class NbrdfNetwork:
                     "file not found (an NBRDF network needs both NAME.h5 and NAME.json)",
                     path=file,
                 )
+        note_input(h5_path)
+        note_input(json_path)
+        check_file_size(json_path, MAX_JSON_BYTES, "NBRDF architecture file")
         layer_names = _read_architecture(json_path)
         kernels, biases = _read_weights(h5_path, layer_names)
         return cls(name=h5_path.stem, kernels=kernels, biases=biases, source=str(h5_path))

@@ -12,7 +12,9 @@ The Löw et al. (2012) "full gamut" set has 8 incident polar angles (5°, 15°, 
 ``phi_i = 0``) times 28 800 outgoing directions on a 90 × 320 grid of cell centres in
 ``theta_o`` (1° steps) and ``phi_o`` (1.125° steps): 230 400 pairs, 256× DS1's 900.
 
-The spectral MLP split (Table 5.1) puts whole incident angles in the test set.
+The spectral MLP split (Table 5.1) puts whole incident angles in the test set; for plans
+without Table 5.1's angles, :func:`every_third_theta_i_split` generalises it (on DS1's 5° grid
+the two coincide).
 """
 
 from __future__ import annotations
@@ -115,3 +117,18 @@ def spectral_mlp_split(theta_i_deg) -> np.ndarray:
     """Boolean mask, True where a sample belongs to the test split of report Table 5.1."""
     theta_i = np.asarray(theta_i_deg, dtype=np.float64)
     return np.isin(np.round(theta_i, 6), np.array(SPECTRAL_MLP_TEST_THETA_I))
+
+
+def every_third_theta_i_split(theta_i_deg) -> np.ndarray:
+    """Boolean test mask: every third measured incident angle, starting with the third.
+
+    The distinct ``theta_i`` (rounded to 1e-6°) in ascending order are numbered 0, 1, 2, …;
+    those numbered 2, 5, 8, … are test angles.  On DS1's 5° grid from -60° this is exactly
+    report Table 5.1 (-50°, -35°, …, 55°).  As there, on a grid of ``n`` angles symmetric about
+    0° the mirror twin ``-theta_i`` of a test angle stays in training unless ``n ≡ 2 (mod 3)``
+    (DS1, n = 25; DS2, n = 9: test -30°, 15°, 60°; DS3, n = 5: test 0°, its own twin).  Fewer
+    than three distinct angles give no test angle.
+    """
+    theta_i = np.round(np.asarray(theta_i_deg, dtype=np.float64), 6)
+    angles = np.unique(theta_i)
+    return np.isin(theta_i, angles[2::3])

@@ -8,8 +8,9 @@ Columns are found by name; :func:`write_table` writes them in that canonical ord
 Reading is strict: every defect is an :class:`~neuralbrdf.errors.InputError` naming the file,
 the line (the header is line 1) and the column.  The only repair is for measurement noise:
 negative BRDF values no lower than ``-max(1e-6 · max|value|, 1e-9)`` are clipped to 0 with a
-warning giving their count; anything more negative is an error.  Blank lines are skipped; no
-data row is ever dropped.
+warning giving their count; anything more negative is an error.  A geometry repeated with different values is an
+error naming both lines (exact repeats are kept).  Blank lines are skipped; no data row is ever
+dropped.
 """
 
 from __future__ import annotations
@@ -52,6 +53,19 @@ def negative_noise_tolerance(values: np.ndarray) -> float:
     return max(NEGATIVE_RTOL * scale, NEGATIVE_ATOL)
 
 
+def negative_value_problem(values: np.ndarray, channel_names, describe) -> CellProblem | None:
+    """First value below ``-negative_noise_tolerance(values)``; ``describe(row, k)`` names it."""
+    tolerance = negative_noise_tolerance(values)
+    return first_flagged_cell(
+        values < -tolerance,
+        channel_names,
+        lambda r, k: (
+            f"{describe(r, k)} beyond the noise tolerance -{tolerance:.3g} "
+            f"(max({NEGATIVE_RTOL:g} × max|value|, {NEGATIVE_ATOL:g}))"
+        ),
+    )
+
+
 def clip_negatives(values: np.ndarray, source: str, what: str) -> np.ndarray:
     """``values`` with negatives set to 0, warning with their count and minimum if any."""
     negative = values < 0
@@ -64,10 +78,38 @@ def clip_negatives(values: np.ndarray, source: str, what: str) -> np.ndarray:
     return np.where(negative, 0.0, values)
 
 
-def _table_cell_problem(angles, values, channel_names, weight) -> CellProblem | None:
-    """First non-finite cell, angle out of range, value below the noise tolerance or bad weight.
+#: Geometries closer than this (degrees) in all four angles are the same direction pair.
+PAIR_RESOLUTION_DEG = 1e-6
 
-    ``angles`` is ``[N, 4]`` in :data:`ANGLE_COLUMNS` order, ``values`` ``[N, C]``.
+
+def _conflicting_repeat(angles, values, weight, lines) -> CellProblem | None:
+    """First row repeating an earlier row's geometry with different values or weight.
+
+    Exact repeats are kept (they are the same measurement twice); conflicting ones are refused,
+    as the GCMS reader refuses repeated geometries.
+    """
+    keys = np.rint(angles / PAIR_RESOLUTION_DEG).astype(np.int64)
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    first_of_row = first[inverse.reshape(-1)]
+    record = values if weight is None else np.concatenate([values, weight[:, None]], axis=1)
+    conflicting = (first_of_row != np.arange(len(keys))) & np.any(record != record[first_of_row], axis=1)
+    rows = np.flatnonzero(conflicting)
+    if not rows.size:
+        return None
+    r = int(rows[0])
+    earlier = f"row {first_of_row[r]}" if lines is None else f"line {lines[first_of_row[r]]}"
+    geometry = ", ".join(f"{a:g}" for a in angles[r])
+    return CellProblem(
+        r, None, f"repeated geometry (theta_i, phi_i, theta_o, phi_o) = ({geometry}) with different values than {earlier}"
+    )
+
+
+def _table_cell_problem(angles, values, channel_names, weight, lines=None) -> CellProblem | None:
+    """First non-finite cell, angle out of range, value below the noise tolerance, bad weight or
+    conflicting repeated geometry (:func:`_conflicting_repeat`).
+
+    ``angles`` is ``[N, 4]`` in :data:`ANGLE_COLUMNS` order, ``values`` ``[N, C]``; ``lines`` (file
+    line of each row), if given, locates the earlier row of a repeat.
     """
     names = [*ANGLE_COLUMNS, *channel_names]
     cells = np.concatenate([angles, values], axis=1)
@@ -90,20 +132,16 @@ def _table_cell_problem(angles, values, channel_names, weight) -> CellProblem | 
     )
     if problem:
         return problem
-    tolerance = negative_noise_tolerance(values)
-    problem = first_flagged_cell(
-        values < -tolerance,
-        channel_names,
-        lambda r, k: (
-            f"negative BRDF value {values[r, k]:g} beyond the noise tolerance -{tolerance:.3g} "
-            f"(max({NEGATIVE_RTOL:g} × max|value|, {NEGATIVE_ATOL:g}))"
-        ),
-    )
-    if problem or weight is None:
+    problem = negative_value_problem(values, channel_names, lambda r, k: f"negative BRDF value {values[r, k]:g}")
+    if problem:
         return problem
-    return first_flagged_cell(
-        weight[:, None] < 0, [WEIGHT_COLUMN], lambda r, k: f"negative weight {weight[r]:g}"
-    )
+    if weight is not None:
+        problem = first_flagged_cell(
+            weight[:, None] < 0, [WEIGHT_COLUMN], lambda r, k: f"negative weight {weight[r]:g}"
+        )
+        if problem:
+            return problem
+    return _conflicting_repeat(angles, values, weight, lines)
 
 
 # --------------------------------------------------------------------------- the table
@@ -313,7 +351,7 @@ def table_from_csv(csv_file: NumericCsv) -> BrdfTable:
     values = np.stack([csv_file.column(name) for name in value_names], axis=1)
     angles = np.stack([csv_file.column(name) for name in ANGLE_COLUMNS], axis=1)
     # Validate here too so that errors carry file lines rather than row indices.
-    problem = _table_cell_problem(angles, values, value_names, weight)
+    problem = _table_cell_problem(angles, values, value_names, weight, csv_file.lines)
     if problem:
         raise problem.to_error(csv_file.path, csv_file.lines)
     return BrdfTable(*angles.T, values, wavelengths, weight, csv_file.path)

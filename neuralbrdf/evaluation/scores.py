@@ -23,6 +23,7 @@ Models are :class:`Evaluator` objects: an ``.onnx`` file through onnxruntime
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -84,15 +85,16 @@ class OnnxEvaluator:
         return self.session.run(["f"], feeds)[0].astype(np.float64)
 
 
-@dataclass
 class TorchEvaluator:
-    """A torch module on directions (:mod:`neuralbrdf.models.directional`, a truth), evaluated in float64."""
+    """A torch module on directions (:mod:`neuralbrdf.models.directional`, a truth), evaluated in
+    float64 on a copy (the module itself is left as it is)."""
 
-    module: torch.nn.Module
-    is_spectral: bool
+    def __init__(self, module: torch.nn.Module, is_spectral: bool) -> None:
+        self.module = copy.deepcopy(module).double().eval()
+        self.is_spectral = is_spectral
 
     def values(self, wi, wo, wavelength=None):
-        module = self.module.double()
+        module = self.module
         inputs = [torch.from_numpy(np.asarray(wi, dtype=np.float64)), torch.from_numpy(np.asarray(wo, dtype=np.float64))]
         if self.is_spectral:
             inputs.append(torch.from_numpy(np.asarray(wavelength, dtype=np.float64)))
@@ -224,25 +226,26 @@ def direction_scores(
     )
 
 
-def fit_scores(pred_fit, fit, pred_truth=None, truth=None) -> dict[str, float | None]:
+def fit_scores(pred_fit, fit_values, theta_i, theta_r, pred_truth=None, truth_values=None,
+               truth_theta_i=None) -> dict[str, float | None]:
     """The metrics every training run writes to ``metrics.json`` under these names (SPEC §9).
 
     ``inplane_glossy_rel_rmse`` and ``inplane_diffuse_rel_rmse`` of ``pred_fit`` against the
-    :class:`~neuralbrdf.data.table.BrdfTable` ``fit`` the model was given (rows off the plane of
-    incidence count by their in-plane equivalent, ``|θi − θr| = 2 θh``); a region without a sample
-    above the floor gives ``None``.  With a ``truth`` table (the dense Low set of a virtual
-    material or NBRDF proxy, SPEC §5) and the model's values on it, ``hemisphere_logcos_rmse``.
+    values ``[N, C]`` the model was given, at signed in-plane angles ``theta_i, theta_r`` (rows off
+    the plane of incidence count by their in-plane equivalent, ``|θi − θr| = 2 θh``); a region
+    without a sample above the floor gives ``None``.  With a truth (values on the dense Low set of
+    a virtual material or NBRDF proxy, SPEC §5, the model's values there and the incident polar
+    angles), ``hemisphere_logcos_rmse``.
     """
-    theta_i, theta_r = fit.inplane_angles()
     glossy = is_glossy(theta_i, theta_r)
     metrics: dict[str, float | None] = {}
     for name, rows, region in (("inplane_glossy_rel_rmse", glossy, "glossy"),
                                ("inplane_diffuse_rel_rmse", ~glossy, "diffuse")):
         try:
-            metrics[name] = masked_relative_rmse(pred_fit, fit.values, rows, DEFAULT_FLOOR, region).value
+            metrics[name] = masked_relative_rmse(pred_fit, fit_values, rows, DEFAULT_FLOOR, region).value
         except ValueError:
             metrics[name] = None
-    if truth is not None:
-        metrics["hemisphere_logcos_rmse"] = hemisphere_logcos_rmse(np.clip(pred_truth, 0.0, None), truth.values,
-                                                                   truth.theta_i)
+    if truth_values is not None:
+        metrics["hemisphere_logcos_rmse"] = hemisphere_logcos_rmse(np.clip(pred_truth, 0.0, None), truth_values,
+                                                                   truth_theta_i)
     return metrics

@@ -129,7 +129,8 @@ class AbcFitModule(pl.LightningModule):
             pred_truth = self.parameters_.evaluate(*truth.vectors())
             rmse = hemisphere_logcos_rmse(pred_truth, truth.values, truth.theta_i)
             self.log(f"{stage}/hemisphere_logcos_rmse", rmse, batch_size=1)
-        self.scores = fit_scores(pred, fit, pred_truth, truth)
+        self.scores = fit_scores(pred, fit.values, *fit.inplane_angles(), pred_truth,
+                                 None if truth is None else truth.values, None if truth is None else truth.theta_i)
 
     def validation_step(self, material: MaterialData, batch_idx: int) -> None:
         self._evaluate(material, "val")
@@ -143,6 +144,12 @@ class AbcFitModule(pl.LightningModule):
         callback = self.trainer.checkpoint_callback
         if callback is not None and callback.dirpath is not None:
             self.trainer.save_checkpoint(os.path.join(callback.dirpath, f"{callback.filename or 'best'}.ckpt"))
+
+    def fit_failure(self) -> str | None:
+        """Why the fit failed, if it did (read by :class:`~neuralbrdf.lightning.run.FitHealth`)."""
+        if self.result is None or self.result.success:
+            return None
+        return f"ABC fit of {self.material_name}: {self.result.failure_reason}"
 
     def metrics_json_extras(self) -> dict:
         """Non-scalar results for ``metrics.json`` (read by :class:`~neuralbrdf.lightning.run.MetricsJson`)."""

@@ -1,20 +1,24 @@
-"""Reading checkpoint files with errors that name the file (shared by loaders and the exporter)."""
+"""Reading checkpoint files with errors that name the file (shared by loaders and the exporter).
+
+Checkpoints are untrusted input (SPEC §12): they are size-checked before reading
+(:data:`~neuralbrdf.limits.MAX_CHECKPOINT_BYTES`), loaded with ``weights_only`` (never
+unpickled), and a model described by their hyper-parameters is first built on PyTorch's meta
+device (no memory) and compared with the weights (:func:`check_weights_match`), so that a
+hidden width of 60 000 is refused before anything is allocated.
+"""
 
 from __future__ import annotations
 
 import os
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import torch
+from torch import nn
 
-from neuralbrdf.errors import InputError
-
-
-def one_line(error: BaseException, limit: int = 300) -> str:
-    """``Type: message`` on one line, shortened to ``limit`` characters."""
-    text = " ".join(line.strip() for line in str(error).splitlines() if line.strip())
-    text = text if len(text) <= limit else text[: limit - 3] + "..."
-    return f"{type(error).__name__}: {text}" if text else type(error).__name__
+from neuralbrdf.atomic import note_input
+from neuralbrdf.errors import InputError, one_line
+from neuralbrdf.limits import MAX_CHECKPOINT_BYTES, MAX_MODEL_PARAMETERS, check_file_size
 
 
 def read_checkpoint(path: str | os.PathLike[str], what: str = "checkpoint") -> dict:
@@ -25,6 +29,8 @@ def read_checkpoint(path: str | os.PathLike[str], what: str = "checkpoint") -> d
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{what} not found", path=path)
+    note_input(path)
+    check_file_size(path, MAX_CHECKPOINT_BYTES, "checkpoint")
     try:
         checkpoint = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # torch raises many kinds for corrupt or foreign files
@@ -32,3 +38,41 @@ def read_checkpoint(path: str | os.PathLike[str], what: str = "checkpoint") -> d
     if not isinstance(checkpoint, dict):
         raise InputError(f"not a checkpoint dictionary (found {type(checkpoint).__name__})", path=path)
     return checkpoint
+
+
+def check_weights_match(
+    build: Callable[[], nn.Module], state_dict: Mapping, path: str | os.PathLike[str], prefix: str = ""
+) -> None:
+    """Check, without allocating, that ``build()`` makes a model whose tensors are in ``state_dict``.
+
+    ``build`` runs under ``torch.device("meta")``; its parameter count must not exceed
+    :data:`~neuralbrdf.limits.MAX_MODEL_PARAMETERS` and every tensor of its state dict must be in
+    ``state_dict`` under ``prefix + name`` with the same shape.  Raises :class:`InputError`
+    naming the file and the first mismatching key.
+    """
+    try:
+        with torch.device("meta"):
+            module = build()
+    except InputError as error:
+        raise InputError(f"invalid hyper-parameters: {error.reason}", path=path, column=error.column) from None
+    except Exception as error:  # a constructor rejecting foreign hyper-parameters
+        raise InputError(f"hyper-parameters do not describe a model ({one_line(error)})", path=path) from None
+    expected = module.state_dict()
+    count = sum(tensor.numel() for tensor in expected.values())
+    if count > MAX_MODEL_PARAMETERS:
+        raise InputError(
+            f"hyper-parameters describe a model of {count} parameters, above the limit of {MAX_MODEL_PARAMETERS} "
+            "(neuralbrdf.limits.MAX_MODEL_PARAMETERS); refusing to build it",
+            path=path,
+        )
+    for name, tensor in expected.items():
+        key = prefix + name
+        found = state_dict.get(key) if isinstance(state_dict, Mapping) else None
+        if not isinstance(found, torch.Tensor):
+            raise InputError("the weights lack this tensor of the model its hyper-parameters describe", path=path, column=key)
+        if tuple(found.shape) != tuple(tensor.shape):
+            raise InputError(
+                f"weight of shape {list(found.shape)} where the hyper-parameters need {list(tensor.shape)}",
+                path=path,
+                column=key,
+            )

@@ -1,6 +1,6 @@
 """The NLB pretraining corpus as a Lightning data module (SPEC §4.2; :mod:`neuralbrdf.data.corpus`).
 
-The corpus materials are fixed by ``(n_materials, seed)``; their samples are generated on the
+The corpus materials are fixed by ``(n_analytic, seed)``; their samples are generated on the
 fly, one whole batch per dataset item, never stored.  Batch ``i`` of epoch ``e`` is drawn from
 ``numpy.random.default_rng([seed, stream, e, i])`` (stream 0 = training, 1 = validation), so a
 run is reproducible whatever the number of processes: under DDP Lightning's distributed sampler
@@ -9,11 +9,17 @@ the trainer, so with ``trainer.reload_dataloaders_every_n_epochs: 1`` every epoc
 directions; otherwise every epoch repeats epoch 0's samples.  Validation batches are the same in
 every epoch: the training materials at directions not trained on.
 
+**MERL proxies** (``proxy_dir``, :mod:`neuralbrdf.data.proxy_corpus`): a ``proxy_fraction`` of
+every batch comes from the NBRDF proxies allowed in pretraining (never the held-out subset or
+the report's five materials); they are materials ``n_analytic .. n_materials - 1`` of the
+latent table, after the analytic ones.
+
 A batch is a :class:`CorpusSamples` of float32 tensors (``material`` int64).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from typing import NamedTuple
 
@@ -23,6 +29,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from neuralbrdf.data.corpus import DEFAULT_ARCHETYPE_WEIGHTS, CorpusMaterials, generate_materials, sample_batch
+from neuralbrdf.data.proxy_corpus import ProxyMaterials, pretraining_proxy_names
 from neuralbrdf.errors import InputError
 
 TRAIN_STREAM, VAL_STREAM = 0, 1
@@ -49,8 +56,12 @@ class CorpusBatches(Dataset):
         stream: int,
         epoch: int = 0,
         uniform_fraction: float = 0.5,
+        proxies: ProxyMaterials | None = None,
+        proxy_fraction: float = 0.0,
     ) -> None:
         self.materials = materials
+        self.proxies = proxies
+        self.n_proxy_samples = 0 if proxies is None else int(round(proxy_fraction * batch_size))
         self.batch_size = batch_size
         self.n_batches = n_batches
         self.seed = seed
@@ -65,10 +76,13 @@ class CorpusBatches(Dataset):
         if not 0 <= index < self.n_batches:
             raise IndexError(index)
         rng = np.random.default_rng([self.seed, self.stream, self.epoch, int(index)])
-        batch = sample_batch(self.materials, self.batch_size, rng, self.uniform_fraction)
+        batches = [sample_batch(self.materials, self.batch_size - self.n_proxy_samples, rng, self.uniform_fraction)]
+        if self.n_proxy_samples:
+            proxy = self.proxies.sample_batch(self.n_proxy_samples, rng, self.uniform_fraction)
+            batches.append(dataclasses.replace(proxy, material=proxy.material + len(self.materials)))
         return CorpusSamples(
-            torch.from_numpy(batch.material).long(),
-            *(torch.from_numpy(a).float() for a in (batch.wi, batch.wo, batch.f)),
+            torch.from_numpy(np.concatenate([b.material for b in batches])).long(),
+            *(torch.from_numpy(np.concatenate([getattr(b, k) for b in batches])).float() for k in ("wi", "wo", "f")),
         )
 
 
@@ -82,8 +96,9 @@ class CorpusDataModule(pl.LightningDataModule):
 
     Parameters
     ----------
-    n_materials:
-        Corpus materials (one latent each; must equal the model's ``n_materials``).
+    n_analytic:
+        Analytic corpus materials.  The model's ``n_materials`` (one latent each) is this plus
+        the number of pretraining proxies (:attr:`n_materials` of the module).
     seed:
         Seed of the materials and of every batch.
     archetype_weights:
@@ -99,11 +114,16 @@ class CorpusDataModule(pl.LightningDataModule):
     num_workers:
         DataLoader worker processes generating batches while the model trains (0: generate
         in the training process).
+    proxy_dir:
+        Folder of MERL NBRDF proxies (``../shared/data/merl-nbrdf``) to mix in; ``None``: the
+        analytic corpus alone.
+    proxy_fraction:
+        Share of each batch drawn from the proxies (when ``proxy_dir`` is set).
     """
 
     def __init__(
         self,
-        n_materials: int = 1024,
+        n_analytic: int = 1024,
         seed: int = 0,
         archetype_weights: Sequence[float] = DEFAULT_ARCHETYPE_WEIGHTS,
         batch_size: int = 8192,
@@ -111,25 +131,39 @@ class CorpusDataModule(pl.LightningDataModule):
         val_batches: int = 8,
         uniform_fraction: float = 0.5,
         num_workers: int = 0,
+        proxy_dir: str | None = None,
+        proxy_fraction: float = 0.5,
     ) -> None:
         super().__init__()
         if not isinstance(num_workers, int) or num_workers < 0:
             raise InputError(f"must be a non-negative integer, got {num_workers!r}", column="num_workers")
-        for name in ("n_materials", "batch_size", "batches_per_epoch", "val_batches"):
+        for name in ("n_analytic", "batch_size", "batches_per_epoch", "val_batches"):
             _positive(name, locals()[name])
         if not 0.0 <= uniform_fraction <= 1.0:
             raise InputError(f"must lie in [0, 1], got {uniform_fraction}", column="uniform_fraction")
+        if not 0.0 < proxy_fraction < 1.0:
+            raise InputError(f"must lie in (0, 1), got {proxy_fraction}", column="proxy_fraction")
         self.save_hyperparameters()
-        self.materials = generate_materials(n_materials, seed, tuple(archetype_weights))
+        self.materials = generate_materials(n_analytic, seed, tuple(archetype_weights))
+        self.proxies = None
+        if proxy_dir is not None:
+            self.proxies = ProxyMaterials(proxy_dir, pretraining_proxy_names(proxy_dir))
 
     @property
     def n_materials(self) -> int:
-        return len(self.materials)
+        """Rows of the latent table: the analytic materials, then the proxies."""
+        return len(self.materials) + (0 if self.proxies is None else len(self.proxies))
+
+    @property
+    def material_names(self) -> tuple[str, ...]:
+        """``analytic:<i>`` for the generated materials, ``merl:<name>`` for the proxies."""
+        proxies = () if self.proxies is None else self.proxies.names
+        return (*(f"analytic:{i}" for i in range(len(self.materials))), *(f"merl:{n}" for n in proxies))
 
     def _loader(self, n_batches: int, stream: int, epoch: int) -> DataLoader:
         batches = CorpusBatches(
             self.materials, self.hparams.batch_size, n_batches, self.hparams.seed, stream, epoch,
-            self.hparams.uniform_fraction,
+            self.hparams.uniform_fraction, self.proxies, self.hparams.proxy_fraction,
         )
         return DataLoader(batches, batch_size=None, shuffle=False, num_workers=self.hparams.num_workers)
 

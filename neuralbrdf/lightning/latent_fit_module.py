@@ -10,7 +10,22 @@ plans, a random subset of ``data.batch_size`` samples per step).
 The L1 is taken on ``ln(1 + f cos θi)`` by default (``loss_domain``, as in pretraining,
 :mod:`~neuralbrdf.lightning.nlb_module`): on a short-run checkpoint, latents fitted to eight
 MERL proxies on DS1 reached a mean hemisphere log-cosine RMSE of 0.022 that way and 0.028 with
-the raw L1.  Latents start at the centroid of the pretrained ones (0.022 against 0.023 from 0).
+the raw L1.  The report's recipe is ``loss_domain: linear``, ``init_candidates: 0``,
+``early_stop_patience: null`` (``configs/nlb_latent_report.yaml``).
+
+**Start** (``init_candidates``).  With 0, every latent starts at the centroid of the
+pretrained ones.  Otherwise each material starts from the pretrained code, among the centroid,
+every MERL proxy code and ``init_candidates`` analytic codes (evenly spaced in the table), with
+the lowest loss on its own fitting samples: a start already near the material, so a few
+hundred steps suffice and fits do not end in the centroid's basin.
+
+**Early stopping** (``early_stop_patience``).  The fit stops when the training loss has not
+improved by a relative ``early_stop_tolerance`` for that many steps.
+
+**The fit's last step is always evaluated** (:class:`ValidateFinalStep`): validation runs after
+the final step (the last epoch, or an early stop) whatever ``check_val_every_n_epoch`` is, so
+the metrics logged last — and ``checkpoints/fitted.ckpt``, saved at the end of validation —
+describe the latents the fit ends with.
 
 **Sources** (:class:`LatentFitData`, ``sources`` entries, one per material):
 
@@ -43,6 +58,7 @@ material set — the network, the latents and their names — read back by :func
 
 from __future__ import annotations
 
+import math
 import os
 import warnings
 from collections.abc import Sequence
@@ -61,8 +77,15 @@ from neuralbrdf.data.plans import PLAN_NAMES
 from neuralbrdf.data.sources import load_material
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
-from neuralbrdf.lightning.checkpoint_io import read_checkpoint
-from neuralbrdf.lightning.nlb_module import check_loss_domain, load_pretrained, nlb_loss, scheduled_optimizer
+from neuralbrdf.lightning.checkpoint_io import check_weights_match, read_checkpoint
+from neuralbrdf.lightning.nlb_module import (
+    PretrainedNLB,
+    check_loss_domain,
+    load_pretrained,
+    log_cosine,
+    nlb_loss,
+    scheduled_optimizer,
+)
 from neuralbrdf.models.abc import load_low2012_parameters
 from neuralbrdf.models.nlb import LatentTable, NLBNetwork
 
@@ -293,6 +316,12 @@ class LatentFitModule(pl.LightningModule):
         latents.
     loss_domain:
         ``"log_cosine"`` (L1 of ``ln(1 + f cos θi)``) or ``"linear"`` (raw L1, as Fan et al.).
+    init_candidates:
+        Analytic pretrained codes tried as starts besides the centroid and the MERL codes
+        (module docstring); 0: start at ``latent_init``.
+    early_stop_patience:
+        Steps without a relative loss improvement of ``early_stop_tolerance`` after which
+        the fit stops; ``None``: run every step.
     optimizer, lr_scheduler:
         Factories from the config; the scheduler steps every step.
     """
@@ -302,11 +331,23 @@ class LatentFitModule(pl.LightningModule):
         checkpoint: str | None = None,
         latent_init: float | None = None,
         loss_domain: str = "log_cosine",
+        init_candidates: int = 0,
+        early_stop_patience: int | None = None,
+        early_stop_tolerance: float = 1e-3,
         optimizer: OptimizerCallable = torch.optim.Adam,
         lr_scheduler: LRSchedulerCallable | None = None,
     ) -> None:
         super().__init__()
         check_loss_domain(loss_domain, "model.loss_domain")
+        if not isinstance(init_candidates, int) or init_candidates < 0:
+            raise InputError(f"must be a non-negative integer, got {init_candidates!r}", column="model.init_candidates")
+        if init_candidates and latent_init is not None:
+            raise InputError("latent_init and init_candidates exclude each other", column="model.init_candidates")
+        if early_stop_patience is not None and (not isinstance(early_stop_patience, int) or early_stop_patience < 1):
+            raise InputError(f"must be a positive integer or null, got {early_stop_patience!r}",
+                             column="model.early_stop_patience")
+        if not early_stop_tolerance >= 0:
+            raise InputError(f"must be non-negative, got {early_stop_tolerance}", column="model.early_stop_tolerance")
         path = PRETRAINED_COMPACT if checkpoint is None else Path(checkpoint)
         if checkpoint is None and not path.is_file():
             raise InputError(f"the shipped pretrained NLB checkpoint is missing; make it with `{PRETRAIN_COMMAND}` "
@@ -318,6 +359,9 @@ class LatentFitModule(pl.LightningModule):
         self._frozen_reference = {k: v.clone() for k, v in self.network.state_dict().items()}
         start = pretrained.latent_mean
         self._start = start if latent_init is None else torch.full_like(start, latent_init)
+        self._candidates = start_candidates(pretrained, init_candidates) if init_candidates else None
+        self._best_loss = math.inf
+        self._steps_since_best = 0
         self.latents: LatentTable | None = None
         self.optimizer_factory = optimizer
         self.lr_scheduler_factory = lr_scheduler
@@ -336,6 +380,26 @@ class LatentFitModule(pl.LightningModule):
             if data is None or not hasattr(data, "material_names"):
                 raise InputError("the latent fit needs a LatentFitData data module (data.class_path)", column="data")
             self.build_latents(data.material_names)
+            if self._candidates is not None:
+                self.choose_starts(data.train_samples)
+
+    @torch.no_grad()
+    def choose_starts(self, samples: FitSamples) -> None:
+        """Set each material's latent to the candidate code with the lowest loss on its samples."""
+        cos_i = samples.wi[:, 2]
+        target = log_cosine(samples.f, cos_i) if self.hparams.loss_domain == "log_cosine" else samples.f
+        n = len(self.material_names)
+        losses = torch.empty(len(self._candidates), n)
+        for k, code in enumerate(self._candidates):
+            pred = self.network(samples.wi, samples.wo, code)
+            if self.hparams.loss_domain == "log_cosine":
+                pred = log_cosine(pred, cos_i)
+            error = (pred - target).abs().mean(1)
+            losses[k] = torch.zeros(n).index_add_(0, samples.material, error)
+        self.latents.latents.copy_(self._candidates[losses.argmin(0)])
+
+    def configure_callbacks(self):
+        return [ValidateFinalStep()]
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         checkpoint["material_names"] = self.material_names
@@ -350,16 +414,30 @@ class LatentFitModule(pl.LightningModule):
     def training_step(self, batch: FitSamples, batch_idx: int) -> torch.Tensor:
         loss = nlb_loss(self.predict(batch), batch.f, batch.wi, self.hparams.loss_domain)
         self.log("train/loss", loss, on_step=False, on_epoch=True, batch_size=len(batch.f))
+        self._track_convergence(float(loss.detach()))
         return loss
+
+    def _track_convergence(self, loss: float) -> None:
+        patience = self.hparams.early_stop_patience
+        if patience is None:
+            return
+        if loss < self._best_loss * (1.0 - self.hparams.early_stop_tolerance):
+            self._best_loss, self._steps_since_best = loss, 0
+        else:
+            self._steps_since_best += 1
+        if self._steps_since_best >= patience:
+            self.trainer.should_stop = True
 
     def validation_step(self, item: EvalSet, batch_idx: int) -> None:
         fit_pred = self.predict(item.fit)
         fit_rmse = metrics.hemisphere_logcos_rmse(fit_pred, item.fit.f, _theta_i_deg(item.fit.wi))
         self.log(f"fit_logcos_rmse/{item.name}", fit_rmse, batch_size=1)
+        truth_pred = None if item.truth is None else self.predict(item.truth)
+        self._record_scores(item, fit_pred, truth_pred)
         if item.truth is None:
             return
         theta_i = _theta_i_deg(item.truth.wi)
-        rmse = metrics.hemisphere_logcos_rmse(self.predict(item.truth), item.truth.f, theta_i)
+        rmse = metrics.hemisphere_logcos_rmse(truth_pred, item.truth.f, theta_i)
         self.log(f"hemisphere_logcos_rmse/{item.name}", rmse, batch_size=1)
         self._eval_rmse.append(rmse)
         if item.abc is not None:
@@ -368,6 +446,30 @@ class LatentFitModule(pl.LightningModule):
 
     def on_validation_epoch_start(self) -> None:
         self._eval_rmse: list[float] = []
+        self._scores: dict[str, dict[str, float | None]] = {}
+
+    def _record_scores(self, item: EvalSet, fit_pred: torch.Tensor, truth_pred: torch.Tensor | None) -> None:
+        """The shared metric names (SPEC §9) of one material, kept for :meth:`metrics_json_extras`."""
+        from neuralbrdf.evaluation.scores import fit_scores
+        from neuralbrdf.geometry import inplane_equivalent
+
+        as_numpy = lambda t: t.detach().cpu().double().numpy()  # noqa: E731
+        theta_i, theta_r = inplane_equivalent(as_numpy(item.fit.wi), as_numpy(item.fit.wo))
+        truth = {}
+        if item.truth is not None:
+            truth = dict(pred_truth=as_numpy(truth_pred), truth_values=as_numpy(item.truth.f),
+                         truth_theta_i=as_numpy(_theta_i_deg(item.truth.wi)))
+        self._scores[item.name] = fit_scores(as_numpy(fit_pred), as_numpy(item.fit.f), theta_i, theta_r, **truth)
+
+    def metrics_json_extras(self) -> dict:
+        """Per material ``materials/<name>/<metric>`` and, under the bare names, the mean over the
+        materials (the material itself for a single fit) of the last validation (the fitted model)."""
+        scores = getattr(self, "_scores", {})
+        extras = {f"materials/{name}/{key}": value for name, values in scores.items() for key, value in values.items()}
+        for key in sorted({key for values in scores.values() for key in values}):
+            present = [values[key] for values in scores.values() if values.get(key) is not None]
+            extras[key] = float(np.mean(present)) if present else None
+        return extras
 
     def on_validation_epoch_end(self) -> None:
         if self._eval_rmse:
@@ -381,6 +483,32 @@ class LatentFitModule(pl.LightningModule):
     def configure_optimizers(self):
         groups = [(self.latents.parameters(), 1.0)]
         return scheduled_optimizer(groups, self.optimizer_factory, self.lr_scheduler_factory, "step")
+
+
+def start_candidates(pretrained: PretrainedNLB, n_analytic: int) -> torch.Tensor:
+    """Candidate starting codes ``[K, latent_dim]``: the centroid, every MERL proxy code and
+    ``n_analytic`` analytic codes evenly spaced in the table (module docstring)."""
+    merl = [i for i, name in enumerate(pretrained.names) if name.startswith("merl:")]
+    analytic = [i for i in range(len(pretrained.latents)) if i not in set(merl)]
+    picked = [analytic[int(j)] for j in np.linspace(0, len(analytic) - 1, min(n_analytic, len(analytic)))]
+    return torch.cat([pretrained.latent_mean[None], pretrained.latents[merl + picked]])
+
+
+class ValidateFinalStep(pl.Callback):
+    """Runs validation after the fit's last step — the end of the last epoch or an early stop —
+    whatever ``trainer.check_val_every_n_epoch`` says, so the last logged metrics and the
+    checkpoint saved at validation end are those of the final latents (issue 13, class 4).
+
+    Lightning validates only in epochs that are multiples of ``check_val_every_n_epoch``;
+    switching it to 1 before the epoch loop's validation check of the final step makes that
+    step one.
+    """
+
+    def on_train_batch_end(self, trainer: pl.Trainer, pl_module, outputs, batch, batch_idx: int) -> None:
+        last_batch = trainer.fit_loop.epoch_loop.batch_progress.is_last_batch
+        last_epoch = trainer.max_epochs is not None and trainer.current_epoch + 1 >= trainer.max_epochs
+        if trainer.should_stop or (last_batch and last_epoch):
+            trainer.check_val_every_n_epoch = 1
 
 
 @dataclass(frozen=True)
@@ -401,6 +529,7 @@ def load_fitted(path: str | os.PathLike[str]) -> FittedNLB:
     checkpoint = read_checkpoint(path, "fitted NLB checkpoint")
     try:
         names, state = checkpoint["material_names"], checkpoint["state_dict"]
+        check_weights_match(lambda: NLBNetwork(**checkpoint["nlb_config"]), state, path, "network.")
         network = NLBNetwork(**checkpoint["nlb_config"])
         latents = state["latents.latents"].float()
     except (KeyError, TypeError) as exc:

@@ -10,10 +10,25 @@ inplane_to_spherical` stores the vectors' own azimuths) and
 :meth:`~neuralbrdf.data.table.BrdfTable.inplane_angles` decodes it, so GCMS raw files and
 tables split alike.  Out-of-plane rows are rejected: the model is trained on in-plane data only.
 
-**Splits.** ``train`` is Table 5.1's training set; ``val`` and ``test`` are both its test set:
-the report picks the checkpoint on the test split (§5.1.1, "This helps us choose the
-best-performing checkpoint"), so validation runs on it too.  The numbers it reports, and those
-logged here, are therefore not from data unseen by model selection.
+**Splits** (``test_split``, :data:`TEST_SPLITS`).  Whole incident angles go to the test split,
+every ``theta_r`` and wavelength with them:
+
+* ``table_5_1`` — report Table 5.1: test ``theta_i`` in {-50, -35, -20, -5, 10, 25, 40, 55}°,
+  train the rest (DS1's 5° grid);
+* ``every_third_theta_i`` — every third *measured* incident angle in ascending order, starting
+  with the third (:func:`~neuralbrdf.data.plans.every_third_theta_i_split`; Table 5.1 on DS1's
+  grid; DS2: test -30°, 15°, 60°; DS3: test 0°);
+* ``none`` — no test split: validation and test run on the training data, so the checkpoint is
+  chosen on training data and every ``val``/``test`` metric is a training metric.  DS4 (one
+  incident angle, six samples) leaves nothing to hold out without losing part of the lobe;
+* ``auto`` (default) — ``table_5_1`` when every Table 5.1 test angle was measured (DS1),
+  otherwise ``every_third_theta_i`` when at least three incident angles were measured (DS2,
+  DS3), otherwise ``none`` (DS4).  :attr:`MeasurementDataModule.resolved_test_split` says which.
+
+``train`` is the training set; ``val`` and ``test`` are both the test set: the report picks
+the checkpoint on the test split (§5.1.1, "This helps us choose the best-performing
+checkpoint"), so validation runs on it too.  The numbers it reports, and those logged here,
+are therefore not from data unseen by model selection.
 
 The whole measurement (DS1: 1001 pairs × 31 wavelengths) is held in memory as tensors; a
 training batch is one random index set gathered in a single indexing operation, not a
@@ -23,7 +38,7 @@ per-sample collation.
 from __future__ import annotations
 
 import os
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 import numpy as np
 import pytorch_lightning as pl
@@ -31,11 +46,35 @@ import torch
 from torch.utils.data import BatchSampler, DataLoader, Dataset, RandomSampler, SequentialSampler
 
 from neuralbrdf.data.loading import load_measurement
-from neuralbrdf.data.plans import SPECTRAL_MLP_TEST_THETA_I, spectral_mlp_split
+from neuralbrdf.data.plans import SPECTRAL_MLP_TEST_THETA_I, every_third_theta_i_split, spectral_mlp_split
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
 from neuralbrdf.virtual.instrument import default_data_path
 from neuralbrdf.virtual.materials import REFERENCE_MATERIAL
+
+
+#: Test-split rules by config name (module docstring).
+TEST_SPLITS = ("auto", "table_5_1", "every_third_theta_i", "none")
+
+
+def resolve_test_split(rule: str, theta_i_deg: np.ndarray) -> str:
+    """The rule ``auto`` stands for given the measured incident angles; other rules unchanged."""
+    if rule != "auto":
+        return rule
+    measured = np.unique(np.round(np.asarray(theta_i_deg, dtype=np.float64), 6))
+    if np.isin(np.array(SPECTRAL_MLP_TEST_THETA_I), measured).all():
+        return "table_5_1"
+    return "every_third_theta_i" if len(measured) >= 3 else "none"
+
+
+def held_out_mask(rule: str, theta_i_deg: np.ndarray) -> np.ndarray:
+    """Boolean ``[N]`` mask of the rows a (resolved) rule puts in the test split."""
+    masks = {
+        "table_5_1": spectral_mlp_split,
+        "every_third_theta_i": every_third_theta_i_split,
+        "none": lambda theta_i: np.zeros(len(theta_i), dtype=bool),
+    }
+    return masks[rule](theta_i_deg)
 
 
 class SpectralSamples(NamedTuple):
@@ -103,7 +142,7 @@ def flatten_samples(table: BrdfTable, theta_i: np.ndarray, theta_r: np.ndarray) 
 
 
 class MeasurementDataModule(pl.LightningDataModule):
-    """Table 5.1 train/test split of one spectral in-plane measurement (module docstring).
+    """Train/test split (Table 5.1 or another rule) of one spectral in-plane measurement (module docstring).
 
     Parameters
     ----------
@@ -114,6 +153,8 @@ class MeasurementDataModule(pl.LightningDataModule):
         Munsell N9 GCMS raw file for a GCMS raw ``path``; must be ``None`` for a table.
     virtual_material:
         Shipped stand-in used when ``path`` is ``None``: cyan, magenta, gold or gonio.
+    test_split:
+        Which incident angles are held out, one of :data:`TEST_SPLITS` (module docstring).
     batch_size:
         Training samples per step (drawn without replacement, reshuffled every epoch).
     eval_batch_size:
@@ -129,6 +170,7 @@ class MeasurementDataModule(pl.LightningDataModule):
         path: str | None = None,
         reference: str | None = None,
         virtual_material: str = "gold",
+        test_split: Literal[TEST_SPLITS] = "auto",
         batch_size: int = 512,
         eval_batch_size: int | None = None,
         num_workers: int = 0,
@@ -137,11 +179,16 @@ class MeasurementDataModule(pl.LightningDataModule):
         self.save_hyperparameters()  # recorded in checkpoints: where the model's data came from
         if batch_size < 1 or (eval_batch_size is not None and eval_batch_size < 1):
             raise InputError(f"batch_size and eval_batch_size must be >= 1, got {batch_size} and {eval_batch_size}")
+        if test_split not in TEST_SPLITS:
+            raise InputError(f"test_split must be one of {', '.join(TEST_SPLITS)}, got {test_split!r}")
         if path is None:
             path = str(default_data_path(virtual_material))
             reference = str(default_data_path(REFERENCE_MATERIAL)) if reference is None else reference
         self.path = os.fspath(path)
         self.reference = None if reference is None else os.fspath(reference)
+        self.test_split = test_split
+        #: The rule applied (``auto`` resolved against the measured angles), set by :meth:`setup`.
+        self.resolved_test_split: str | None = None
         self.batch_size = batch_size
         self.eval_batch_size = eval_batch_size
         self.num_workers = num_workers
@@ -165,17 +212,26 @@ class MeasurementDataModule(pl.LightningDataModule):
             return
         table, theta_i, theta_r = self.measurement()
         samples = flatten_samples(table, theta_i, theta_r)
-        is_test = torch.as_tensor(np.repeat(spectral_mlp_split(theta_i), len(table.wavelengths)))
-        if bool(is_test.all()) or not bool(is_test.any()):
+        rule = resolve_test_split(self.test_split, theta_i)
+        is_test = torch.as_tensor(np.repeat(held_out_mask(rule, theta_i), len(table.wavelengths)))
+        if rule != "none" and (bool(is_test.all()) or not bool(is_test.any())):
             which = "every" if bool(is_test.all()) else "no"
+            rules = {
+                "table_5_1": f"Table 5.1 test split (test theta_i in "
+                f"{', '.join(f'{a:g}' for a in SPECTRAL_MLP_TEST_THETA_I)}°, train: the rest of the 5° grid)",
+                "every_third_theta_i": "every_third_theta_i test split (every third measured theta_i from the third)",
+            }
             raise InputError(
-                f"{which} row falls in the Table 5.1 test split (test theta_i in "
-                f"{', '.join(f'{a:g}' for a in SPECTRAL_MLP_TEST_THETA_I)}°, train: the rest of the 5° grid); "
-                f"incident angles found: {', '.join(f'{a:g}' for a in np.unique(theta_i))}",
+                f"{which} row falls in the {rules[rule]}; incident angles found: "
+                f"{', '.join(f'{a:g}' for a in np.unique(theta_i))}; choose another data.test_split "
+                f"({', '.join(TEST_SPLITS)})",
                 path=self.path,
             )
+        self.resolved_test_split = rule
         self.train_samples = SpectralSamples(*(column[~is_test] for column in samples))
-        self.test_samples = SpectralSamples(*(column[is_test] for column in samples))
+        # No test split: validation (checkpoint choice) and test run on the training data.
+        held_out = ~is_test if rule == "none" else is_test
+        self.test_samples = SpectralSamples(*(column[held_out] for column in samples))
         self.n_wavelengths = len(table.wavelengths)
 
     def _loader(self, samples: SpectralSamples, batch_size: int, shuffle: bool) -> DataLoader:

@@ -36,7 +36,7 @@ from pytorch_lightning.cli import LRSchedulerCallable, OptimizerCallable
 
 from neuralbrdf import metrics
 from neuralbrdf.errors import InputError
-from neuralbrdf.lightning.checkpoint_io import read_checkpoint
+from neuralbrdf.lightning.checkpoint_io import check_weights_match, read_checkpoint
 from neuralbrdf.lightning.corpus_data import CorpusSamples
 from neuralbrdf.losses import l1_loss
 from neuralbrdf.models.nlb import COMPACT, LatentTable, NLBConfig, NLBNetwork
@@ -93,6 +93,10 @@ class NLBPretrainModule(pl.LightningModule):
         Learning rate of the latents relative to the network's.
     loss_domain:
         ``"log_cosine"`` (default) or ``"linear"`` (Fan et al.'s raw L1).
+    warm_start:
+        A pretraining checkpoint of the same architecture to continue from: its network
+        weights, and its latents for the materials of the same name (unnamed checkpoints:
+        the first rows, the analytic materials); the other latents start at its centroid.
     optimizer, lr_scheduler:
         Factories from the config; the scheduler steps once per epoch.
     """
@@ -108,6 +112,7 @@ class NLBPretrainModule(pl.LightningModule):
         latent_init: float = 0.0,
         latent_lr_scale: float = 1.0,
         loss_domain: str = "log_cosine",
+        warm_start: str | None = None,
         optimizer: OptimizerCallable = torch.optim.Adam,
         lr_scheduler: LRSchedulerCallable | None = None,
     ) -> None:
@@ -121,16 +126,41 @@ class NLBPretrainModule(pl.LightningModule):
         self.optimizer_factory = optimizer
         self.lr_scheduler_factory = lr_scheduler
         self._val_sums: list[torch.Tensor] = []
+        self.material_names: list[str] = []
+
+    def _warm_start(self, names: list[str]) -> None:
+        """Copy the network and the matching latents of ``hparams.warm_start`` (class docstring)."""
+        path = self.hparams.warm_start
+        previous = load_pretrained(path)
+        if previous.network.config != self.network.config:
+            raise InputError(f"warm start from a {previous.network.config} network into a {self.network.config} one",
+                             path=path)
+        self.network.load_state_dict(previous.network.state_dict())
+        known = previous.names or tuple(f"analytic:{i}" for i in range(len(previous.latents)))
+        rows = {name: i for i, name in enumerate(known)}
+        with torch.no_grad():
+            self.latents.latents.copy_(previous.latent_mean.expand_as(self.latents.latents))
+            for i, name in enumerate(names):
+                if name in rows:
+                    self.latents.latents[i] = previous.latents[rows[name]]
 
     def setup(self, stage: str) -> None:
         data = getattr(self.trainer, "datamodule", None)
         corpus_size = getattr(data, "n_materials", None)
         if corpus_size is not None and corpus_size != len(self.latents):
             raise InputError(
-                f"the model has {len(self.latents)} latents but the corpus has {corpus_size} materials; "
-                "set model.n_materials to data.n_materials",
+                f"the model has {len(self.latents)} latents but the corpus has {corpus_size} materials "
+                "(analytic + MERL proxies); set model.n_materials to that",
                 column="model.n_materials",
             )
+        self.material_names = list(getattr(data, "material_names", ()))
+        if self.hparams.warm_start and stage == "fit":
+            self._warm_start(self.material_names)
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        """Store the latents' material names (``analytic:<i>``, ``merl:<name>``), when known."""
+        if self.material_names:
+            checkpoint["material_names"] = self.material_names
 
     def forward(self, batch: CorpusSamples) -> torch.Tensor:
         return self.network(batch.wi, batch.wo, self.latents(batch.material))
@@ -164,11 +194,16 @@ class NLBPretrainModule(pl.LightningModule):
 
 @dataclass(frozen=True)
 class PretrainedNLB:
-    """A pretrained NLB: the ``network`` (eval mode) and its corpus ``latents`` ``[M, latent_dim]``."""
+    """A pretrained NLB: the ``network`` (eval mode) and its corpus ``latents`` ``[M, latent_dim]``.
+
+    ``names`` label the latents (``analytic:<i>``, ``merl:<name>``); empty for checkpoints
+    written before the names were stored.
+    """
 
     network: NLBNetwork
     latents: torch.Tensor
     source: str
+    names: tuple[str, ...] = ()
 
     @property
     def latent_mean(self) -> torch.Tensor:
@@ -192,11 +227,15 @@ def load_pretrained(path: str | os.PathLike[str]) -> PretrainedNLB:
         latents = state["latents.latents"].float()
     except KeyError as exc:
         raise InputError(f"not an NLB pretraining checkpoint: missing {exc.args[0]!r}", path=path) from None
-    network = NLBNetwork(**asdict(config))
     prefix = "network."
+    check_weights_match(lambda: NLBNetwork(**asdict(config)), state, path, prefix)
+    network = NLBNetwork(**asdict(config))
     try:
         network.load_state_dict({k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)})
     except RuntimeError as exc:
         raise InputError(f"network weights do not match its hyper-parameters: {exc}", path=path) from None
     network.eval()
-    return PretrainedNLB(network, latents, str(path))
+    names = tuple(str(n) for n in checkpoint.get("material_names", ()))
+    if names and len(names) != len(latents):
+        raise InputError(f"{len(names)} material names for {len(latents)} latents", path=path)
+    return PretrainedNLB(network, latents, str(path), names)

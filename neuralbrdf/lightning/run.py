@@ -12,7 +12,8 @@ else — for ``validate``/``test`` with ``--ckpt_path RUN/checkpoints/X.ckpt`` �
 there:
 
 * ``config.yaml`` — the resolved config (``SaveConfigCallback``);
-* ``checkpoints/`` — from the config's ``ModelCheckpoint`` (best and last);
+* ``checkpoints/`` — from the config's ``ModelCheckpoint`` (best and last), each written
+  whole or not at all (:class:`AtomicCheckpointIO`);
 * ``metrics.csv`` and ``hparams.yaml`` — the :class:`~pytorch_lightning.loggers.CSVLogger`
   (unless the config names another logger);
 * ``metrics.json`` — :class:`MetricsJson`.
@@ -21,35 +22,106 @@ there:
 and ``<run>/test/`` so the training logs survive, and merge their metrics into the same
 ``metrics.json``.
 
-Bad input (a missing or malformed ``--data.path``, an unknown option value raised as
+**A run never overwrites another run.** ``fit`` into a directory that already holds a run
+(:data:`RUN_ENTRIES`) is refused unless ``--resume`` (continue from its
+``checkpoints/last.ckpt``, or ``--ckpt_path``; ``metrics.csv`` is appended to, ``metrics.json``
+merged and ``fit/wall_time_s`` summed over the sessions) or ``--overwrite`` (the old run's
+files are set aside and deleted when the command ends; a start that fails on bad input puts
+them back).  A start
+that fails (bad input) leaves no run directory behind.
+
+**A failed fit is a failure** (:class:`FitHealth`, added to every ``fit``): a non-finite
+training loss or monitored metric, a network whose gradients are all exactly zero for a whole
+epoch (dead or saturated units, e.g. after a too-large learning rate), or a module that reports
+its own failure (``fit_failure()``, e.g. the ABC fit), or a :data:`DATA_FAILURES` error
+raised inside the fit (all-zero data leaves no sample to score) ends the command with status 1
+and one line ``error: fit failed: <cause>``; ``metrics.json`` then holds ``"status": "failed"`` and
+``"cause"``, and no checkpoint named ``best*`` is left (``last.ckpt`` stays, for inspection).
+A successful fit writes ``"status": "ok"``.  ``metrics.json`` is strict JSON: a non-finite
+number is written as ``null``.
+
+Bad input (a missing or malformed ``--data.path``, a missing or truncated checkpoint, a
+configuration file that is not YAML, an invalid hyper-parameter raised as
 :class:`~neuralbrdf.errors.InputError`) ends the command with a one-line message and status 2.
 """
 
 from __future__ import annotations
 
+import csv
 import json
+import math
+import os
+import shutil
 import sys
 import time
 import warnings
+from collections.abc import Mapping
 from datetime import datetime
 from pathlib import Path
 
 import pytorch_lightning as pl
 import torch
+from jsonargparse import ActionYesNo
+from pytorch_lightning.callbacks import ModelCheckpoint
 from pytorch_lightning.cli import LightningCLI
 from pytorch_lightning.loggers import CSVLogger
+from pytorch_lightning.plugins.io import TorchCheckpointIO
 
-from neuralbrdf.atomic import atomic_write
+from neuralbrdf.atomic import TEMP_MARKER, atomic_path, atomic_write, command_inputs
 from neuralbrdf.errors import InputError
+from neuralbrdf.errors import one_line
+from neuralbrdf.lightning.checkpoint_io import read_checkpoint
 
 METRICS_FILE = "metrics.json"
 RUNS_ROOT = Path("runs")
 SUBCOMMANDS = ("fit", "validate", "test")
+#: What a run writes into its directory; a directory holding any of these holds a run.
+RUN_ENTRIES = ("metrics.json", "metrics.csv", "config.yaml", "hparams.yaml", "checkpoints", "validate", "test")
+STATUS_OK, STATUS_FAILED = "ok", "failed"
 
 
 def _number(value) -> float | int:
     value = value.item() if isinstance(value, torch.Tensor) else value
     return value if isinstance(value, int) else float(value)
+
+
+def strict_json(value):
+    """``value`` with every non-finite float replaced by ``None`` (JSON has no NaN/Infinity)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, Mapping):
+        return {key: strict_json(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [strict_json(item) for item in value]
+    return value
+
+
+def write_metrics(path: Path, metrics: dict, merge: bool) -> None:
+    """Write ``metrics`` (merged into the existing file if ``merge``) as strict JSON, atomically."""
+    merged = {}
+    if merge and path.exists():
+        try:
+            merged = json.loads(path.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise InputError(f"cannot merge metrics into it: not valid JSON ({exc})", path=path) from None
+    merged.update(metrics)
+    with atomic_write(path) as handle:
+        json.dump(strict_json(merged), handle, indent=2, sort_keys=True, allow_nan=False)
+        handle.write("\n")
+
+
+class FitFailed(RuntimeError):
+    """A fit that ran but produced no usable model; the message is the one-line cause."""
+
+
+#: Errors raised inside a fit that mean the data cannot support it (e.g. no measured value above
+#: the metric's floor in all-zero data): reported like :class:`FitFailed`, in one line, exit 1.
+#: Any other exception is a bug and keeps its traceback (``metrics.json`` still says failed).
+DATA_FAILURES = (ValueError, ArithmeticError)
+
+
+def _is_resuming(trainer: pl.Trainer) -> bool:
+    return trainer.ckpt_path is not None and trainer.state.fn == "fit"
 
 
 class MetricsJson(pl.Callback):
@@ -67,42 +139,44 @@ class MetricsJson(pl.Callback):
     def __init__(self, filename: str = METRICS_FILE) -> None:
         self.filename = filename
         self._fit_started = 0.0
+        self._earlier_wall_time_s = 0.0
 
     def path(self, trainer: pl.Trainer) -> Path:
         return Path(trainer.default_root_dir) / self.filename
 
     def _write(self, trainer: pl.Trainer, metrics: dict, merge: bool) -> None:
-        if not trainer.is_global_zero:
-            return
-        path = self.path(trainer)
-        merged = {}
-        if merge and path.exists():
-            try:
-                merged = json.loads(path.read_text(encoding="utf-8"))
-            except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-                raise InputError(f"cannot merge metrics into it: not valid JSON ({exc})", path=path) from None
-        merged.update(metrics)
-        with atomic_write(path) as handle:
-            json.dump(merged, handle, indent=2, sort_keys=True)
-            handle.write("\n")
+        if trainer.is_global_zero:
+            write_metrics(self.path(trainer), metrics, merge)
 
     def on_fit_start(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
         self._fit_started = time.perf_counter()
+        self._earlier_wall_time_s = 0.0
+        path = self.path(trainer)
+        if _is_resuming(trainer) and path.exists():  # a resumed run: its time so far counts
+            try:
+                earlier = json.loads(path.read_text(encoding="utf-8")).get("fit/wall_time_s")
+            except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
+                earlier = None
+            if isinstance(earlier, (int, float)) and math.isfinite(earlier):
+                self._earlier_wall_time_s = float(earlier)
 
     def on_fit_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
         metrics = {f"fit/{name}": _number(value) for name, value in trainer.callback_metrics.items()}
+        metrics["status"] = STATUS_OK
+        metrics["cause"] = None
         metrics["fit/epochs"] = trainer.current_epoch
         extras = getattr(pl_module, "metrics_json_extras", None)
         if extras is not None:
             metrics.update({f"fit/{name}": value for name, value in extras().items()})
-        metrics["fit/wall_time_s"] = time.perf_counter() - self._fit_started
+        metrics["fit/wall_time_s"] = self._earlier_wall_time_s + time.perf_counter() - self._fit_started
         checkpoint = trainer.checkpoint_callback
         if checkpoint is not None and checkpoint.best_model_path:
             best, root = Path(checkpoint.best_model_path).resolve(), Path(trainer.default_root_dir).resolve()
             metrics["fit/best_model_path"] = str(best.relative_to(root) if best.is_relative_to(root) else best)
             if checkpoint.best_model_score is not None:
                 metrics["fit/best_model_score"] = _number(checkpoint.best_model_score)
-        self._write(trainer, metrics, merge=False)
+        # A resumed fit adds to its run's metrics; a new fit starts a new file.
+        self._write(trainer, metrics, merge=_is_resuming(trainer))
 
     def _evaluation_end(self, trainer: pl.Trainer, stage: str) -> None:
         metrics = {
@@ -116,6 +190,150 @@ class MetricsJson(pl.Callback):
 
     def on_test_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
         self._evaluation_end(trainer, "test")
+
+
+#: Validation metrics whose name holds this are relative errors (report Eq. 4.3): predicting 0
+#: everywhere scores exactly 1 ...
+RELATIVE_ERROR_MARK = "rel_rmse"
+#: ... so best scores all within this of 1 mark a model whose output collapsed to 0 (a model that
+#: overshoots scores above 1 and is merely bad, not dead).
+ZERO_PREDICTION_BAND = 1e-3
+
+
+class FitHealth(pl.Callback):
+    """Ends a fit that is not producing a model with :class:`FitFailed` (module docstring).
+
+    Checks, in order of occurrence: every training loss is finite; some parameter gradient is
+    non-zero in every epoch (automatic optimisation only); the monitored metric of every
+    validation is finite; after training, the best validation relative error (``val/*rel_rmse*``,
+    monitored or not) is not within :data:`ZERO_PREDICTION_BAND` of 1 (the score of predicting 0:
+    the mark of a dead network) and the module's optional ``fit_failure()`` returns no reason.  On any error of a started fit (except bad input) it removes the ``best*``
+    checkpoints and writes ``metrics.json`` with ``"status": "failed"`` and ``"cause"``.
+    """
+
+    def __init__(self, filename: str = METRICS_FILE) -> None:
+        self.filename = filename
+        self._steps = 0
+        self._learning = False
+        self._best_relative_errors: dict[str, float] = {}
+
+    def on_train_epoch_start(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
+        self._steps, self._learning = 0, False
+
+    def on_after_backward(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
+        self._steps += 1
+        if not self._learning:
+            self._learning = any(p.grad is not None and bool(p.grad.any()) for p in pl_module.parameters())
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+        loss = outputs.get("loss") if isinstance(outputs, Mapping) else outputs
+        if isinstance(loss, torch.Tensor) and not bool(torch.isfinite(loss).all()):
+            raise FitFailed(
+                f"non-finite training loss ({loss.detach().flatten()[0].item()}) in epoch {trainer.current_epoch}, "
+                f"step {trainer.global_step}"
+            )
+
+    def on_train_epoch_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
+        if self._steps and not self._learning:
+            raise FitFailed(
+                f"the network stopped learning: every gradient was exactly 0 in epoch {trainer.current_epoch} "
+                f"({self._steps} steps; dead or saturated units, e.g. after a too-large learning rate)"
+            )
+
+    def on_validation_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
+        if trainer.sanity_checking or trainer.state.fn != "fit":
+            return
+        for name, value in trainer.callback_metrics.items():
+            if name.startswith("val/") and RELATIVE_ERROR_MARK in name and "excluded" not in name:
+                value = _number(value)
+                if math.isfinite(value):
+                    self._best_relative_errors[name] = min(value, self._best_relative_errors.get(name, math.inf))
+        for callback in trainer.checkpoint_callbacks:
+            value = trainer.callback_metrics.get(callback.monitor) if callback.monitor else None
+            if value is not None and not math.isfinite(_number(value)):
+                raise FitFailed(
+                    f"the monitored metric {callback.monitor} is {_number(value)} after epoch {trainer.current_epoch} "
+                    "(no sample to score? all-zero data?)"
+                )
+
+    def on_train_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
+        if self._best_relative_errors and all(
+            abs(best - 1.0) <= ZERO_PREDICTION_BAND for best in self._best_relative_errors.values()
+        ):
+            name, best = min(self._best_relative_errors.items(), key=lambda item: item[1])
+            raise FitFailed(
+                f"the model is no better than predicting 0 (best {name} = {best:.4g}): "
+                "the network stopped learning (dead or saturated units, e.g. a too-large learning rate)"
+            )
+        fit_failure = getattr(pl_module, "fit_failure", None)
+        reason = fit_failure() if fit_failure is not None else None
+        if reason:
+            raise FitFailed(reason)
+
+    def on_exception(self, trainer: pl.Trainer, pl_module: pl.LightningModule, exception: BaseException) -> None:
+        if trainer.state.fn != "fit" or _input_error(exception) is not None or not trainer.is_global_zero:
+            return
+        cause = str(exception) if isinstance(exception, FitFailed) else one_line(exception)
+        if isinstance(exception, Exception):
+            exception.neuralbrdf_fit_failure = cause  # read by main() for the one-line report
+        for callback in trainer.checkpoint_callbacks:
+            if isinstance(callback, ModelCheckpoint) and callback.dirpath and os.path.isdir(callback.dirpath):
+                for best in Path(callback.dirpath).glob("best*.ckpt"):
+                    best.unlink(missing_ok=True)
+        metrics = {f"fit/{name}": _number(value) for name, value in trainer.callback_metrics.items()}
+        metrics.update({"status": STATUS_FAILED, "cause": cause, "fit/epochs": trainer.current_epoch})
+        metrics.pop("fit/best_model_path", None)
+        extras = getattr(pl_module, "metrics_json_extras", None)
+        if extras is not None:
+            metrics.update({f"fit/{name}": value for name, value in extras().items()})
+        path = Path(trainer.default_root_dir) / self.filename
+        if not _is_resuming(trainer):
+            path.unlink(missing_ok=True)  # a new fit's metrics.json describes only it
+        write_metrics(path, metrics, merge=True)
+        if not _is_resuming(trainer):
+            return
+        # metrics.json of the resumed run may name the best checkpoint just removed.
+        merged = json.loads(path.read_text(encoding="utf-8"))
+        merged.pop("fit/best_model_path", None)
+        merged.pop("fit/best_model_score", None)
+        write_metrics(path, merged, merge=False)
+
+
+class AtomicCheckpointIO(TorchCheckpointIO):
+    """Checkpoints written whole or not at all (:mod:`neuralbrdf.atomic`): a run killed while
+    saving never leaves a truncated ``last.ckpt`` or ``best.ckpt``."""
+
+    def save_checkpoint(self, checkpoint: dict, path, storage_options=None) -> None:
+        if storage_options is not None:
+            raise TypeError(f"{type(self).__name__} takes no storage_options")
+        with atomic_path(path, replaces_input=True) as tmp:  # a resumed run replaces its last.ckpt
+            torch.save(checkpoint, tmp)
+
+
+def holds_run(run_dir: Path) -> bool:
+    """Whether ``run_dir`` holds the files of a run (:data:`RUN_ENTRIES`)."""
+    return any((run_dir / entry).exists() for entry in RUN_ENTRIES)
+
+
+def _read_csv_log(path: Path) -> tuple[list[str], list[dict]]:
+    """Header and rows of a CSV log (empty if missing or unreadable)."""
+    try:
+        with open(path, newline="", encoding="utf-8") as handle:
+            reader = csv.DictReader(handle)
+            rows = list(reader)
+            return list(reader.fieldnames or []), rows
+    except (OSError, UnicodeDecodeError, csv.Error):
+        return [], []
+
+
+def _prepend_csv_log(path: Path, header: list[str], rows: list[dict]) -> None:
+    """Put ``rows`` (the log of the sessions before a resume) in front of the log at ``path``."""
+    new_header, new_rows = _read_csv_log(path)
+    fields = [*header, *(name for name in new_header if name not in header)]
+    with atomic_write(path) as handle:
+        writer = csv.DictWriter(handle, fieldnames=fields, restval="")
+        writer.writeheader()
+        writer.writerows([*rows, *new_rows])
 
 
 def _fresh_run_dir(config_paths) -> Path:
@@ -135,7 +353,81 @@ class NeuralBrdfCLI(LightningCLI):
         kwargs.setdefault("subclass_mode_model", True)
         kwargs.setdefault("subclass_mode_data", True)
         kwargs.setdefault("auto_configure_optimizers", False)
-        super().__init__(*args, **kwargs)
+        self.run_dir: Path | None = None
+        self._created_run_dir = False
+        self._set_aside: Path | None = None
+        self._earlier_log: tuple[list[str], list[dict]] | None = None
+        try:
+            super().__init__(*args, **kwargs)
+        except BaseException as exc:
+            self._restore_earlier_log()
+            self._after_failure(exc)
+            raise
+        self._restore_earlier_log()
+        self._drop_set_aside()
+
+    def _restore_earlier_log(self) -> None:
+        """A resumed run's ``metrics.csv``: the earlier sessions' rows, then this one's."""
+        if self._earlier_log is not None:
+            _prepend_csv_log(self.run_dir / "metrics.csv", *self._earlier_log)
+            self._earlier_log = None
+
+    # -- the run directory (module docstring)
+
+    def _after_failure(self, exc: BaseException) -> None:
+        """A start that failed on bad input leaves the run directory as it found it."""
+        if self.run_dir is None or _input_error(exc) is None:
+            self._drop_set_aside()
+            return
+        if self._created_run_dir:
+            shutil.rmtree(self.run_dir, ignore_errors=True)
+            return
+        if self._set_aside is not None:
+            for entry in RUN_ENTRIES:
+                new = self.run_dir / entry
+                if new.is_dir() and not new.is_symlink():
+                    shutil.rmtree(new, ignore_errors=True)
+                else:
+                    new.unlink(missing_ok=True)
+            for old in self._set_aside.iterdir():
+                os.replace(old, self.run_dir / old.name)
+            self._set_aside.rmdir()
+            self._set_aside = None
+
+    def _drop_set_aside(self) -> None:
+        if self._set_aside is not None:
+            shutil.rmtree(self._set_aside, ignore_errors=True)
+            self._set_aside = None
+
+    def _prepare_fit_dir(self, config) -> None:
+        run_dir = self.run_dir
+        if config.get("resume") and config.get("overwrite"):
+            raise InputError("--resume and --overwrite exclude each other")
+        if config.get("resume"):
+            last = run_dir / "checkpoints" / "last.ckpt"
+            ckpt = Path(config.ckpt_path) if config.get("ckpt_path") else last
+            if not config.get("ckpt_path") and not last.exists():
+                raise InputError("--resume: no run to resume here (checkpoints/last.ckpt not found)", path=run_dir)
+            read_checkpoint(ckpt, "checkpoint to resume from")
+            config.ckpt_path = str(ckpt)
+            header, rows = _read_csv_log(run_dir / "metrics.csv")
+            if header:
+                self._earlier_log = (header, rows)
+                (run_dir / "metrics.csv").unlink()  # this session's log starts afresh, then both join
+            return
+        if run_dir.exists() and holds_run(run_dir):
+            if not config.get("overwrite"):
+                raise InputError(
+                    "already holds a run (metrics.json, checkpoints, ...); pass --resume to continue it from "
+                    "checkpoints/last.ckpt or --overwrite to replace it",
+                    path=run_dir,
+                )
+            self._set_aside = run_dir / f"{TEMP_MARKER.lstrip('.')}{os.getpid()}-replaced-run"
+            self._set_aside.mkdir()
+            for entry in RUN_ENTRIES:
+                if (run_dir / entry).exists() or (run_dir / entry).is_symlink():
+                    os.replace(run_dir / entry, self._set_aside / entry)
+        self._created_run_dir = not run_dir.exists()
 
     @staticmethod
     def subcommands() -> dict[str, set[str]]:
@@ -150,6 +442,16 @@ class NeuralBrdfCLI(LightningCLI):
         parser.add_argument(
             "--num_threads", type=int | None, default=None,
             help="torch.set_num_threads for the run (default: torch's own choice).",
+        )
+        parser.add_argument(
+            "--resume", action=ActionYesNo, default=False,
+            help="fit: continue the run in --run_dir from its checkpoints/last.ckpt (or --ckpt_path), appending "
+            "to metrics.csv and summing the wall time. Without --resume or --overwrite an existing run is refused.",
+        )
+        parser.add_argument(
+            "--overwrite", action=ActionYesNo, default=False,
+            help="fit: replace the run already in --run_dir (its files are set aside, and put back if the new run "
+            "fails to start on bad input).",
         )
 
     def _resolve_run_dir(self, config) -> Path:
@@ -167,6 +469,10 @@ class NeuralBrdfCLI(LightningCLI):
         if config.get("num_threads"):
             torch.set_num_threads(config.num_threads)
         self.run_dir = self._resolve_run_dir(config)
+        if self.subcommand == "fit":
+            self._prepare_fit_dir(config)
+        elif config.get("ckpt_path") and config.ckpt_path not in ("best", "last", "hpc", "registry"):
+            read_checkpoint(config.ckpt_path, "checkpoint to evaluate")
         self.save_config_kwargs = {"overwrite": True, **self.save_config_kwargs}
 
     def instantiate_trainer(self, **kwargs) -> pl.Trainer:
@@ -174,6 +480,12 @@ class NeuralBrdfCLI(LightningCLI):
         if self._get(self.config_init, "trainer", {}).get("logger") in (None, True):
             version = "" if self.subcommand == "fit" else self.subcommand
             kwargs["logger"] = CSVLogger(self.run_dir, name="", version=version)
+        if not self._get(self.config_init, "trainer", default={}).get("plugins"):
+            kwargs["plugins"] = [AtomicCheckpointIO()]
+        if self.subcommand == "fit":
+            configured = self._get(self.config_init, "trainer", default={}).get("callbacks") or []
+            configured = configured if isinstance(configured, list) else [configured]
+            kwargs["callbacks"] = [*configured, FitHealth()]
         return super().instantiate_trainer(**kwargs)
 
 
@@ -188,6 +500,26 @@ def _input_error(exc: BaseException) -> InputError | None:
     return None
 
 
+def _check_config_files(args: list[str]) -> None:
+    """Every ``--config FILE`` must be a readable UTF-8 text file (jsonargparse shows a traceback
+    for a binary one)."""
+    for k, arg in enumerate(args):
+        if arg == "--config" and k + 1 < len(args):
+            path = args[k + 1]
+        elif arg.startswith("--config="):
+            path = arg.split("=", 1)[1]
+        else:
+            continue
+        try:
+            Path(path).read_bytes().decode("utf-8")
+        except FileNotFoundError:
+            raise InputError("configuration file not found", path=path) from None
+        except UnicodeDecodeError as error:
+            raise InputError(f"not a YAML configuration: not UTF-8 text ({error.reason} at byte {error.start})", path=path) from None
+        except OSError as error:
+            raise InputError(f"cannot read the configuration ({error.strerror or error})", path=path) from None
+
+
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``train.py``; returns the exit status (2 on bad input)."""
     # The data are in-memory tensors: worker processes would only add start-up time.
@@ -200,9 +532,18 @@ def main(args: list[str] | None = None) -> int:
     # The ABC fit runs its own bounded optimiser (SciPy), not a torch one.
     warnings.filterwarnings("ignore", message=r".*configure_optimizers` returned `None`")
     try:
-        NeuralBrdfCLI(args=args)
+        _check_config_files(sys.argv[1:] if args is None else args)
+        with command_inputs():
+            NeuralBrdfCLI(args=args)
+    except FitFailed as failure:
+        print(f"error: fit failed: {failure}", file=sys.stderr)
+        return 1
     except Exception as exc:
         error = _input_error(exc)
+        cause = getattr(exc, "neuralbrdf_fit_failure", None)
+        if error is None and cause is not None and isinstance(exc, DATA_FAILURES):
+            print(f"error: fit failed: {cause}", file=sys.stderr)
+            return 1
         if error is None:
             raise
         print(f"error: {error}", file=sys.stderr)

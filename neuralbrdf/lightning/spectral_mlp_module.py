@@ -1,16 +1,19 @@
 """Training of the spectral MLP (report §5.1.1–5.1.2; SPEC §4.4, §5).
 
-* **Loss** — report Eq. 5.1, :func:`neuralbrdf.losses.exp_weighted_mse`:
-  ``mean(exp(-gamma |theta_i - theta_r|) (f_mea - f_pred)²)`` with ``gamma`` and the unit of the
-  angle difference from the config (default 3 per radian; the report's per-degree form leaves
-  the diffuse region without gradient, SPEC §4.4).
+* **Loss** — report Eq. 5.1's weighting, :func:`neuralbrdf.losses.exp_weighted_loss`:
+  ``mean(max(exp(-gamma |theta_i - theta_r|), weight_floor) · r²)`` with ``gamma``, the unit of
+  the angle difference (default 3 per radian; the report's per-degree form leaves the diffuse
+  region without gradient, SPEC §4.4), the residual ``r`` and the floor from the config.  The
+  module's defaults (``residual="linear"``, ``weight_floor=0``) are Eq. 5.1 exactly
+  (``configs/spectral_mlp_paper.yaml``); ``configs/spectral_mlp.yaml`` chooses the residual
+  that fits the whole in-plane range (README, spectral MLP).
 * **Optimiser** — Adam with a decaying learning rate, both injected from the config
   (``optimizer`` and ``lr_scheduler``, stepped once per epoch).
 * **Metrics** on the evaluation split (:mod:`neuralbrdf.metrics`, report Eq. 4.3 over the glossy
   region ``|theta_i - theta_r| <= 10°``, entries with ``f_mea`` below ``rel_rmse_floor``
   excluded and counted):
 
-  - ``<split>/loss`` — Eq. 5.1 over every sample of the split;
+  - ``<split>/loss`` — the configured loss over every sample of the split;
   - ``<split>/rel_rmse_glossy`` — Eq. 4.3 per wavelength over all glossy samples of the split,
     averaged over wavelengths (:func:`~neuralbrdf.metrics.relative_rmse`);
   - ``<split>/rel_rmse_glossy_median`` — the median of the Fig. 5.3 box-plot data: one Eq. 4.3
@@ -21,11 +24,17 @@
 
   ``<split>`` is ``val`` (checkpoint selection; the report's test split, see
   :mod:`neuralbrdf.lightning.measurement_data`) or ``test``.
+* ``metrics.json`` also gets the shared names of SPEC §9 for the best checkpoint
+  (:meth:`SpectralMlpModule.metrics_json_extras`): ``fit/inplane_glossy_rel_rmse``,
+  ``fit/inplane_diffuse_rel_rmse`` and, for the shipped virtual measurements,
+  ``fit/hemisphere_logcos_rmse``.
 """
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -36,8 +45,11 @@ from pytorch_lightning.cli import LRSchedulerCallable, OptimizerCallable
 from neuralbrdf import metrics
 from neuralbrdf.errors import InputError
 from neuralbrdf.lightning.measurement_data import SpectralSamples
-from neuralbrdf.losses import ANGLE_UNITS, exp_weighted_mse
+from neuralbrdf.losses import ANGLE_UNITS, RESIDUALS, exp_weighted_loss
 from neuralbrdf.models.spectral_mlp import Activation, OutputActivation, SpectralMLP
+
+#: ``(cos θ, φ)`` strata of the hemisphere estimate a training run writes (``neuralbrdf evaluate``: 16 × 20).
+TRAINING_HEMISPHERE_STRATA = (8, 10)
 
 
 def glossy_relative_rmse(samples: SpectralSamples, pred: torch.Tensor, floor: float) -> dict[str, float]:
@@ -67,7 +79,7 @@ def glossy_relative_rmse(samples: SpectralSamples, pred: torch.Tensor, floor: fl
 
 
 class SpectralMlpModule(pl.LightningModule):
-    """Fits a :class:`~neuralbrdf.models.spectral_mlp.SpectralMLP` with the report's Eq. 5.1 loss.
+    """Fits a :class:`~neuralbrdf.models.spectral_mlp.SpectralMLP` with an Eq. 5.1-weighted loss.
 
     Parameters
     ----------
@@ -77,6 +89,10 @@ class SpectralMlpModule(pl.LightningModule):
         Eq. 5.1 weight decay rate per ``angle_unit`` of ``|theta_i - theta_r|``.
     angle_unit:
         ``"radians"`` or ``"degrees"`` (the report's literal form).
+    residual, residual_epsilon_sr, weight_floor:
+        The loss's residual (:data:`neuralbrdf.losses.RESIDUALS`; ``"linear"`` is Eq. 5.1), the
+        BRDF value (sr⁻¹) added to both sides of the ``relative`` and ``log`` residuals, and
+        the smallest weight a sample gets (0: Eq. 5.1's weight).
     rel_rmse_floor:
         Measured values (sr⁻¹) below this are left out of the Eq. 4.3 metrics.
     optimizer, lr_scheduler:
@@ -94,6 +110,9 @@ class SpectralMlpModule(pl.LightningModule):
         wavelength_range_nm: Sequence[float] = (400.0, 700.0),
         gamma: float = 3.0,
         angle_unit: Literal[ANGLE_UNITS] = "radians",
+        residual: Literal[RESIDUALS] = "linear",
+        residual_epsilon_sr: float = 1e-3,
+        weight_floor: float = 0.0,
         rel_rmse_floor: float = metrics.DEFAULT_FLOOR,
         optimizer: OptimizerCallable = torch.optim.Adam,
         lr_scheduler: LRSchedulerCallable | None = None,
@@ -106,6 +125,16 @@ class SpectralMlpModule(pl.LightningModule):
         self._evaluated: list[tuple[SpectralSamples, torch.Tensor]] = []
         if angle_unit not in ANGLE_UNITS:
             raise InputError(f"angle_unit must be one of {', '.join(ANGLE_UNITS)}, got {angle_unit!r}")
+        if residual not in RESIDUALS:
+            raise InputError(f"residual must be one of {', '.join(RESIDUALS)}, got {residual!r}")
+        if not residual_epsilon_sr > 0 or not 0.0 <= weight_floor <= 1.0:
+            raise InputError(
+                f"residual_epsilon_sr must be > 0 sr⁻¹ and weight_floor in [0, 1], got {residual_epsilon_sr} "
+                f"and {weight_floor}"
+            )
+        for name, value in (("gamma", gamma), ("rel_rmse_floor", rel_rmse_floor)):
+            if not (np.isfinite(value) and value >= 0):
+                raise InputError(f"model.{name} must be a finite number >= 0, got {value}", column=name)
 
     def forward(self, theta_i_deg, theta_r_deg, wavelength_nm):
         return self.network(theta_i_deg, theta_r_deg, wavelength_nm)
@@ -116,8 +145,10 @@ class SpectralMlpModule(pl.LightningModule):
 
     def _loss(self, batch: SpectralSamples) -> tuple[torch.Tensor, torch.Tensor]:
         pred = self.network(batch.theta_i_deg, batch.theta_r_deg, batch.wavelength_nm)
-        loss = exp_weighted_mse(
-            pred, batch.brdf, batch.theta_i_deg, batch.theta_r_deg, self.hparams.gamma, self.hparams.angle_unit
+        h = self.hparams
+        loss = exp_weighted_loss(
+            pred, batch.brdf, batch.theta_i_deg, batch.theta_r_deg, h.gamma, h.angle_unit,
+            h.residual, h.residual_epsilon_sr, h.weight_floor,
         )
         return pred, loss
 
@@ -149,6 +180,39 @@ class SpectralMlpModule(pl.LightningModule):
 
     def on_test_epoch_end(self) -> None:
         self._evaluation_epoch_end("test")
+
+    def metrics_json_extras(self) -> dict:
+        """The shared metric names (SPEC §9) of the checkpoint that export uses (``best``).
+
+        ``inplane_glossy_rel_rmse`` and ``inplane_diffuse_rel_rmse`` on the whole measurement it
+        was given (both splits); for the shipped virtual measurements, ``hemisphere_logcos_rmse``
+        against the virtual truth over 6 400 stratified hemisphere pairs (8 × 10 strata: a quick
+        estimate of ``neuralbrdf evaluate``'s 102 400, within 1 % of it for the gold MLP).
+        """
+        from neuralbrdf.evaluation.scores import TorchEvaluator, fit_scores, hemisphere_scores
+        from neuralbrdf.evaluation.truth import load_truth
+        from neuralbrdf.models.directional import SpectralMlpOnDirections
+
+        datamodule = self.trainer.datamodule
+        network = copy.deepcopy(self.network)
+        best = getattr(self.trainer.checkpoint_callback, "best_model_path", "")
+        if best and Path(best).is_file():
+            state = torch.load(best, map_location="cpu", weights_only=True)["state_dict"]
+            network.load_state_dict({k.removeprefix("network."): v for k, v in state.items()})
+        table, theta_i, theta_r = datamodule.measurement()
+        rows = len(theta_i)
+        with torch.no_grad():
+            pred = network(
+                *(torch.as_tensor(np.repeat(a, len(table.wavelengths)), dtype=torch.float32) for a in (theta_i, theta_r)),
+                torch.as_tensor(np.tile(table.wavelengths, rows), dtype=torch.float32),
+            ).numpy().reshape(rows, -1)
+        scores = fit_scores(pred.astype(np.float64), table.values, theta_i, theta_r)
+        if datamodule.hparams.path is None:
+            truth = load_truth(f"virtual:{datamodule.hparams.virtual_material}")
+            hemisphere = hemisphere_scores(TorchEvaluator(SpectralMlpOnDirections(network), True),
+                                           TorchEvaluator(truth.module, True), strata=TRAINING_HEMISPHERE_STRATA)
+            scores["hemisphere_logcos_rmse"] = hemisphere["hemisphere_logcos_rmse"]
+        return scores
 
     def configure_optimizers(self):
         optimizer = self.optimizer_factory(self.parameters())

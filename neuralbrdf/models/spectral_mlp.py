@@ -13,7 +13,7 @@ Choices the report leaves open (SPEC §4.4), each a constructor argument:
   so they travel in ``state_dict``, checkpoints and an exported graph; they do not depend on
   the training data, so a model is usable without it.
 * **Hidden activation** ``tanh`` by default.  Compared on the shipped virtual gold and gonio
-  measurements (DS1, Table 5.1 split, Eq. 5.1 loss, ``configs/spectral_mlp.yaml``, 30 epochs,
+  measurements (DS1, Table 5.1 split, Eq. 5.1 loss, ``configs/spectral_mlp_paper.yaml``, 30 epochs,
   seeds 0–4), the best-checkpoint median glossy relative RMSE was, tanh: gold 0.018–0.020,
   gonio 0.040–0.062; SiLU: gold 0.017–0.018, gonio 0.029–0.131 (one seed failed); ReLU (seeds
   0–2): gold 0.05–0.13, gonio ≈ 0.20 — a 3×10 ReLU net has too few linear pieces for the

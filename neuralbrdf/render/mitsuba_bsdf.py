@@ -68,7 +68,7 @@ The sampling proposal is fitted when the scene loads, by probing the model with 
 
 from __future__ import annotations
 
-import warnings
+import math
 from pathlib import Path
 
 import drjit as dr
@@ -78,6 +78,7 @@ import onnxruntime
 
 from neuralbrdf.data.colorimetry import XYZ_TO_LINEAR_SRGB, xyz_weights
 from neuralbrdf.errors import InputError
+from neuralbrdf.limits import DRJIT_MAX_MULTIPLY_ADDS
 from neuralbrdf.render.drjit_onnx import DrJitGraph
 from neuralbrdf.render.onnx_contract import (
     INPUT_WAVELENGTH,
@@ -86,6 +87,7 @@ from neuralbrdf.render.onnx_contract import (
     OUTPUT_F,
     OnnxModel,
     load_model,
+    matrix_multiply_adds,
 )
 from neuralbrdf.render.sampling import (
     LobeMixture,
@@ -106,13 +108,13 @@ DEFAULT_BACKEND = "drjit"
 #: Wavelengths (nm) at which a spectral model is integrated to sRGB in RGB variants (SPEC §2.3).
 SPECTRAL_TO_RGB_GRID_NM = np.arange(400.0, 701.0, 10.0)
 
-#: Unrolled size (multiply-adds) above which the drjit backend warns that it compiles slowly.
-LARGE_GRAPH_MULTIPLY_ADDS = 100_000
 
 #: Wavelengths (nm, spread over the model's range) averaged when probing a spectral model.
 _PROBE_WAVELENGTH_COUNT = 5
 
 _REGISTERED_VARIANTS: set[str] = set()
+#: Per variant: a one-entry ``UInt32`` counter of clamped model evaluations (:func:`clamped_values`).
+_CLAMPED: dict[str, object] = {}
 _BSDF_CLASSES: dict[str, type] = {}
 _UPSAMPLERS: dict[str, _SrgbUpsampler] = {}
 
@@ -136,6 +138,55 @@ def register() -> None:
     cls = _bsdf_class(variant)
     mi.register_bsdf(PLUGIN_NAME, lambda props: cls(props))
     _REGISTERED_VARIANTS.add(variant)
+
+
+# --------------------------------------------------------------------------- clamping
+
+
+def _clamp_counter():
+    variant = mi.variant()
+    if variant not in _CLAMPED:
+        _CLAMPED[variant] = dr.zeros(mi.UInt32, 1)
+    return _CLAMPED[variant]
+
+
+def clamped_values() -> int:
+    """Model evaluations (lanes) in the current variant whose value was negative or not finite
+    and was clamped to 0 since :func:`reset_clamped_values` (evaluates pending kernels)."""
+    return int(_clamp_counter()[0])
+
+
+def reset_clamped_values() -> None:
+    """Start counting clamped evaluations afresh (the render command does so before rendering)."""
+    _CLAMPED[mi.variant()] = dr.zeros(mi.UInt32, 1)
+
+
+def _nonnegative(columns: list) -> list:
+    """``columns`` with negative and non-finite values set to 0; lanes with any such value are
+    counted (:func:`clamped_values`).  The load-time probe of
+    :func:`~neuralbrdf.render.onnx_contract.load_model` refuses models it finds negative; this
+    guarantees that no negative radiance reaches an image where the probe did not look."""
+    out, bad = [], None
+    for column in columns:
+        if isinstance(column, (int, float)):
+            out.append(float(column) if math.isfinite(column) and column >= 0 else 0.0)
+            continue
+        ok = (column >= 0) & dr.isfinite(column)
+        bad = ~ok if bad is None else bad | ~ok
+        out.append(dr.select(ok, column, 0.0))
+    if bad is not None:
+        dr.scatter_reduce(dr.ReduceOp.Add, _clamp_counter(), mi.UInt32(1), mi.UInt32(0), active=bad)
+    return out
+
+
+def _nonnegative_rows(values: np.ndarray, lanes: int) -> np.ndarray:
+    """:func:`_nonnegative` for onnxruntime's NumPy output whose rows are ``lanes`` lanes repeated."""
+    bad = ~(np.isfinite(values) & (values >= 0))
+    if not bad.any():
+        return values
+    count = int(bad.reshape(-1, lanes, int(np.prod(values.shape[1:], dtype=int))).any(axis=(0, 2)).sum())
+    dr.scatter_reduce(dr.ReduceOp.Add, _clamp_counter(), mi.UInt32(count), mi.UInt32(0))
+    return np.where(bad, 0.0, values).astype(values.dtype)
 
 
 # --------------------------------------------------------------------------- backends
@@ -190,6 +241,7 @@ class _OnnxRuntimeBackend:
         _check_wavefront_mode()
         n = _lane_count(wi, wo)
         (f,) = self.session.run([OUTPUT_F], {INPUT_WI: _rows(wi, n), INPUT_WO: _rows(wo, n)})
+        f = _nonnegative_rows(f, n)
         return [mi.Float(np.ascontiguousarray(f[:, c])) for c in range(3)]
 
     def _spectral_values(self, wi: mi.Vector3f, wo: mi.Vector3f, wavelengths: list) -> np.ndarray:
@@ -203,7 +255,7 @@ class _OnnxRuntimeBackend:
             INPUT_WAVELENGTH: _stacked_column(wavelengths, n),
         }
         (f,) = self.session.run([OUTPUT_F], feeds)
-        return f.reshape(k, n)
+        return _nonnegative_rows(f, n).reshape(k, n)
 
     def spectral(self, wi: mi.Vector3f, wo: mi.Vector3f, wavelengths: list) -> list[mi.Float]:
         return [mi.Float(np.ascontiguousarray(v)) for v in self._spectral_values(wi, wo, wavelengths)]
@@ -215,32 +267,40 @@ class _OnnxRuntimeBackend:
         return [mi.Float(channels[c].astype(np.float32)) for c in range(3)]
 
 
+def check_drjit_budget(model: OnnxModel) -> None:
+    """Refuse a graph the ``drjit`` backend cannot compile in reasonable time and memory: above
+    :data:`~neuralbrdf.limits.DRJIT_MAX_MULTIPLY_ADDS` unrolled multiply-adds per evaluation,
+    counted before anything is compiled."""
+    count = matrix_multiply_adds(model.proto)
+    if count > DRJIT_MAX_MULTIPLY_ADDS:
+        raise InputError(
+            f"the network unrolls to {count} multiply-adds per evaluation, above the drjit backend's budget of "
+            f"{DRJIT_MAX_MULTIPLY_ADDS} (neuralbrdf.limits.DRJIT_MAX_MULTIPLY_ADDS): use backend 'onnxruntime'",
+            path=model.path,
+        )
+
+
 class _DrJitBackend:
     """The graph as Dr.Jit arithmetic inside the kernel (see :mod:`~neuralbrdf.render.drjit_onnx`)."""
 
     name = "drjit"
 
-    def __init__(self, graph: DrJitGraph) -> None:
-        self.graph = graph
-        if graph.multiply_adds > LARGE_GRAPH_MULTIPLY_ADDS:
-            warnings.warn(
-                f"{graph.source}: the network unrolls to {graph.multiply_adds} multiply-adds per "
-                "evaluation; the drjit backend will compile slowly, consider backend 'onnxruntime'",
-                stacklevel=2,
-            )
+    def __init__(self, model: OnnxModel) -> None:
+        check_drjit_budget(model)
+        self.graph = DrJitGraph.from_model(model)
 
     def rgb(self, wi: mi.Vector3f, wo: mi.Vector3f) -> list:
-        return self.graph(wi, wo)
+        return _nonnegative(self.graph(wi, wo))
 
     def spectral(self, wi: mi.Vector3f, wo: mi.Vector3f, wavelengths: list) -> list:
         # One evaluation per wavelength; Dr.Jit shares the parts that depend on wi, wo only.
-        return [self.graph(wi, wo, w)[0] for w in wavelengths]
+        return _nonnegative([self.graph(wi, wo, w)[0] for w in wavelengths])
 
     def integrated(self, wi: mi.Vector3f, wo: mi.Vector3f, rule: ReducedQuadrature) -> list:
         """``Σ_k f(λ_k) V[k, c]``, the network unrolled once per node (weights as literals)."""
         channels = [0.0, 0.0, 0.0]
         for wavelength, weights in zip(rule.wavelengths_nm, rule.weights):
-            f = self.graph(wi, wo, wavelength)[0]
+            (f,) = _nonnegative([self.graph(wi, wo, wavelength)[0]])
             channels = [dr.fma(f, float(w), c) for w, c in zip(weights, channels)]
         return channels
 
@@ -413,7 +473,7 @@ def _bsdf_class(variant: str) -> type:
             if backend == "onnxruntime":
                 self.backend = _OnnxRuntimeBackend(session)
             else:
-                self.backend = _DrJitBackend(DrJitGraph.from_model(self.model))
+                self.backend = _DrJitBackend(self.model)
             probe = _probe_function(self.model, session)
             if self.model.abc is not None:
                 self.mixture: LobeMixture = fit_abc_mixture(probe, self.model.abc)

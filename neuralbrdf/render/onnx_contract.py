@@ -55,7 +55,9 @@ import onnx
 import onnxruntime
 from onnx import numpy_helper
 
+from neuralbrdf.atomic import note_input
 from neuralbrdf.errors import InputError
+from neuralbrdf.limits import MAX_ONNX_BYTES, MAX_ONNX_WEIGHT_ELEMENTS, check_file_size
 
 #: Version of this contract written to and required in ``neuralbrdf.format_version``.
 FORMAT_VERSION = "1"
@@ -168,26 +170,34 @@ def load_model(path: str | os.PathLike[str]) -> OnnxModel:
     not ONNX or fails the ONNX checker, wrong input or output names, dtypes or ranks, a fixed
     batch size, missing or malformed metadata, non-finite initialisers or constants, and a graph
     that onnxruntime cannot run or whose trial evaluation breaks the output contract (shape,
-    finite, non-negative, zero below the horizon; :func:`probe_directions`).
+    zero below the horizon; :func:`probe_directions`) or that is negative or not finite anywhere on
+    the dense stratified probe of :func:`dense_probe` (near-mirror and grazing pairs included).
     """
     path = Path(path)
     if not path.is_file():
         raise InputError("no such ONNX model file", path=path)
+    note_input(path)
+    check_file_size(path, MAX_ONNX_BYTES, "ONNX model file")
     try:
-        proto = onnx.load(str(path))
+        # External data (weights in other files) is never followed: the contract is one file.
+        proto = onnx.load(str(path), load_external_data=False)
     except Exception as error:  # onnx raises protobuf DecodeError, OSError, ...
         raise InputError(f"not an ONNX model ({type(error).__name__}: {error})", path=path) from None
     if not proto.graph.node and not proto.graph.output:
         raise InputError("not an ONNX model (no graph)", path=path)
+    _check_tensor_sizes(proto.graph, path)
     try:
         onnx.checker.check_model(proto)
     except onnx.checker.ValidationError as error:
         raise InputError(f"invalid ONNX graph: {error}", path=path) from None
+    except UnicodeDecodeError:  # the checker's message quotes a name that is not UTF-8 (found by fuzzing)
+        raise InputError("invalid ONNX graph: a name or string in it is not UTF-8 text", path=path) from None
 
     is_spectral = _check_interface(proto.graph, path)
     metadata = {entry.key: entry.value for entry in proto.metadata_props}
     kind, wavelength_range, abc = _check_metadata(metadata, path, is_spectral)
     _check_finite_constants(proto.graph, path)
+    _check_constant_shapes(proto.graph, path)
     _check_trial_evaluation(proto, path, wavelength_range)
     return OnnxModel(
         path=path,
@@ -382,6 +392,76 @@ def _check_metadata(metadata: Mapping[str, str], path, is_spectral: bool):
 # --------------------------------------------------------------------------- weights
 
 
+def _tensor_protos(graph: onnx.GraphProto):
+    """``(name, TensorProto)`` of every initialiser and tensor attribute, subgraphs included."""
+    for init in graph.initializer:
+        yield init.name, init
+    for node in graph.node:
+        for attribute in node.attribute:
+            name = f"{node.name or node.op_type}.{attribute.name}"
+            if attribute.type == onnx.AttributeProto.TENSOR:
+                yield name, attribute.t
+            elif attribute.type == onnx.AttributeProto.TENSORS:
+                for k, tensor in enumerate(attribute.tensors):
+                    yield f"{name}[{k}]", tensor
+            elif attribute.type == onnx.AttributeProto.GRAPH:
+                yield from _tensor_protos(attribute.g)
+            elif attribute.type == onnx.AttributeProto.GRAPHS:
+                for subgraph in attribute.graphs:
+                    yield from _tensor_protos(subgraph)
+
+
+def _check_tensor_sizes(graph: onnx.GraphProto, path) -> None:
+    """Refuse external data and declared sizes above the limit, before any tensor is read."""
+    total = 0
+    for name, tensor in _tensor_protos(graph):
+        if tensor.data_location == onnx.TensorProto.EXTERNAL or tensor.external_data:
+            location = next((entry.value for entry in tensor.external_data if entry.key == "location"), "?")
+            raise InputError(
+                f"weight tensor {name!r} keeps its data in an external file ({location!r}); a model must be "
+                "one self-contained file (SPEC §6)",
+                path=path,
+            )
+        if any(d < 0 for d in tensor.dims):
+            raise InputError(f"weight tensor {name!r} has a negative dimension {list(tensor.dims)}", path=path)
+        total += math.prod(tensor.dims)
+        if total > MAX_ONNX_WEIGHT_ELEMENTS:
+            raise InputError(
+                f"weight tensors declare more than {MAX_ONNX_WEIGHT_ELEMENTS} elements (limit "
+                f"neuralbrdf.limits.MAX_ONNX_WEIGHT_ELEMENTS; {name!r} has shape {list(tensor.dims)})",
+                path=path,
+            )
+
+
+#: Operators that create a tensor of a size given by a shape input (input index): a constant
+#: shape is bounded like the weights, before onnxruntime folds or runs it.
+_SIZED_BY_INPUT = {"ConstantOfShape": 0, "Expand": 1, "Tile": 1}
+
+
+def _check_constant_shapes(graph: onnx.GraphProto, path) -> None:
+    constants = {init.name: init for init in graph.initializer}
+    for node in graph.node:
+        if node.op_type == "Constant":
+            for attribute in node.attribute:
+                if attribute.type == onnx.AttributeProto.TENSOR:
+                    constants[node.output[0]] = attribute.t
+    for node in graph.node:
+        index = _SIZED_BY_INPUT.get(node.op_type)
+        if index is None or len(node.input) <= index or node.input[index] not in constants:
+            continue
+        shape = numpy_helper.to_array(constants[node.input[index]])
+        if shape.dtype.kind not in "iu":
+            continue
+        elements = math.prod(int(d) for d in shape.ravel() if d > 0)
+        if elements > MAX_ONNX_WEIGHT_ELEMENTS:
+            raise InputError(
+                f"{node.op_type} node {node.name or node.output[0]!r} creates a tensor of {elements} elements "
+                f"(shape {shape.tolist()}), above the limit of {MAX_ONNX_WEIGHT_ELEMENTS} "
+                "(neuralbrdf.limits.MAX_ONNX_WEIGHT_ELEMENTS)",
+                path=path,
+            )
+
+
 def _constant_tensors(graph: onnx.GraphProto):
     """``(name, array)`` of every initialiser and ``Constant`` node value, subgraphs included."""
     for init in graph.initializer:
@@ -399,8 +479,31 @@ def _constant_tensors(graph: onnx.GraphProto):
                 yield from _constant_tensors(attribute.g)
 
 
+def matrix_multiply_adds(proto: onnx.ModelProto) -> int:
+    """Non-zero constant weights of the graph's ``MatMul``/``Gemm`` nodes: the multiply-adds one
+    evaluation costs when unrolled (what the ``drjit`` backend compiles), counted without
+    running anything."""
+    constants = {init.name: init for init in proto.graph.initializer}
+    for node in proto.graph.node:
+        if node.op_type == "Constant":
+            for attribute in node.attribute:
+                if attribute.type == onnx.AttributeProto.TENSOR:
+                    constants[node.output[0]] = attribute.t
+    total = 0
+    for node in proto.graph.node:
+        if node.op_type in ("MatMul", "Gemm"):
+            for name in node.input[:2]:
+                if name in constants:
+                    total += int(np.count_nonzero(numpy_helper.to_array(constants[name])))
+    return total
+
+
 def _check_finite_constants(graph: onnx.GraphProto, path) -> None:
-    for name, array in _constant_tensors(graph):
+    try:
+        constants = list(_constant_tensors(graph))
+    except Exception as error:  # numpy_helper: data length inconsistent with the declared shape
+        raise InputError(f"malformed weight tensor ({type(error).__name__}: {error})", path=path) from None
+    for name, array in constants:
         if np.issubdtype(array.dtype, np.floating) and not np.all(np.isfinite(array)):
             bad = int(np.size(array) - np.count_nonzero(np.isfinite(array)))
             raise InputError(
@@ -429,8 +532,120 @@ def probe_directions(n_above: int = 64, n_below: int = 16, seed: int = 0):
     return wi.astype(np.float32), wo.astype(np.float32), below
 
 
+#: Dense load-time probe (:func:`dense_probe`): strata of the incident polar angle ...
+PROBE_THETA_I_STRATA = 18
+#: ... and, per incident stratum, of the outgoing polar angle × azimuth.
+PROBE_OUT_STRATA = (18, 36)
+#: Incident angles (one per degree, 0°–89°) probed at and around their mirror direction ...
+PROBE_MIRROR_THETA_I = 90
+#: ... at these angular offsets from the mirror (degrees) ...
+PROBE_MIRROR_OFFSETS_DEG = (0.0, 0.01, 0.1, 0.3, 1.0, 3.0)
+#: ... in this many azimuths around it.
+PROBE_MIRROR_AZIMUTHS = 8
+#: Grazing probe: both polar angles in [85°, 89.99°], strata per angle and of the azimuth.
+PROBE_GRAZING_STRATA = (8, 8, 16)
+#: Wavelengths (spread over a spectral model's range, both ends included) of the dense probe.
+PROBE_WAVELENGTHS = 8
+
+
+def _stratified(rng, low: float, high: float, count: int) -> np.ndarray:
+    """One jittered sample in each of ``count`` equal strata of [low, high]."""
+    edges = np.linspace(low, high, count + 1)
+    return edges[:-1] + rng.uniform(0.0, 1.0, count) * np.diff(edges)
+
+
+def _rotated(theta_deg, phi_deg, azimuth_deg) -> np.ndarray:
+    from neuralbrdf.geometry import spherical_to_vector
+
+    return spherical_to_vector(np.asarray(theta_deg, dtype=np.float64), np.asarray(phi_deg) + azimuth_deg)
+
+
+def dense_probe(seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Direction pairs ``(wi, wo, near_mirror)`` (float32 ``[M, 3]``, bool ``[M]``) of the load-time
+    sign and finiteness check, all above the horizon (about 16 000 pairs):
+
+    * a stratified hemisphere: :data:`PROBE_THETA_I_STRATA` strata of ``θi`` in [0°, 89.9°], each
+      with :data:`PROBE_OUT_STRATA` strata of ``θo`` × ``φo``, jittered, the whole pair rotated
+      by a random azimuth (isotropy is not assumed);
+    * near-mirror pairs, where glossy models peak and fits overshoot: ``θi`` = 0.5°, 1.5°, …,
+      89.5° with ``wo`` the mirror direction tilted by each of :data:`PROBE_MIRROR_OFFSETS_DEG`
+      in :data:`PROBE_MIRROR_AZIMUTHS` directions (kept when above the horizon);
+    * grazing pairs: both polar angles in [85°, 89.99°] (:data:`PROBE_GRAZING_STRATA`).
+    """
+    rng = np.random.default_rng(seed)
+    wi, wo = [], []
+    n_theta, n_phi = PROBE_OUT_STRATA
+    for theta_i in _stratified(rng, 0.0, 89.9, PROBE_THETA_I_STRATA):
+        theta_o = np.repeat(_stratified(rng, 0.0, 89.9, n_theta), n_phi)
+        phi_o = np.tile(_stratified(rng, 0.0, 360.0, n_phi), n_theta)
+        azimuth = rng.uniform(0.0, 360.0)
+        wo.append(_rotated(theta_o, phi_o, azimuth))
+        wi.append(np.repeat(_rotated(theta_i, 0.0, azimuth)[None], len(theta_o), axis=0))
+    n_hemisphere = sum(len(w) for w in wi)
+    theta_i = np.arange(PROBE_MIRROR_THETA_I) + 0.5
+    offsets = np.asarray(PROBE_MIRROR_OFFSETS_DEG)
+    around = np.arange(PROBE_MIRROR_AZIMUTHS) * 360.0 / PROBE_MIRROR_AZIMUTHS
+    ti, offset, turn = (a.ravel() for a in np.meshgrid(theta_i, offsets, around, indexing="ij"))
+    keep = (offset > 0) | (turn == 0)  # the exact mirror once per angle
+    ti, offset, turn = ti[keep], offset[keep], turn[keep]
+    # The mirror of (θi, 0°) is (θi, 180°); tilt it by ``offset`` towards azimuth ``turn`` about itself.
+    mirror = _rotated(ti, 180.0, 0.0)
+    tangent_a = np.stack([-np.cos(np.radians(ti)), np.zeros_like(ti), -np.sin(np.radians(ti))], axis=1)
+    tangent_b = np.stack([np.zeros_like(ti), np.ones_like(ti), np.zeros_like(ti)], axis=1)
+    tilt, spin = np.radians(offset)[:, None], np.radians(turn)[:, None]
+    out = np.cos(tilt) * mirror + np.sin(tilt) * (np.cos(spin) * tangent_a + np.sin(spin) * tangent_b)
+    above = out[:, 2] > 1e-6
+    wi.append(_rotated(ti[above], 0.0, 0.0))
+    wo.append(out[above])
+    n_mirror = int(above.sum())
+    n_t, _, n_p = PROBE_GRAZING_STRATA
+    grazing_i = _stratified(rng, 85.0, 89.99, n_t)
+    grazing_o = _stratified(rng, 85.0, 89.99, n_t)
+    gi, go, gp = (a.ravel() for a in np.meshgrid(grazing_i, grazing_o, _stratified(rng, 0.0, 360.0, n_p), indexing="ij"))
+    wi.append(_rotated(gi, 0.0, 0.0))
+    wo.append(_rotated(go, gp, 0.0))
+    wi, wo = np.concatenate(wi), np.concatenate(wo)
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    near_mirror = np.zeros(len(wi), dtype=bool)
+    near_mirror[n_hemisphere : n_hemisphere + n_mirror] = True
+    return wi.astype(np.float32), wo.astype(np.float32), near_mirror
+
+
+def _check_dense_probe(session, path, wavelength_range) -> None:
+    """Sign and finiteness of ``f`` over :func:`dense_probe` (every wavelength of
+    :data:`PROBE_WAVELENGTHS` for spectral models); the first offending pair is named."""
+    wi, wo, near_mirror = dense_probe()
+    wavelengths = [None] if wavelength_range is None else np.linspace(*wavelength_range, PROBE_WAVELENGTHS)
+    for wavelength in wavelengths:
+        feeds = {INPUT_WI: wi, INPUT_WO: wo}
+        if wavelength is not None:
+            feeds[INPUT_WAVELENGTH] = np.full(len(wi), wavelength, dtype=np.float32)
+        try:
+            (f,) = session.run([OUTPUT_F], feeds)
+        except Exception as error:
+            raise InputError(f"onnxruntime fails to evaluate the graph: {error}", path=path) from None
+        values = f.reshape(len(wi), -1)
+        bad = ~(values >= 0) | ~np.isfinite(values)
+        rows = np.flatnonzero(bad.any(axis=1))
+        if rows.size:
+            row = int(rows[np.argmin(np.nan_to_num(values[rows].min(axis=1), nan=-np.inf))])
+            worst = values[row][bad[row]][0]
+            theta_i = np.degrees(np.arccos(np.clip(wi[row, 2], -1, 1)))
+            theta_o = np.degrees(np.arccos(np.clip(wo[row, 2], -1, 1)))
+            where = " (near the mirror direction)" if near_mirror[row] else ""
+            at = "" if wavelength is None else f" at {wavelength:g} nm"
+            kind = "not finite" if not np.isfinite(worst) else "negative"
+            raise InputError(
+                f"output 'f' is {kind} ({worst:g} sr^-1) at {rows.size} of {len(wi)} probe pairs{at}, e.g. "
+                f"theta_i = {theta_i:.2f} deg, theta_o = {theta_o:.2f} deg{where}; a BRDF is finite and >= 0",
+                path=path,
+            )
+
+
 def _check_trial_evaluation(proto: onnx.ModelProto, path, wavelength_range) -> None:
-    """Run the graph on :func:`probe_directions` with onnxruntime and check its output."""
+    """Run the graph on :func:`probe_directions` (shape, zero below the horizon) and on
+    :func:`dense_probe` (sign and finiteness) with onnxruntime and check its output."""
     try:
         session = onnxruntime.InferenceSession(
             proto.SerializeToString(), providers=["CPUExecutionProvider"]
@@ -463,3 +678,4 @@ def _check_trial_evaluation(proto: onnx.ModelProto, path, wavelength_range) -> N
         raise InputError(
             "output 'f' is not 0 when a direction is below the horizon (SPEC §6)", path=path
         )
+    _check_dense_probe(session, path, wavelength_range)

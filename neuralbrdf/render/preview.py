@@ -14,7 +14,14 @@ therefore depends on the pass size, not on ``spp`` (measured peak resident memor
 
 **Backends.** ``drjit`` renders in Dr.Jit's default symbolic mode (the network fused into the
 kernel); ``onnxruntime`` needs wavefront mode (``SymbolicLoops``/``SymbolicCalls`` off), which
-:func:`render` sets for it.
+:func:`render` sets for it.  :func:`within_drjit_budget` switches a model too large for the
+``drjit`` backend (:data:`~neuralbrdf.limits.DRJIT_MAX_MULTIPLY_ADDS`) to ``onnxruntime``.
+
+**Limits.** :func:`render` checks the resolution against the memory the image and one pass
+would need (:func:`check_render_size`, refused above :data:`MEMORY_FRACTION` of this machine's
+memory) before it loads anything; :func:`set_variant` turns a variant that cannot start (a
+``cuda_*`` one without a CUDA device) into one :class:`~neuralbrdf.errors.InputError`.
+:func:`write_images` writes the PNG and the EXR together or neither.
 
 The command line is ``export/render.py``; ``neuralbrdf evaluate`` renders through here too.
 """
@@ -22,6 +29,8 @@ The command line is ``export/render.py``; ``neuralbrdf evaluate`` renders throug
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import os
 import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -32,8 +41,9 @@ import mitsuba as mi
 import numpy as np
 from tqdm import tqdm
 
-from neuralbrdf.atomic import atomic_path
-from neuralbrdf.errors import InputError
+from neuralbrdf.atomic import atomic_paths
+from neuralbrdf.errors import InputError, one_line
+from neuralbrdf.limits import DRJIT_MAX_MULTIPLY_ADDS
 from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE
 
 SCENE_DIR = Path(__file__).resolve().parent / "scenes"
@@ -50,6 +60,15 @@ PASS_LANES_SYMBOLIC = 2**22
 #: 512 x 512 x 256 spp then peaks at about 2 GB.
 PASS_LANES_WAVEFRONT = 2**19
 DEFAULT_MAX_DEPTH = 5
+#: Bytes per pixel of the image buffers: Mitsuba's film (5 float32), the float64 pass sum and
+#: weighted pass (2 × 3 float64), the float32 result and the bitmaps written (3 float32 + 3 bytes).
+IMAGE_BYTES_PER_PIXEL = 5 * 4 + 2 * 3 * 8 + 3 * 4 + 3 * 4 + 3
+#: Bytes per path of a pass, measured (module docstring): symbolic mode ...
+PATH_BYTES_SYMBOLIC = 96
+#: ... and wavefront mode (onnxruntime backend).
+PATH_BYTES_WAVEFRONT = 4096
+#: Largest share of this machine's physical memory a render may plan to use.
+MEMORY_FRACTION = 0.75
 
 
 @contextlib.contextmanager
@@ -65,17 +84,42 @@ def dr_mode(wavefront: bool) -> Iterator[None]:
         dr.set_flag(dr.JitFlag.SymbolicCalls, saved[1])
 
 
+#: Oldest LLVM whose shared library Mitsuba's ``llvm_*`` variants can render with: older ones
+#: fail while compiling render kernels ("LLVM ERROR: Cannot select ... fmaximum", abort).
+MIN_LLVM_VERSION = (19, 0, 0)
+
+
+def check_llvm(variant: str) -> None:
+    """One clear :class:`InputError` before rendering when an ``llvm_*`` variant would run on an
+    LLVM older than :data:`MIN_LLVM_VERSION` (instead of an abort deep in kernel compilation)."""
+    if not variant.startswith("llvm_"):
+        return
+    try:
+        version = tuple(dr.detail.llvm_version())
+    except Exception:  # no LLVM at all: mi.set_variant says so itself
+        return
+    if version < MIN_LLVM_VERSION:
+        raise InputError(
+            f"Mitsuba's {variant} needs LLVM >= 19 as a shared library, but Dr.Jit loaded LLVM "
+            f"{'.'.join(map(str, version))}, which aborts while compiling render kernels: install LLVM 19 "
+            "(Debian: apt-get install libllvm19) or set DRJIT_LIBLLVM_PATH to its libLLVM.so.19"
+        )
+
+
 def set_variant(variant: str) -> None:
     """Select a Mitsuba variant and register the ``neuralbrdf`` BSDF in it."""
     from neuralbrdf.render import register
 
     if variant not in mi.variants():
         raise InputError(f"unknown Mitsuba variant {variant!r}; this build has {', '.join(mi.variants())}")
-    mi.set_variant(variant)
+    check_llvm(variant)
     try:
+        mi.set_variant(variant)
         register()
-    except RuntimeError as error:
-        raise InputError(str(error)) from None
+        mi.Float(0.0).numpy()  # the variant's JIT backend must start here (a cuda_* one needs a GPU)
+    except Exception as error:  # ImportError for a CUDA variant on a CPU machine, RuntimeError ...
+        cpu = " (no CUDA device here? use an llvm_* variant)" if variant.startswith("cuda_") else ""
+        raise InputError(f"cannot render in Mitsuba variant {variant!r}{cpu}: {one_line(error)}") from None
 
 
 @dataclass(frozen=True)
@@ -133,6 +177,31 @@ def load_scene(material: Material, resolution: int, max_depth: int = DEFAULT_MAX
         raise InputError(f"cannot load the scene: {str(error).splitlines()[-1]}", path=SCENE_FILE) from None
 
 
+def machine_memory_bytes() -> int:
+    """Physical memory of this machine in bytes."""
+    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+
+
+def render_memory_bytes(resolution: int, spp_per_pass: int, wavefront: bool) -> int:
+    """Memory a render plans to hold at once: the image buffers and one pass's paths."""
+    pixels = resolution * resolution
+    per_path = PATH_BYTES_WAVEFRONT if wavefront else PATH_BYTES_SYMBOLIC
+    return pixels * IMAGE_BYTES_PER_PIXEL + pixels * spp_per_pass * per_path
+
+
+def check_render_size(resolution: int, spp_per_pass: int, wavefront: bool) -> None:
+    """Refuse (before any rendering) a render that would need more than :data:`MEMORY_FRACTION` of
+    this machine's memory, or more paths per pass than Mitsuba's 32-bit indices can count."""
+    need, have = render_memory_bytes(resolution, spp_per_pass, wavefront), machine_memory_bytes()
+    lanes = resolution * resolution * spp_per_pass
+    if need > MEMORY_FRACTION * have or lanes >= 2**32:
+        raise InputError(
+            f"--resolution {resolution} ({resolution}x{resolution}, {spp_per_pass} spp per pass) would need about "
+            f"{need / 2**30:.3g} GiB and {lanes} paths per pass; this machine has {have / 2**30:.3g} GiB "
+            f"(limit {MEMORY_FRACTION:.0%}) and a pass holds < 2^32 paths"
+        )
+
+
 def pass_sizes(spp: int, spp_per_pass: int) -> list[int]:
     """Samples per pixel of each pass: full passes of ``spp_per_pass`` and the remainder."""
     full, rest = divmod(spp, spp_per_pass)
@@ -180,24 +249,40 @@ def render(
     for name, value in (("spp", spp), ("resolution", resolution), ("max_depth", max_depth)):
         if value < 1:
             raise InputError(f"{name} must be a positive integer, got {value}")
-    set_variant(variant)
-    scene = load_scene(material, resolution, max_depth)
     per_pass = spp_per_pass or default_spp_per_pass(resolution, material.needs_wavefront)
     if per_pass < 1:
         raise InputError(f"spp_per_pass must be a positive integer, got {per_pass}")
+    check_render_size(resolution, min(per_pass, spp), material.needs_wavefront)
+    set_variant(variant)
+    scene = load_scene(material, resolution, max_depth)
     return render_passes(scene, spp, per_pass, seed, material.needs_wavefront, progress)
 
 
-def write_png(image: np.ndarray, path: str | Path) -> None:
-    """8-bit sRGB PNG of a linear RGB image (values clipped to [0, 1]), written atomically."""
+def within_drjit_budget(material: Material) -> Material:
+    """``material``, switched to the onnxruntime backend (with a message on stderr) when its model
+    is too large for the drjit backend (:data:`~neuralbrdf.limits.DRJIT_MAX_MULTIPLY_ADDS`)."""
+    if material.model is None or material.backend != "drjit":
+        return material
+    from neuralbrdf.render.onnx_contract import load_model, matrix_multiply_adds
+
+    count = matrix_multiply_adds(load_model(material.model).proto)
+    if count <= DRJIT_MAX_MULTIPLY_ADDS:
+        return material
+    print(
+        f"note: {material.model} unrolls to {count} multiply-adds per evaluation, above the drjit backend's "
+        f"budget of {DRJIT_MAX_MULTIPLY_ADDS}; rendering with backend 'onnxruntime'",
+        file=sys.stderr,
+    )
+    return dataclasses.replace(material, backend="onnxruntime")
+
+
+def write_images(image: np.ndarray, png: str | Path, exr: str | Path | None = None) -> None:
+    """8-bit sRGB PNG of a linear RGB image (values clipped to [0, 1]) and, if ``exr`` is given,
+    the linear float32 RGB OpenEXR; written atomically, both or neither."""
     bitmap = mi.Bitmap(np.ascontiguousarray(image, dtype=np.float32), mi.Bitmap.PixelFormat.RGB)
     srgb = bitmap.convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.UInt8, srgb_gamma=True)
-    with atomic_path(path) as tmp:
-        srgb.write(str(tmp))
-
-
-def write_exr(image: np.ndarray, path: str | Path) -> None:
-    """Linear float32 RGB OpenEXR, written atomically."""
-    bitmap = mi.Bitmap(np.ascontiguousarray(image, dtype=np.float32), mi.Bitmap.PixelFormat.RGB)
-    with atomic_path(path) as tmp:
-        bitmap.write(str(tmp))
+    targets = [png] if exr is None else [png, exr]
+    with atomic_paths(*targets) as temporaries:
+        srgb.write(str(temporaries[0]))
+        if exr is not None:
+            bitmap.write(str(temporaries[1]))

@@ -1,0 +1,56 @@
+"""Resource limits for files read from users (SPEC §12): sizes are checked before allocation.
+
+A file from elsewhere must not be able to make the process read or allocate without bound.  Each
+reader checks the size a file *claims* (its length on disk, the shapes in its header, the
+hyper-parameters of a checkpoint) against these limits before it reads or builds anything, and
+refuses with an :class:`~neuralbrdf.errors.InputError` naming the file, the size and the limit.
+The limits sit far above anything the project writes (noted beside each).
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+
+from neuralbrdf.errors import InputError
+
+MIB = 2**20
+
+#: CSV files (BRDF tables, GCMS raw files).  The largest the project writes, a spectral table on
+#: the Löw et al. plan (230 400 rows × 35 columns), is about 150 MiB.
+MAX_CSV_BYTES = 512 * MIB
+#: ``.onnx`` model files.  A paper-size NLB (1.07 M weights) is about 4 MiB.
+MAX_ONNX_BYTES = 256 * MIB
+#: Total elements of an ONNX graph's initialisers and constants (as declared by their shapes).
+MAX_ONNX_WEIGHT_ELEMENTS = 64 * MIB
+#: PyTorch checkpoints (``.ckpt``).  The paper-size NLB pretraining checkpoint is about 13 MiB.
+MAX_CHECKPOINT_BYTES = 1024 * MIB
+#: Parameters a checkpoint's hyper-parameters may ask for (checked on the meta device, before
+#: anything is allocated).  The paper-size NLB has 1.07 M.
+MAX_MODEL_PARAMETERS = 64 * MIB
+#: NBRDF architecture files (Keras ``.json``), a few KiB each.
+MAX_JSON_BYTES = 16 * MIB
+#: Multiply-adds of one network evaluation that the ``drjit`` render backend unrolls into its
+#: kernel.  The spectral MLP has about 250, the compact NLB about 14 000; a paper-size NLB
+#: (~1 M) compiles for minutes and takes many GB, so above this the backend refuses and the
+#: render command falls back to ``onnxruntime`` with a message.
+DRJIT_MAX_MULTIPLY_ADDS = 100_000
+
+
+def check_file_size(path: str | os.PathLike[str], limit_bytes: int, what: str) -> int:
+    """The size of ``path`` in bytes, or :class:`InputError` if it exceeds ``limit_bytes`` or is
+    a device, FIFO or socket (which could be read without end)."""
+    try:
+        info = os.stat(path)
+    except (OSError, ValueError):
+        return 0  # the reader reports a missing or unreadable file in its own words
+    if not (stat.S_ISREG(info.st_mode) or stat.S_ISDIR(info.st_mode)):
+        raise InputError(f"is not a regular file (a device, FIFO or socket); expected a {what}", path=path)
+    size = info.st_size
+    if size > limit_bytes:
+        raise InputError(
+            f"{what} of {size / MIB:.1f} MiB exceeds the limit of {limit_bytes / MIB:.0f} MiB "
+            "(neuralbrdf.limits); refusing to read it",
+            path=path,
+        )
+    return size

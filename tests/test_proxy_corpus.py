@@ -1,0 +1,81 @@
+"""MERL proxies in NLB pretraining (neuralbrdf.data.proxy_corpus): held-out materials never seen."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from neuralbrdf.data.nbrdf import REPORT_MATERIALS, NbrdfNetwork, available_materials
+from neuralbrdf.data.proxy_corpus import (
+    HELD_OUT,
+    NEVER_PRETRAINED,
+    ProxyMaterials,
+    pretraining_proxy_names,
+    sample_proxy_directions,
+)
+from neuralbrdf.errors import InputError
+
+MERL = Path(__file__).resolve().parents[2] / "shared" / "data" / "merl-nbrdf"
+needs_merl = pytest.mark.skipif(not MERL.is_dir(), reason=f"MERL NBRDF proxies not found at {MERL}")
+
+
+def test_held_out_subset_is_ten_materials_disjoint_from_the_report_materials():
+    assert len(HELD_OUT) == len(set(HELD_OUT)) == 10
+    assert not set(HELD_OUT) & set(REPORT_MATERIALS)
+    assert set(NEVER_PRETRAINED) == set(HELD_OUT) | set(REPORT_MATERIALS)
+
+
+@needs_merl
+def test_pretraining_proxies_exclude_held_out_and_report_materials():
+    names = pretraining_proxy_names(MERL)
+    assert set(HELD_OUT) <= set(available_materials(MERL))
+    assert len(names) == len(available_materials(MERL)) - len(NEVER_PRETRAINED)
+    assert not set(names) & set(NEVER_PRETRAINED)
+    with pytest.raises(InputError, match="held out"):
+        ProxyMaterials(MERL, (names[0], HELD_OUT[3]))
+
+
+def test_proxy_directions_are_unit_above_the_horizon_and_cover_mirror_and_grazing():
+    rng = np.random.default_rng(1)
+    wi, wo = sample_proxy_directions(rng, 20000, uniform_fraction=0.5)
+    for w in (wi, wo):
+        np.testing.assert_allclose(np.linalg.norm(w, axis=1), 1.0, atol=1e-12)
+        assert (w[:, 2] > 0).all()
+    mirror = wi * np.array([-1.0, -1.0, 1.0])
+    near_mirror = np.degrees(np.arccos(np.clip((wo * mirror).sum(1), -1, 1))) < 2.0
+    # Uniform pairs alone put ~0.03 % of wo within 2 degrees of the mirror direction.
+    assert near_mirror.mean() > 0.05
+    assert (wi[:, 2] < np.cos(np.radians(75))).mean() > 0.2
+
+
+@needs_merl
+def test_proxy_batches_are_the_proxies_values_and_follow_the_analytic_materials():
+    from neuralbrdf.lightning.corpus_data import CorpusDataModule
+
+    data = CorpusDataModule(n_analytic=6, batch_size=400, batches_per_epoch=2, val_batches=1,
+                            proxy_dir=str(MERL), proxy_fraction=0.25)
+    n_proxies = len(pretraining_proxy_names(MERL))
+    assert data.n_materials == 6 + n_proxies
+    assert data.material_names[6] == f"merl:{pretraining_proxy_names(MERL)[0]}"
+    batch = data.train_dataloader().dataset[0]
+    proxy_rows = batch.material >= 6
+    assert proxy_rows.sum() == 100
+    row = int(torch.nonzero(proxy_rows)[0])
+    name = pretraining_proxy_names(MERL)[int(batch.material[row]) - 6]
+    expected = NbrdfNetwork.load(MERL / f"{name}.h5").evaluate(batch.wi[row : row + 1].double().numpy(),
+                                                                batch.wo[row : row + 1].double().numpy())
+    np.testing.assert_allclose(batch.f[row].numpy(), expected[0], rtol=1e-5, atol=1e-7)
+    again = data.train_dataloader().dataset[0]
+    assert torch.equal(again.f, batch.f)
+
+
+def test_shipped_checkpoint_never_saw_a_held_out_or_report_material():
+    from neuralbrdf.lightning.latent_fit_module import PRETRAINED_COMPACT
+    from neuralbrdf.lightning.nlb_module import load_pretrained
+
+    names = load_pretrained(PRETRAINED_COMPACT).names
+    proxies = {n.removeprefix("merl:") for n in names if n.startswith("merl:")}
+    assert proxies and not proxies & set(NEVER_PRETRAINED)
