@@ -152,8 +152,11 @@ def fit(spec: dict, table: Path, run_dir: Path) -> tuple[float, dict]:
         raise CellFailure("fit_refused", reason[0][:300])
     if _non_finite_logged_loss(run_dir):
         raise CellFailure("non_finite_loss", "a logged training loss is NaN or infinite")
-    if status != 0:
-        raise CellFailure("optimizer_failure", f"training exited with status {status}")
+    if status != 0:  # train.py's "fit failed" status, with its one-line cause
+        reason = [line for line in captured.getvalue().splitlines() if line.startswith("error:")][-1:]
+        reason = reason[0][:300] if reason else f"training exited with status {status}"
+        finite = "finite" in reason.lower() or "nan" in reason.lower()
+        raise CellFailure("non_finite_loss" if finite else "optimizer_failure", reason)
     metrics_path = run_dir / "metrics.json"
     metrics = json.loads(metrics_path.read_text()) if metrics_path.is_file() else {}
     if metrics.get("fit/abc/success") is False:
