@@ -1,6 +1,7 @@
 """Accuracy where users look: fitted models against their truths (SPEC §5, §9; issue "ground truth").
 
     python benchmarks/accuracy.py [--out benchmarks/accuracy.json] [--work-dir out/accuracy] [--quick]
+        [--part all|virtual|merl]
 
 1. **Virtual materials.** The 3×10 spectral MLP trained on each shipped DS1 measurement (gold,
    gonio, cyan, magenta) with the report's loss (``configs/spectral_mlp_paper.yaml``) and with
@@ -158,13 +159,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "accuracy.json"))
     parser.add_argument("--work-dir", default=str(ROOT / "out" / "accuracy"))
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--part", choices=("all", "virtual", "merl"), default="all",
+                        help="run only the virtual materials or only the MERL proxies (default all)")
     args = parser.parse_args(argv)
     settings = Settings.for_mode(args.quick)
     work = Path(args.work_dir)
     started = time.perf_counter()
-    rows = virtual_rows(work, settings) + merl_rows(work, settings)
+    rows = (virtual_rows(work, settings) if args.part != "merl" else []) + (
+        merl_rows(work, settings) if args.part != "virtual" else [])
     result = {
-        "command": "python benchmarks/accuracy.py" + (" --quick" if args.quick else ""),
+        "command": "python benchmarks/accuracy.py" + (" --quick" if args.quick else "") + f" --part {args.part}",
         "machine": {"platform": platform.platform(), "processor": platform.processor(),
                     "torch_threads": torch.get_num_threads()},
         "settings": settings.__dict__ | {"virtual": list(settings.virtual), "merl": list(settings.merl)},

@@ -199,7 +199,7 @@ def test_full_training_fits_glossy_and_diffuse_against_the_truth(tmp_path, mater
     assert main(args) == 0
     metrics = read_metrics(tmp_path)
     assert metrics["fit/epochs"] == 30
-    assert metrics["fit/wall_time_s"] <= 300.0  # 120-160 s measured at load average 15 on 2 cores
+    assert metrics["fit/wall_time_s"] <= 600.0  # 78-433 s measured at load average 8-15 on 2 cores
     theta_i, theta_r = in_plane_plan("DS1")
     held_out = spectral_mlp_split(theta_i)
     theta_i, theta_r = theta_i[held_out], theta_r[held_out]

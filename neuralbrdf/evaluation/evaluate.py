@@ -9,14 +9,13 @@ renders are reported as ``noise`` — the noise of one render.  Model and truth 
 so much of it is common to both and cancels in their difference (the demo's gold model: ΔE mean
 0.33 against a noise level of 1.9); the level says how much a single render can be trusted.
 
-Outputs in ``DIR`` (all written together, or none): ``evaluation.json`` (strict JSON),
+Outputs in ``DIR`` (all written together, or none: :func:`neuralbrdf.atomic.atomic_paths`): ``evaluation.json`` (strict JSON),
 ``model.png``, ``truth.png``, ``error_map.png`` (ΔE2000 per pixel, colour bar in ΔE units) and
 ``comparison.png`` (truth | model | ΔE side by side).
 """
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import time
@@ -25,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from neuralbrdf.atomic import atomic_path
+from neuralbrdf.atomic import atomic_paths
 from neuralbrdf.evaluation.images import IMAGE_METRICS, image_scores
 from neuralbrdf.evaluation.scores import DIRECTION_METRICS, HEMISPHERE_STRATA, OnnxEvaluator, direction_scores
 
@@ -165,8 +164,9 @@ def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path
 
 
 def _write_outputs(result: dict, images, names: tuple[str, str], out_dir: Path) -> None:
-    with contextlib.ExitStack() as stack:
-        paths = {name: stack.enter_context(atomic_path(out_dir / name)) for name in FILES[: 5 if images else 1]}
+    names = FILES[: 5 if images else 1]
+    with atomic_paths(*(out_dir / name for name in names)) as temporaries:
+        paths = dict(zip(names, temporaries))
         paths["evaluation.json"].write_text(json.dumps(result, indent=2, allow_nan=False) + "\n")
         if images is not None:
             model_image, truth_image, delta_e = images
