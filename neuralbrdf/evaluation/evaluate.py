@@ -164,9 +164,9 @@ def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path
 
 
 def _write_outputs(result: dict, images, names: tuple[str, str], out_dir: Path) -> None:
-    names = FILES[: 5 if images else 1]
-    with atomic_paths(*(out_dir / name for name in names)) as temporaries:
-        paths = dict(zip(names, temporaries))
+    files = FILES[: 5 if images else 1]
+    with atomic_paths(*(out_dir / name for name in files)) as temporaries:
+        paths = dict(zip(files, temporaries))
         paths["evaluation.json"].write_text(json.dumps(result, indent=2, allow_nan=False) + "\n")
         if images is not None:
             model_image, truth_image, delta_e = images
