@@ -50,8 +50,6 @@ import gc
 import importlib.util
 import json
 import math
-import os
-import platform
 import resource
 import statistics
 import subprocess
@@ -61,11 +59,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import drjit as dr
-import mitsuba as mi
 import numpy as np
 import onnx
-import onnxruntime
 import torch
 
 from neuralbrdf import onnx_export
@@ -73,8 +68,9 @@ from neuralbrdf.atomic import atomic_write
 from neuralbrdf.models.abc import ABCParameters
 from neuralbrdf.models.directional import AbcOnDirections, NlbWithLatent
 from neuralbrdf.models.nlb import NLBNetwork
-from neuralbrdf.render.drjit_onnx import DrJitGraph
 from neuralbrdf.render.onnx_contract import AbcMetadata, contract_metadata
+from neuralbrdf.study.cost import bench_throughput, machine
+from neuralbrdf.study.cost import timed as _timed
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 0
@@ -130,36 +126,6 @@ def _load_by_path(name: str, path: Path):
 
 to_onnx = _load_by_path("neuralbrdf_export_to_onnx", ROOT / "export" / "to_onnx.py")
 render_cmd = _load_by_path("neuralbrdf_export_render", ROOT / "export" / "render.py")
-
-
-def _timed(fn) -> float:
-    start = time.perf_counter()
-    fn()
-    return time.perf_counter() - start
-
-
-def machine() -> dict:
-    cpu = platform.processor() or "unknown"
-    cpuinfo = Path("/proc/cpuinfo")
-    if cpuinfo.is_file():
-        for line in cpuinfo.read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    return {
-        "cpu": cpu,
-        "cores": os.cpu_count(),
-        "platform": platform.platform(),
-        "python": platform.python_version(),
-        "versions": {
-            "torch": torch.__version__,
-            "onnxruntime": onnxruntime.__version__,
-            "onnx": onnx.__version__,
-            "mitsuba": mi.__version__,
-            "drjit": dr.__version__,
-        },
-        "threads": {"torch": torch.get_num_threads(), "drjit": dr.thread_count()},
-    }
 
 
 # --------------------------------------------------------------------------- model
@@ -270,82 +236,6 @@ def bench_renders(models: dict[str, Path], variant: str, settings: Settings) -> 
 # --------------------------------------------------------------------------- throughput
 
 
-def _probe_inputs(batch: int, spectral: bool, seed: int = SEED) -> dict[str, np.ndarray]:
-    rng = np.random.default_rng(seed)
-
-    def hemisphere():
-        v = rng.normal(size=(batch, 3))
-        v[:, 2] = np.abs(v[:, 2])
-        return (v / np.linalg.norm(v, axis=1, keepdims=True)).astype(np.float32)
-
-    feeds = {"wi": hemisphere(), "wo": hemisphere()}
-    if spectral:
-        feeds["wavelength"] = rng.uniform(400.0, 700.0, batch).astype(np.float32)
-    return feeds
-
-
-def _first_and_median(fn, repeats: int) -> dict:
-    first = _timed(fn)
-    values = [_timed(fn) for _ in range(repeats)]
-    return {"first_call_s": first, "times_s": values, "median_s": statistics.median(values)}
-
-
-def bench_throughput(module: torch.nn.Module, proto: onnx.ModelProto, spectral: bool, settings: Settings) -> dict:
-    """Queries per second of one model through PyTorch, onnxruntime and Dr.Jit."""
-    from drjit.llvm import Float
-
-    feeds = _probe_inputs(settings.batch, spectral)
-    names = ["wi", "wo", "wavelength"] if spectral else ["wi", "wo"]
-    repeats = max(settings.repeats, 3)
-    results = {}
-
-    tensors = [torch.from_numpy(feeds[n]) for n in names]
-
-    def torch_call():
-        with torch.inference_mode():
-            module(*tensors)
-
-    results["pytorch"] = _first_and_median(torch_call, repeats)
-
-    session = None
-
-    def make_session():
-        nonlocal session
-        session = onnxruntime.InferenceSession(proto.SerializeToString(), providers=["CPUExecutionProvider"])
-
-    session_s = _timed(make_session)
-    results["onnxruntime"] = {
-        "session_s": session_s,
-        **_first_and_median(lambda: session.run(["f"], {n: feeds[n] for n in names}), repeats),
-    }
-
-    graph = None
-
-    def make_graph():
-        nonlocal graph
-        graph = DrJitGraph(proto)
-
-    graph_s = _timed(make_graph)
-    wi = [Float(feeds["wi"][:, k]) for k in range(3)]
-    wo = [Float(feeds["wo"][:, k]) for k in range(3)]
-    wavelength = Float(feeds["wavelength"]) if spectral else None
-    dr.eval(*wi, *wo, *([wavelength] if spectral else []))
-
-    def drjit_call():
-        columns = [c for c in graph(wi, wo, wavelength) if not isinstance(c, float)]
-        dr.eval(*columns)
-        dr.sync_thread()
-
-    results["drjit"] = {
-        "graph_build_s": graph_s,
-        "multiply_adds": graph.multiply_adds,
-        **_first_and_median(drjit_call, repeats),
-    }
-    for entry in results.values():
-        entry["queries_per_s"] = settings.batch / entry["median_s"]
-    return results
-
-
 def nlb_module() -> tuple[torch.nn.Module, str]:
     """The compact NLB with one latent: the shipped pretrained network, else untrained weights."""
     if PRETRAINED_NLB.is_file():
@@ -448,7 +338,7 @@ def run(quick: bool, out: Path) -> dict:
         results["throughput"] = {}
         for name, (exportable, note) in models.items():
             proto = onnx_export.trace(exportable)
-            backends = bench_throughput(exportable.module, proto, exportable.is_spectral, settings)
+            backends = bench_throughput(proto, exportable.is_spectral, settings.batch, settings.repeats, exportable.module)
             fastest = max(backends, key=lambda b: backends[b]["queries_per_s"])
             results["throughput"][name] = {"note": note, "backends": backends, "fastest": fastest}
     results["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024

@@ -17,6 +17,7 @@ from neuralbrdf.atomic import command_inputs
 from neuralbrdf.cli import commands
 from neuralbrdf.data.plans import PLAN_NAMES
 from neuralbrdf.errors import InputError
+from neuralbrdf.study import command as study_command
 
 EPILOG = (
     "Conventions: angles in degrees. GCMS raw files hold signed in-plane angles theta_i, theta_r "
@@ -165,6 +166,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resolution", type=int, default=128, help="image width = height in pixels (default 128)")
     p.add_argument("--seed", type=int, default=0, help="render seed (default 0)")
     p.add_argument("--no-render", action="store_true", help="direction metrics only (no Mitsuba)")
+
+    study_command.add_arguments(add("study", study_command.run, study_command.HELP, study_command.DESCRIPTION))
 
     p = add(
         "regenerate-default-data",

@@ -26,7 +26,7 @@ import numpy as np
 
 from neuralbrdf.atomic import atomic_paths
 from neuralbrdf.evaluation.images import IMAGE_METRICS, image_scores
-from neuralbrdf.evaluation.scores import DIRECTION_METRICS, OnnxEvaluator, direction_scores
+from neuralbrdf.evaluation.scores import DIRECTION_METRICS, HEMISPHERE_STRATA, OnnxEvaluator, direction_scores
 
 DEFAULT_VARIANT = "llvm_ad_spectral"
 DEFAULT_SPP = 256
@@ -120,12 +120,14 @@ def _json_number(value):
 
 
 def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path,
-             settings: RenderSettings = RenderSettings(), render_images: bool = True) -> dict:
-    """Score ``model_path`` against ``truth_path`` and write ``out_dir`` (module docstring)."""
+             settings: RenderSettings = RenderSettings(), render_images: bool = True,
+             strata: tuple[int, int] = HEMISPHERE_STRATA) -> dict:
+    """Score ``model_path`` against ``truth_path`` and write ``out_dir`` (module docstring);
+    ``strata``: fewer hemisphere pairs than the default, for quick studies and tests."""
     model_path, truth_path, out_dir = Path(model_path), Path(truth_path), Path(out_dir)
     started = time.perf_counter()
     model, truth = OnnxEvaluator(model_path), OnnxEvaluator(truth_path)
-    directions = direction_scores(model, truth)
+    directions = direction_scores(model, truth, strata=strata)
     timings = {"directions_s": time.perf_counter() - started}
     result = {
         "model": str(model_path),
@@ -162,9 +164,9 @@ def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path
 
 
 def _write_outputs(result: dict, images, names: tuple[str, str], out_dir: Path) -> None:
-    names = FILES[: 5 if images else 1]
-    with atomic_paths(*(out_dir / name for name in names)) as temporaries:
-        paths = dict(zip(names, temporaries))
+    files = FILES[: 5 if images else 1]
+    with atomic_paths(*(out_dir / name for name in files)) as temporaries:
+        paths = dict(zip(files, temporaries))
         paths["evaluation.json"].write_text(json.dumps(result, indent=2, allow_nan=False) + "\n")
         if images is not None:
             model_image, truth_image, delta_e = images

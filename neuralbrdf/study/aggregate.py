@@ -1,0 +1,157 @@
+"""From cell results to the study's evidence: points, Pareto fronts, failures, budgets (SPEC §10).
+
+* **Points** — one per cell: ``material, model, method, plan, noise, seed``, ``cost`` (the render
+  ratio against ``roughconductor``, M queries/s of the fastest backend and the parameter count
+  of the variant's main cell — speed does not depend on the weights — and the cell's own fit
+  wall time) and ``error`` (the metrics of :mod:`neuralbrdf.evaluation`), ``failure``.
+* **Error threshold** — a cell that ran but whose ``hemisphere_logcos_rmse`` exceeds
+  :data:`THRESHOLD_FACTOR` × the median of the same (material, model) at DS1 without noise gets
+  the cause ``error_above_2x_ds1``.
+* **Pareto fronts** — among main cells without failure, the models no other beats on both
+  render ratio and ``image_delta_e2000_mean`` (and on both fit time and ΔE), per material; pooled
+  over materials on each model's median render ratio and median ΔE over the materials it fits.
+* **Budgets** — per material and ΔE budget, the model of lowest render ratio within it.
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections import Counter, defaultdict
+
+THRESHOLD_FACTOR = 2.0
+THRESHOLD_METRIC = "hemisphere_logcos_rmse"
+ACCURACY_METRIC = "image_delta_e2000_mean"
+BUDGETS_DELTA_E = (1.0, 2.0, 5.0, 10.0)
+#: Every failure cause a point can carry (:mod:`neuralbrdf.study.cell`, :func:`points_from_results`).
+CAUSES = ("non_finite_loss", "optimizer_failure", "fit_refused", "error_above_2x_ds1", "export_refused",
+          "evaluation_error", "cell_crashed")
+COST_FROM_MAIN = ("render_ratio", "mqueries_per_s", "parameters", "fastest_backend")
+
+
+def points_from_results(results: list[dict], methods: dict[str, str]) -> list[dict]:
+    """The points of module docstring (threshold failures included), in cell order."""
+    main_cost = {(r["material"], r["variant"]): r.get("cost", {}) for r in results if r.get("is_main")}
+    points = []
+    for r in results:
+        own = r.get("cost", {})
+        shared = main_cost.get((r["material"], r["variant"]), {})
+        cost = {key: shared.get(key) for key in COST_FROM_MAIN}
+        cost["fit_time_s"] = own.get("fit_time_s")
+        points.append({
+            "material": r["material"], "model": r["variant"], "method": methods[r["variant"]], "plan": r["plan"],
+            "noise": r["noise"], "seed": r["seed"], "is_main": bool(r.get("is_main")), "cost": cost,
+            "error": r.get("error") or {}, "failure": r.get("failure"), "message": r.get("message"),
+            "key": r.get("key"),
+        })
+    reference: dict[tuple[str, str], list[float]] = defaultdict(list)
+    for p in points:
+        value = p["error"].get(THRESHOLD_METRIC)
+        if p["plan"] == "DS1" and p["noise"] == 0.0 and p["failure"] is None and value is not None:
+            reference[(p["material"], p["model"])].append(value)
+    for p in points:
+        values = reference.get((p["material"], p["model"]))
+        value = p["error"].get(THRESHOLD_METRIC)
+        if p["failure"] is None and values and value is not None and value > THRESHOLD_FACTOR * statistics.median(values):
+            p["failure"] = "error_above_2x_ds1"
+            p["message"] = (f"{THRESHOLD_METRIC} {value:.4g} > {THRESHOLD_FACTOR:g} x DS1 noise-free "
+                            f"{statistics.median(values):.4g}")
+    return points
+
+
+def pareto_front(items: list[tuple[str, float, float]]) -> list[str]:
+    """Names of the items ``(name, cost, error)`` no other item beats on both (ties kept), by cost."""
+    front = []
+    for name, cost, error in items:
+        dominated = any(c <= cost and e <= error and (c < cost or e < error) for _, c, e in items)
+        if not dominated:
+            front.append((cost, name))
+    return [name for _, name in sorted(front)]
+
+
+def _usable(p: dict, cost_key: str) -> bool:
+    return (p["is_main"] and p["failure"] is None and p["cost"].get(cost_key) is not None
+            and p["error"].get(ACCURACY_METRIC) is not None)
+
+
+def pooled_points(points: list[dict], cost_key: str) -> list[dict]:
+    """Per model: median cost and median ΔE over the materials where its main cell succeeded."""
+    by_model: dict[str, list[dict]] = defaultdict(list)
+    for p in points:
+        if _usable(p, cost_key):
+            by_model[p["model"]].append(p)
+    return [{"model": model, "method": ps[0]["method"], "materials": [p["material"] for p in ps],
+             cost_key: statistics.median(p["cost"][cost_key] for p in ps),
+             ACCURACY_METRIC: statistics.median(p["error"][ACCURACY_METRIC] for p in ps)}
+            for model, ps in by_model.items()]
+
+
+def pareto(points: list[dict]) -> dict:
+    """Pareto fronts per material and pooled, for render ratio and for fit time (module docstring)."""
+    result = {}
+    for cost_key in ("render_ratio", "fit_time_s"):
+        per_material = {}
+        for material in dict.fromkeys(p["material"] for p in points):
+            items = [(p["model"], p["cost"][cost_key], p["error"][ACCURACY_METRIC]) for p in points
+                     if p["material"] == material and _usable(p, cost_key)]
+            per_material[material] = pareto_front(items)
+        pooled = pooled_points(points, cost_key)
+        result[cost_key] = {
+            "per_material": per_material,
+            "pooled": pareto_front([(q["model"], q[cost_key], q[ACCURACY_METRIC]) for q in pooled]),
+            "pooled_points": pooled,
+        }
+    return result
+
+
+def failures(points: list[dict]) -> list[dict]:
+    """Per (model, condition): cells, failures and counts by cause, and the seed-to-seed spread of
+    :data:`THRESHOLD_METRIC` (median and sample standard deviation over the cells with a value)."""
+    cells: dict[tuple[str, str], list[dict]] = defaultdict(list)
+    for p in points:
+        condition = p["plan"] + (f" {p['noise'] * 100:g}% noise" if p["noise"] else "")
+        cells[(p["model"], condition)].append(p)
+    rows = []
+    for (model, condition), ps in cells.items():
+        counts = Counter(p["failure"] for p in ps if p["failure"])
+        values = [p["error"][THRESHOLD_METRIC] for p in ps if p["error"].get(THRESHOLD_METRIC) is not None]
+        rows.append({"model": model, "method": ps[0]["method"], "condition": condition, "cells": len(ps),
+                     "failed": sum(counts.values()), "causes": dict(counts),
+                     "materials": sorted({p["material"] for p in ps}),
+                     "median_error": statistics.median(values) if values else None,
+                     "seed_std_error": statistics.stdev(values) if len(values) > 1 else None})
+    return rows
+
+
+def budgets(points: list[dict]) -> list[dict]:
+    """Per material and ΔE budget, the main-cell model of least render ratio within it."""
+    rows = []
+    for material in dict.fromkeys(p["material"] for p in points):
+        usable = [p for p in points if p["material"] == material and _usable(p, "render_ratio")]
+        for budget in BUDGETS_DELTA_E:
+            within = [p for p in usable if p["error"][ACCURACY_METRIC] <= budget]
+            best = min(within, key=lambda p: p["cost"]["render_ratio"]) if within else None
+            rows.append({"material": material, "budget_delta_e": budget, "model": best and best["model"],
+                         "render_ratio": best and best["cost"]["render_ratio"],
+                         ACCURACY_METRIC: best and best["error"][ACCURACY_METRIC]})
+    return rows
+
+
+def method_sentences(points: list[dict], failure_rows: list[dict]) -> dict[str, str]:
+    """One sentence per model on where it breaks and why (from the failure map)."""
+    sentences = {}
+    for model in dict.fromkeys(p["model"] for p in points):
+        rows = [r for r in failure_rows if r["model"] == model]
+        total, failed = sum(r["cells"] for r in rows), sum(r["failed"] for r in rows)
+        conditions = ", ".join(sorted({r["condition"] for r in rows}))
+        if failed == 0:
+            sentences[model] = f"{model}: no failure in {total} cells ({conditions})."
+            continue
+        broken = sorted((r for r in rows if r["failed"]), key=lambda r: -r["failed"] / r["cells"])
+        parts = []
+        for r in broken:
+            causes = ", ".join(f"{cause.replace('_', ' ')} ×{n}" for cause, n in sorted(r["causes"].items()))
+            parts.append(f"{r['condition']} ({r['failed']}/{r['cells']}: {causes})")
+        example = next((p["message"] for p in points if p["model"] == model and p["failure"] and p["message"]), "")
+        sentences[model] = (f"{model}: breaks in {failed} of {total} cells — " + "; ".join(parts)
+                            + (f". Example: {example}" if example else "."))
+    return sentences

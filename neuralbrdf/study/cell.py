@@ -1,0 +1,302 @@
+"""One study cell, run in its own process: data → fit → export → evaluate → (main cell) cost.
+
+    python -m neuralbrdf.study.cell CELL_DIR
+
+``CELL_DIR/cell.json`` (written by the runner) holds the cell, the material and variant entries
+of the profile, the truth file and the render/cost settings; this writes ``CELL_DIR/result.json``
+last (atomically), so a cell whose ``result.json`` exists is finished and any other is rerun from
+scratch.  Steps:
+
+1. **Data** (``data/NAME.csv``): a virtual material is measured by the virtual
+   goniospectrophotometer (:mod:`neuralbrdf.virtual.instrument`) on the plan with the cell's
+   relative noise and seed, together with the Munsell N9 reference (same noise, next seed), and
+   calibrated (report Eq. 2.3); an NBRDF proxy is sampled on the plan
+   (:func:`neuralbrdf.data.nbrdf.sample_plan`) and given the same multiplicative Gaussian noise;
+   a user's table is used as it is.
+2. **Fit** with ``train.py``'s entry (:func:`neuralbrdf.lightning.run.main`): the variant's config
+   and overrides, the data, ``--seed_everything SEED``; wall time measured.
+3. **Export** with ``export/to_onnx.py`` in a child process (the package never imports
+   ``export/``; its exit status 1 is "export refused").
+4. **Evaluate** with :func:`neuralbrdf.evaluation.evaluate.evaluate` (direction metrics; for the
+   main cell also the renders) and the glossy relative RMSE per incident angle and per channel
+   (:func:`neuralbrdf.metrics.relative_rmse_by_theta_i`, report Figs. 4.6/4.7 and 5.3).
+5. **Cost** (main cell): :mod:`neuralbrdf.study.cost`.
+
+Failure causes recorded (``failure``): ``non_finite_loss`` (a logged loss or the fit's own loss is
+NaN/inf), ``optimizer_failure`` (the fit reported failure, e.g. ABC's ``success: false``, or
+training stopped with an error), ``fit_refused`` (the fit rejected the data as bad input, exit
+status 2: e.g. a plan without samples in a required split), ``export_refused``,
+``evaluation_error``.  The fourth cause of
+the failure map, error above twice the method's DS1 noise-free error, is decided across cells
+by :mod:`neuralbrdf.study.aggregate`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+import dataclasses
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+import traceback
+from pathlib import Path
+
+import numpy as np
+
+from neuralbrdf.atomic import atomic_write
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+EXPORT_SCRIPT = REPO_ROOT / "export" / "to_onnx.py"
+#: Reference seed offset: the Munsell N9 is measured with its own noise stream.
+REFERENCE_SEED_OFFSET = 1
+CHECKPOINTS = {"spectral_mlp": "best.ckpt", "abc": "best.ckpt", "nlb": "fitted.ckpt"}
+#: Incident angles (degrees) of the per-angle relative RMSE: the DS1 grid.
+PER_ANGLE_THETA_I = np.arange(-60.0, 60.1, 5.0)
+LOSS_COLUMN_WORDS = ("loss",)
+
+
+class CellFailure(Exception):
+    def __init__(self, cause: str, message: str) -> None:
+        super().__init__(message)
+        self.cause = cause
+
+
+def _finite(value):
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    return value
+
+
+# --------------------------------------------------------------------------- data
+
+
+def write_data(spec: dict, out: Path) -> Path:
+    """The cell's training samples (module docstring, step 1); returns the table path."""
+    from neuralbrdf.data.table import write_table
+
+    cell, material = spec["cell"], spec["material"]
+    if material["table"] is not None:
+        return Path(material["table"])
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if material["truth"].startswith("virtual:"):
+        from neuralbrdf.data.calibration import calibrate
+        from neuralbrdf.virtual.instrument import VirtualGoniospectrophotometer
+        from neuralbrdf.virtual.materials import REFERENCE_MATERIAL
+
+        name = material["truth"].split(":", 1)[1]
+        sample = VirtualGoniospectrophotometer(cell["noise"], seed=cell["seed"]).measure_plan(name, cell["plan"])
+        reference = VirtualGoniospectrophotometer(cell["noise"], seed=cell["seed"] + REFERENCE_SEED_OFFSET)
+        table = calibrate(sample, reference.measure_plan(REFERENCE_MATERIAL, cell["plan"]))
+    else:
+        from neuralbrdf.data.nbrdf import NbrdfNetwork, sample_plan
+
+        table = sample_plan(NbrdfNetwork.load(material["truth"]), cell["plan"])
+        if cell["noise"]:
+            rng = np.random.default_rng([cell["seed"], 7])
+            noisy = table.values * (1.0 + cell["noise"] * rng.standard_normal(table.values.shape))
+            table = dataclasses.replace(table, values=np.clip(noisy, 0.0, None),
+                                        source=f"{table.source} + {cell['noise']:g} relative noise")
+    write_table(table, out)
+    return out
+
+
+# --------------------------------------------------------------------------- fit
+
+
+def _data_args(method: str, table: Path) -> list[str]:
+    return ["--data.path", str(table)]
+
+
+def _non_finite_logged_loss(run_dir: Path) -> bool:
+    for path in run_dir.rglob("metrics.csv"):
+        with path.open() as handle:
+            for row in csv.DictReader(handle):
+                for column, value in row.items():
+                    if column and any(w in column for w in LOSS_COLUMN_WORDS) and value not in ("", None):
+                        if not math.isfinite(float(value)):
+                            return True
+    return False
+
+
+def fit(spec: dict, table: Path, run_dir: Path) -> tuple[float, dict]:
+    """Train the variant (step 2); ``(wall time s, metrics.json)`` or :class:`CellFailure`."""
+    from neuralbrdf.lightning.run import main as train
+
+    variant, cell = spec["variant"], spec["cell"]
+    args = ["fit", "--config", variant["config"], *variant["args"], *_data_args(variant["method"], table),
+            "--run_dir", str(run_dir), "--seed_everything", str(cell["seed"])]
+    started = time.perf_counter()
+    captured = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(captured):
+            status = train(args)
+    except Exception as error:  # the fit's own exception: its message says why
+        message = f"{type(error).__name__}: {error}"
+        cause = "non_finite_loss" if _non_finite_logged_loss(run_dir) or "finite" in message.lower() \
+            or "nan" in message.lower() else "optimizer_failure"
+        raise CellFailure(cause, message.splitlines()[0][:300]) from None
+    finally:
+        sys.stderr.write(captured.getvalue())
+    wall = time.perf_counter() - started
+    if status == 2:  # train.py's bad-input status: the fit refused these data (its one-line reason)
+        reason = [line for line in captured.getvalue().splitlines() if line.startswith("error:")][-1:] or ["?"]
+        raise CellFailure("fit_refused", reason[0][:300])
+    if _non_finite_logged_loss(run_dir):
+        raise CellFailure("non_finite_loss", "a logged training loss is NaN or infinite")
+    if status != 0:  # train.py's "fit failed" status, with its one-line cause
+        reason = [line for line in captured.getvalue().splitlines() if line.startswith("error:")][-1:]
+        reason = reason[0][:300] if reason else f"training exited with status {status}"
+        finite = "finite" in reason.lower() or "nan" in reason.lower()
+        raise CellFailure("non_finite_loss" if finite else "optimizer_failure", reason)
+    metrics_path = run_dir / "metrics.json"
+    metrics = json.loads(metrics_path.read_text()) if metrics_path.is_file() else {}
+    if metrics.get("fit/abc/success") is False:
+        raise CellFailure("optimizer_failure", f"ABC fit: {metrics.get('fit/abc/failure_reason')}")
+    return wall, metrics
+
+
+def export(spec: dict, run_dir: Path, out: Path) -> Path:
+    """Export the fitted checkpoint (step 3) with ``export/to_onnx.py`` in a child process."""
+    if not EXPORT_SCRIPT.is_file():
+        raise CellFailure("export_refused", f"{EXPORT_SCRIPT} not found: the study needs a source checkout")
+    checkpoint = run_dir / "checkpoints" / CHECKPOINTS[spec["variant"]["method"]]
+    result = subprocess.run([sys.executable, str(EXPORT_SCRIPT), "--ckpt", str(checkpoint), "--out", str(out)],
+                            capture_output=True, text=True, cwd=REPO_ROOT)
+    if result.returncode != 0:
+        last = (result.stderr.strip().splitlines() or ["(no message)"])[-1]
+        raise CellFailure("export_refused", f"export/to_onnx.py exit {result.returncode}: {last[:300]}")
+    return out
+
+
+# --------------------------------------------------------------------------- evaluate
+
+
+def per_angle(model: Path, truth: Path) -> dict:
+    """Glossy relative RMSE per incident angle (channel mean) and per angle × channel."""
+    from neuralbrdf.evaluation.scores import COMPARISON_WAVELENGTHS_NM, OnnxEvaluator, compared_values, \
+        compares_spectra, inplane_pairs
+    from neuralbrdf.metrics import relative_rmse_by_theta_i
+
+    m, t = OnnxEvaluator(model), OnnxEvaluator(truth)
+    spectral = compares_spectra(m, t)
+    theta_i, theta_r, wi, wo = inplane_pairs()
+    keep = np.isin(np.round(theta_i, 6), PER_ANGLE_THETA_I)
+    pred = compared_values(m, wi[keep], wo[keep], spectral)
+    target = compared_values(t, wi[keep], wo[keep], spectral)
+    result = relative_rmse_by_theta_i(pred, target, theta_i[keep], theta_r[keep])
+    return {
+        "theta_i_deg": result.theta_i.tolist(),
+        "glossy_rel_rmse": [None if not math.isfinite(v) else float(v) for v in result.value],
+        "channels": COMPARISON_WAVELENGTHS_NM.tolist() if spectral else ["R", "G", "B"],
+        "per_channel": [[None if not math.isfinite(v) else float(v) for v in row] for row in result.per_channel],
+    }
+
+
+def render_variant(spec: dict, truth: Path) -> str:
+    from neuralbrdf.render.onnx_contract import load_model
+
+    chosen = spec["variant"]["render_variant"]
+    if chosen:
+        return chosen
+    return "llvm_ad_spectral" if load_model(truth).is_spectral else "llvm_ad_rgb"
+
+
+def cost(spec: dict, model: Path, variant: str) -> dict:
+    import onnx
+
+    from neuralbrdf.render.onnx_contract import load_model
+    from neuralbrdf.study import cost as costs
+
+    settings = spec["cost"]
+    loaded = load_model(model)
+    proto = onnx.load(str(model))
+    ratio = costs.render_ratio(model, variant, settings["resolution"], settings["spp"], settings["repeats"])
+    throughput = costs.bench_throughput(proto, loaded.is_spectral, settings["batch"], settings["repeats"])
+    fastest = max(throughput, key=lambda b: throughput[b]["queries_per_s"])
+    return {
+        "render_ratio": ratio["render_ratio"],
+        "render": ratio,
+        "mqueries_per_s": throughput[fastest]["queries_per_s"] / 1e6,
+        "fastest_backend": fastest,
+        "throughput": {b: {"queries_per_s": r["queries_per_s"], "median_s": r["median_s"]} for b, r in throughput.items()},
+        "parameters": costs.parameter_count(proto),
+    }
+
+
+def run_cell(cell_dir: Path) -> dict:
+    """Run the cell described by ``cell_dir/cell.json`` and write ``result.json`` (module docstring)."""
+    from neuralbrdf.evaluation.evaluate import RenderSettings, evaluate
+
+    spec = json.loads((cell_dir / "cell.json").read_text())
+    cell = spec["cell"]
+    result = {**cell, "is_main": spec["is_main"], "failure": None, "message": None, "cost": {}, "error": {},
+              "per_angle": None, "renders": None}
+    started = time.perf_counter()
+    steps = result["step_times_s"] = {}
+
+    def step(name: str) -> None:
+        steps[name] = time.perf_counter() - started - sum(steps.values())
+
+    try:
+        table = write_data(spec, cell_dir / "data" / f"{cell['material']}.csv")
+        step("data")
+        fit_s, _ = fit(spec, table, cell_dir / "run")
+        result["cost"]["fit_time_s"] = fit_s
+        step("fit")
+        model = export(spec, cell_dir / "run", cell_dir / "model.onnx")
+        step("export")
+        truth = Path(spec["truth"])
+        variant = render_variant(spec, truth)
+        try:
+            settings = RenderSettings(variant=variant, spp=spec["render"]["spp"],
+                                      resolution=spec["render"]["resolution"], seed=0)
+            evaluation = evaluate(model, truth, cell_dir / "evaluation", settings, render_images=spec["is_main"],
+                                  strata=tuple(spec["render"]["hemisphere_strata"]))
+            result["error"] = {k: evaluation.get(k) for k in (
+                "hemisphere_logcos_rmse", "hemisphere_rel_rmse", "inplane_glossy_rel_rmse", "inplane_diffuse_rel_rmse",
+                "image_delta_e2000_mean", "image_delta_e2000_p95", "image_psnr", "image_rel_mse") if k in evaluation}
+            step("evaluate")
+            if spec["is_main"]:
+                result["render_noise"] = evaluation.get("noise")
+                result["renders"] = {"variant": variant, "dir": "evaluation"}
+                result["per_angle"] = per_angle(model, truth)
+                step("per_angle")
+        except (ValueError, RuntimeError) as error:
+            raise CellFailure("evaluation_error", f"{type(error).__name__}: {error}"[:300]) from None
+        if spec["is_main"]:
+            result["cost"].update(cost(spec, model, variant))
+            step("cost")
+    except CellFailure as failure:
+        result["failure"], result["message"] = failure.cause, str(failure)
+    result["cell_wall_time_s"] = time.perf_counter() - started
+    result = _finite(result)
+    with atomic_write(cell_dir / "result.json") as handle:
+        json.dump(result, handle, indent=1, allow_nan=False)
+    return result
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    import torch
+
+    torch.set_num_threads(1)
+    try:
+        run_cell(Path(argv[0]))
+    except Exception:
+        traceback.print_exc()
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

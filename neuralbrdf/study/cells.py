@@ -1,0 +1,111 @@
+"""The cells of a study and their cache keys (SPEC §10).
+
+A cell is one fit and its evaluation: ``(material, variant, plan, noise, seed)``.  Its key hashes
+everything that changes its result — the material's truth and table (file contents), the
+variant's method, config file contents and overrides, plan, noise, seed, and for the *main*
+cell of a (material, variant) (DS1, no noise, seed 0: the one that is rendered and timed) the
+render and cost settings — so a finished cell is found again under ``DIR/cells/KEY/`` by a later
+run with the same settings, and a changed config reruns only what it touches.
+
+:func:`plan_cells` expands a profile: every variant on every material it applies to (the
+spectral MLP needs spectral samples) as a main cell; for the stability variants every plan at
+no noise and every noise level on DS1, at every seed (noise and plan sweeps need the virtual
+instrument or an NBRDF proxy; a user's own table is fitted as it is); for grouped variants
+(γ, angle unit, latent size) every seed at DS1 without noise.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass
+from functools import lru_cache
+from pathlib import Path
+
+from neuralbrdf.study.profile import Profile
+
+MAIN_PLAN, MAIN_NOISE, MAIN_SEED = "DS1", 0.0, 0
+#: Bump when a cell's result format or computation changes: every cell reruns.
+CELL_FORMAT = 2
+
+
+@dataclass(frozen=True)
+class Cell:
+    material: str
+    variant: str
+    plan: str
+    noise: float
+    seed: int
+
+    @property
+    def is_main(self) -> bool:
+        return (self.plan, self.noise, self.seed) == (MAIN_PLAN, MAIN_NOISE, MAIN_SEED)
+
+    @property
+    def condition(self) -> str:
+        """The condition label of the failure map: ``DS2``, ``DS1 3% noise``."""
+        return self.plan + (f" {self.noise * 100:g}% noise" if self.noise else "")
+
+
+@lru_cache(maxsize=None)
+def file_digest(path: str) -> str:
+    if path.startswith("virtual:"):
+        return path
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def cell_settings(cell: Cell, profile: Profile) -> dict:
+    """Everything a cell's result depends on (module docstring), as plain JSON values."""
+    material = next(m for m in profile.materials if m.name == cell.material)
+    variant = profile.variant(cell.variant)
+    settings = {
+        "format": CELL_FORMAT,
+        "cell": asdict(cell),
+        "material": {"name": material.name, "truth": file_digest(material.truth),
+                     "table": None if material.table is None else file_digest(material.table)},
+        "variant": {"method": variant.method, "config": file_digest(variant.config), "args": list(variant.args),
+                    "render_variant": variant.render_variant},
+    }
+    settings["hemisphere_strata"] = list(profile.render.hemisphere_strata)
+    if cell.is_main:
+        settings["render"] = asdict(profile.render)
+        settings["cost"] = asdict(profile.cost)
+    return settings
+
+
+def cell_key(cell: Cell, profile: Profile) -> str:
+    """Hex key of :func:`cell_settings` (24 characters of its SHA-256)."""
+    text = json.dumps(cell_settings(cell, profile), sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:24]
+
+
+def applies(profile: Profile, material_name: str, variant_name: str) -> bool:
+    """Whether a variant can fit a material (the spectral MLP needs spectral samples)."""
+    material = next(m for m in profile.materials if m.name == material_name)
+    return profile.variant(variant_name).method != "spectral_mlp" or material.is_spectral
+
+
+def plan_cells(profile: Profile) -> list[Cell]:
+    """Every cell of ``profile`` once, main cells first (module docstring)."""
+    cells: list[Cell] = []
+
+    def add(cell: Cell) -> None:
+        if cell not in cells:
+            cells.append(cell)
+
+    pairs = [(m, v) for m in profile.materials for v in profile.variants if applies(profile, m.name, v.name)]
+    for material, variant in pairs:
+        add(Cell(material.name, variant.name, MAIN_PLAN, MAIN_NOISE, MAIN_SEED))
+    s = profile.stability
+    for material, variant in pairs:
+        sweeps = material.table is None
+        if variant.name in s.variants:
+            for seed in s.seeds:
+                for plan in s.plans if sweeps else (MAIN_PLAN,):
+                    add(Cell(material.name, variant.name, plan, MAIN_NOISE, seed))
+                for noise in s.noise if sweeps else (MAIN_NOISE,):
+                    add(Cell(material.name, variant.name, MAIN_PLAN, noise, seed))
+        if variant.group is not None:
+            for seed in s.seeds:
+                add(Cell(material.name, variant.name, MAIN_PLAN, MAIN_NOISE, seed))
+    return cells

@@ -1,0 +1,34 @@
+"""The ``neuralbrdf study`` subcommand (arguments and entry; the work is in
+:mod:`neuralbrdf.study.runner`, imported only when the command runs)."""
+
+from __future__ import annotations
+
+HELP = "run the speed/accuracy/stability study and write DIR/index.html"
+DESCRIPTION = (
+    "Fit every model variant of a study profile to every material (and, for the stability variants, every "
+    "sampling plan, relative noise level and seed), score each fit against the material's truth, time it against "
+    "Mitsuba's roughconductor, and write DIR/study.json, DIR/figures/*.png and DIR/index.html (SPEC §10). "
+    "Finished cells are cached under DIR/cells/ by their settings: a rerun does only what is new, a killed run "
+    "resumes. PROFILE is quick, full (configs/study/) or your own YAML file."
+)
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--profile", required=True, help="quick, full or a profile YAML file")
+    parser.add_argument("--out", required=True, help="output folder (cache, figures, study.json, index.html)")
+    parser.add_argument("--jobs", type=int, default=1, help="cells run at once, one core each (default 1)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def run(args) -> None:
+    from neuralbrdf.errors import InputError
+    from neuralbrdf.study.runner import run_study
+
+    if args.jobs < 1:
+        raise InputError(f"--jobs must be >= 1, got {args.jobs}", column="--jobs")
+    study = run_study(args.profile, args.out, args.jobs, command=f"neuralbrdf study --profile {args.profile} --out {args.out} --jobs {args.jobs}",
+                      progress=not args.no_progress)
+    failed = sum(1 for p in study["points"] if p["failure"])
+    print(f"{len(study['points'])} cells ({study['run']['cells_run']} run, {study['run']['cells_cached']} cached, "
+          f"{failed} failed) in {study['run']['wall_time_s']:.0f} s -> {args.out}/index.html")
+    print("Pareto (ΔE vs render cost, pooled): " + (", ".join(study["pareto"]["render_ratio"]["pooled"]) or "none"))

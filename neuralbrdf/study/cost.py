@@ -1,0 +1,191 @@
+"""What a model costs, measured as ratios in one process (SPEC §5 "Speed", §8; shared by the study
+and ``benchmarks/run.py``).
+
+* :func:`render_ratio` — median render time of the model in the material-preview scene
+  (:mod:`neuralbrdf.render.preview`) divided by that of Mitsuba's ``roughconductor`` rendered in
+  the same process, variant, resolution, sample count and pass split, the timed renders taken
+  round-robin so that load from other processes hits both alike;
+* :func:`bench_throughput` — queries per second of an ``.onnx`` model through onnxruntime and
+  Dr.Jit (:class:`~neuralbrdf.render.drjit_onnx.DrJitGraph`) and, given the torch module, PyTorch;
+  warm-up call timed apart, then the median of ``repeats`` calls;
+* :func:`parameter_count` — float weights stored in the ``.onnx`` file;
+* :func:`machine` — CPU, cores, versions and thread counts, recorded beside every figure.
+"""
+
+from __future__ import annotations
+
+import gc
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+
+SEED = 0
+
+
+def timed(fn) -> float:
+    """Wall time of ``fn()`` in seconds."""
+    start = time.perf_counter()
+    fn()
+    return time.perf_counter() - start
+
+
+def first_and_median(fn, repeats: int) -> dict:
+    """``first_call_s`` (warm-up) then ``times_s`` and ``median_s`` of ``repeats`` calls."""
+    first = timed(fn)
+    values = [timed(fn) for _ in range(repeats)]
+    return {"first_call_s": first, "times_s": values, "median_s": statistics.median(values)}
+
+
+def machine() -> dict:
+    """The machine and library versions a measurement was taken with."""
+    import drjit as dr
+    import mitsuba as mi
+    import onnx
+    import onnxruntime
+    import torch
+
+    cpu = platform.processor() or "unknown"
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.is_file():
+        for line in cpuinfo.read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    return {
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "versions": {
+            "torch": torch.__version__,
+            "onnxruntime": onnxruntime.__version__,
+            "onnx": onnx.__version__,
+            "mitsuba": mi.__version__,
+            "drjit": dr.__version__,
+        },
+        "threads": {"torch": torch.get_num_threads(), "drjit": dr.thread_count()},
+    }
+
+
+def probe_inputs(batch: int, spectral: bool, seed: int = SEED) -> dict[str, np.ndarray]:
+    """``batch`` random upper-hemisphere direction pairs (and wavelengths in 400–700 nm)."""
+    rng = np.random.default_rng(seed)
+
+    def hemisphere():
+        v = rng.normal(size=(batch, 3))
+        v[:, 2] = np.abs(v[:, 2])
+        return (v / np.linalg.norm(v, axis=1, keepdims=True)).astype(np.float32)
+
+    feeds = {"wi": hemisphere(), "wo": hemisphere()}
+    if spectral:
+        feeds["wavelength"] = rng.uniform(400.0, 700.0, batch).astype(np.float32)
+    return feeds
+
+
+def bench_throughput(proto, spectral: bool, batch: int, repeats: int, module=None) -> dict:
+    """Queries per second of one model (``onnx.ModelProto``) through onnxruntime and Dr.Jit, and
+    through PyTorch when ``module`` (the same model as a torch module) is given."""
+    import drjit as dr
+    import onnxruntime
+    from drjit.llvm import Float
+
+    from neuralbrdf.render.drjit_onnx import DrJitGraph
+
+    feeds = probe_inputs(batch, spectral)
+    names = ["wi", "wo", "wavelength"] if spectral else ["wi", "wo"]
+    repeats = max(repeats, 3)
+    results = {}
+    if module is not None:
+        import torch
+
+        tensors = [torch.from_numpy(feeds[n]) for n in names]
+
+        def torch_call():
+            with torch.inference_mode():
+                module(*tensors)
+
+        results["pytorch"] = first_and_median(torch_call, repeats)
+
+    session = None
+
+    def make_session():
+        nonlocal session
+        session = onnxruntime.InferenceSession(proto.SerializeToString(), providers=["CPUExecutionProvider"])
+
+    session_s = timed(make_session)
+    results["onnxruntime"] = {
+        "session_s": session_s,
+        **first_and_median(lambda: session.run(["f"], {n: feeds[n] for n in names}), repeats),
+    }
+
+    graph = None
+
+    def make_graph():
+        nonlocal graph
+        graph = DrJitGraph(proto)
+
+    graph_s = timed(make_graph)
+    wi = [Float(feeds["wi"][:, k]) for k in range(3)]
+    wo = [Float(feeds["wo"][:, k]) for k in range(3)]
+    wavelength = Float(feeds["wavelength"]) if spectral else None
+    dr.eval(*wi, *wo, *([wavelength] if spectral else []))
+
+    def drjit_call():
+        columns = [c for c in graph(wi, wo, wavelength) if not isinstance(c, float)]
+        dr.eval(*columns)
+        dr.sync_thread()
+
+    results["drjit"] = {"graph_build_s": graph_s, "multiply_adds": graph.multiply_adds,
+                        **first_and_median(drjit_call, repeats)}
+    for entry in results.values():
+        entry["queries_per_s"] = batch / entry["median_s"]
+    return results
+
+
+def parameter_count(proto) -> int:
+    """Number of floating-point values stored as initializers (weights, baked latent, tables)."""
+    import onnx
+    from onnx import numpy_helper
+
+    floats = (onnx.TensorProto.FLOAT, onnx.TensorProto.DOUBLE, onnx.TensorProto.FLOAT16)
+    return int(sum(numpy_helper.to_array(t).size for t in proto.graph.initializer if t.data_type in floats))
+
+
+def render_ratio(model: Path, variant: str, resolution: int, spp: int, repeats: int) -> dict:
+    """Median render time of ``model`` ÷ that of ``roughconductor``, same process and settings
+    (module docstring); both medians, the first (compiling) calls and the ratio."""
+    from neuralbrdf.render import preview
+
+    preview.set_variant(variant)
+    spp_per_pass = preview.default_spp_per_pass(resolution, wavefront=False)
+    materials = {"model": preview.Material(model=Path(model), backend="drjit"),
+                 "roughconductor": preview.Material(reference_bsdf="roughconductor")}
+    times: dict[str, list[float]] = {name: [] for name in materials}
+    first: dict[str, float] = {}
+
+    def render_once(name: str, seed: int) -> float:
+        scene = preview.load_scene(materials[name], resolution)
+        start = time.perf_counter()
+        image = preview.render_passes(scene, spp, spp_per_pass, seed, False)
+        elapsed = time.perf_counter() - start
+        del scene
+        gc.collect()
+        if not np.all(np.isfinite(image)):
+            raise RuntimeError(f"{variant} {name}: the render is not finite")
+        return elapsed
+
+    for name in materials:
+        first[name] = render_once(name, SEED)
+    for repeat in range(repeats):
+        for name in materials:
+            times[name].append(render_once(name, SEED + 1 + repeat))
+    medians = {name: statistics.median(values) for name, values in times.items()}
+    return {
+        "variant": variant, "resolution": resolution, "spp": spp, "repeats": repeats,
+        "model_median_s": medians["model"], "roughconductor_median_s": medians["roughconductor"],
+        "first_call_s": first, "render_ratio": medians["model"] / medians["roughconductor"],
+    }

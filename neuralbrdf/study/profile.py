@@ -1,0 +1,242 @@
+"""Study profiles: which materials, model variants and conditions ``neuralbrdf study`` runs (SPEC §10).
+
+A profile is a YAML file (``configs/study/quick.yaml``, ``full.yaml``, or a user's own)::
+
+    render: {spp: 4, resolution: 32}           # evaluation renders (truth | model | ΔE)
+    hemisphere_strata: [16, 20]                # optional: (cos θ, φ) strata of the hemisphere metrics
+                                               # (default the evaluation's, 102 400 pairs; fewer is faster)
+    cost: {spp: 4, resolution: 32, repeats: 2, batch: 65536}   # render-ratio and queries/s timing
+    materials:
+      - {name: gold, truth: virtual:gold}      # virtual instrument: any plan, any noise
+      - {name: nylon, truth: ../shared/data/merl-nbrdf/nylon.h5}   # NBRDF proxy sampled on the plan
+      - {name: mine, table: my_measurement.csv, truth: mine_truth.onnx}   # a user's measured table
+    variants:                                  # every model variant: a config file + CLI overrides
+      - {name: spectral_mlp, method: spectral_mlp, config: configs/spectral_mlp.yaml,
+         args: [--trainer.max_epochs, "5"], group: "γ / angle unit", label: "γ=3 rad"}
+    stability:
+      variants: [spectral_mlp, abc]            # methods whose failures are mapped
+      plans: [DS1, DS2, DS3, DS4]
+      noise: [0.0, 0.01, 0.03, 0.1]            # relative, the virtual instrument's --noise
+      seeds: [0, 1, 2, 3, 4]
+
+Paths are relative to the repository root when they start with ``configs/`` or ``../shared``,
+otherwise relative to the profile file.  ``method`` is ``spectral_mlp``, ``abc`` or ``nlb`` (how
+data are passed and which checkpoint is exported); ``render_variant`` renders a model in another
+Mitsuba variant (a spectral model in ``llvm_ad_rgb`` uses the reduced-wavelength rule).  Variants
+with a ``group`` are also run at every stability seed (DS1, no noise) and box-plotted by ``label``.
+Every error names the profile file and the key (``materials[1].truth``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+from neuralbrdf.data.plans import PLAN_NAMES
+from neuralbrdf.errors import InputError
+from neuralbrdf.evaluation.scores import HEMISPHERE_STRATA
+
+METHODS = ("spectral_mlp", "abc", "nlb")
+BUILTIN_DIR = Path(__file__).resolve().parents[2] / "configs" / "study"
+REPO_ROOT = Path(__file__).resolve().parents[2]
+MAX_NOISE = 1.0
+
+
+@dataclass(frozen=True)
+class RenderSpec:
+    spp: int
+    resolution: int
+    hemisphere_strata: tuple[int, int] = HEMISPHERE_STRATA
+
+
+@dataclass(frozen=True)
+class CostSpec:
+    spp: int
+    resolution: int
+    repeats: int
+    batch: int
+
+
+@dataclass(frozen=True)
+class MaterialSpec:
+    """``truth``: ``virtual:NAME``, an NBRDF ``.h5`` or a reference ``.onnx``; ``table``: a user's own
+    measurement (then plan and noise sweeps do not apply to it)."""
+
+    name: str
+    truth: str
+    table: str | None = None
+
+    @property
+    def is_virtual(self) -> bool:
+        return self.truth.startswith("virtual:")
+
+    @property
+    def is_spectral(self) -> bool:
+        """Whether its samples are spectral (virtual instrument, or a user's table with wavelengths)."""
+        if self.table is not None:
+            from neuralbrdf.data.table import read_table
+
+            return read_table(self.table).is_spectral
+        return self.is_virtual
+
+
+@dataclass(frozen=True)
+class VariantSpec:
+    name: str
+    method: str
+    config: str
+    args: tuple[str, ...] = ()
+    render_variant: str | None = None
+    group: str | None = None
+    label: str | None = None
+
+
+@dataclass(frozen=True)
+class StabilitySpec:
+    variants: tuple[str, ...] = ()
+    plans: tuple[str, ...] = ("DS1",)
+    noise: tuple[float, ...] = (0.0,)
+    seeds: tuple[int, ...] = (0,)
+
+
+@dataclass(frozen=True)
+class Profile:
+    path: Path
+    render: RenderSpec
+    cost: CostSpec
+    materials: tuple[MaterialSpec, ...]
+    variants: tuple[VariantSpec, ...]
+    stability: StabilitySpec = field(default_factory=StabilitySpec)
+
+    def variant(self, name: str) -> VariantSpec:
+        return next(v for v in self.variants if v.name == name)
+
+
+def resolve_profile_path(name_or_path: str) -> Path:
+    """``quick``/``full`` name the shipped profiles; anything else is a YAML file."""
+    if name_or_path in ("quick", "full"):
+        return BUILTIN_DIR / f"{name_or_path}.yaml"
+    return Path(name_or_path)
+
+
+class _Reader:
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def fail(self, key: str, message: str):
+        raise InputError(message, path=self.path, column=key)
+
+    def mapping(self, value, key: str, allowed: tuple[str, ...], required: tuple[str, ...] = ()) -> dict:
+        if not isinstance(value, dict):
+            self.fail(key, f"expected a mapping, got {type(value).__name__}")
+        for name in value:
+            if name not in allowed:
+                self.fail(f"{key}.{name}" if key else str(name), f"unknown key; expected one of {', '.join(allowed)}")
+        for name in required:
+            if name not in value:
+                self.fail(f"{key}.{name}" if key else name, "missing")
+        return value
+
+    def integer(self, value, key: str, low: int = 1) -> int:
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            self.fail(key, f"expected an integer >= {low}, got {value!r}")
+        return value
+
+    def string(self, value, key: str) -> str:
+        if not isinstance(value, str) or not value.strip():
+            self.fail(key, f"expected a non-empty string, got {value!r}")
+        return value
+
+    def sequence(self, value, key: str) -> list:
+        if not isinstance(value, list) or not value:
+            self.fail(key, f"expected a non-empty list, got {value!r}")
+        return value
+
+    def file(self, value, key: str) -> str:
+        text = self.string(value, key)
+        if text.startswith("virtual:"):
+            return text
+        path = Path(text)
+        if not path.is_absolute():
+            anchored = REPO_ROOT / path if text.startswith(("configs/", "../shared")) else self.path.parent / path
+            path = anchored.resolve()
+        if not path.is_file():
+            self.fail(key, f"no such file {path}")
+        return str(path)
+
+
+def load_profile(name_or_path: str) -> Profile:
+    """The validated profile (module docstring); :class:`InputError` naming file and key otherwise."""
+    path = resolve_profile_path(name_or_path)
+    if not path.is_file():
+        raise InputError("no such study profile; expected quick, full or a YAML file", path=path)
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        raise InputError(f"not valid YAML ({getattr(error, 'problem', error)})", path=path,
+                         row=None if mark is None else mark.line + 1) from None
+    r = _Reader(path)
+    raw = r.mapping(raw, "", ("render", "hemisphere_strata", "cost", "materials", "variants", "stability"),
+                    ("render", "cost", "materials", "variants"))
+    render = r.mapping(raw["render"], "render", ("spp", "resolution"), ("spp", "resolution"))
+    cost = r.mapping(raw["cost"], "cost", ("spp", "resolution", "repeats", "batch"),
+                     ("spp", "resolution", "repeats", "batch"))
+    materials = []
+    for i, entry in enumerate(r.sequence(raw["materials"], "materials")):
+        key = f"materials[{i}]"
+        entry = r.mapping(entry, key, ("name", "truth", "table"), ("name", "truth"))
+        truth = r.file(entry["truth"], f"{key}.truth")
+        if not truth.startswith("virtual:") and Path(truth).suffix not in (".h5", ".onnx"):
+            r.fail(f"{key}.truth", "expected virtual:NAME, an NBRDF .h5 or a reference .onnx")
+        if Path(truth).suffix == ".onnx" and "table" not in entry:
+            r.fail(f"{key}.table", "a truth given as .onnx needs the measured table to fit")
+        table = r.file(entry["table"], f"{key}.table") if "table" in entry else None
+        materials.append(MaterialSpec(r.string(entry["name"], f"{key}.name"), truth, table))
+    variants = []
+    for i, entry in enumerate(r.sequence(raw["variants"], "variants")):
+        key = f"variants[{i}]"
+        entry = r.mapping(entry, key, ("name", "method", "config", "args", "render_variant", "group", "label"),
+                          ("name", "method", "config"))
+        if entry["method"] not in METHODS:
+            r.fail(f"{key}.method", f"expected one of {', '.join(METHODS)}, got {entry['method']!r}")
+        args = entry.get("args", [])
+        if not isinstance(args, list) or not all(isinstance(a, (str, int, float)) for a in args):
+            r.fail(f"{key}.args", "expected a list of command-line words")
+        variants.append(VariantSpec(
+            r.string(entry["name"], f"{key}.name"), entry["method"], r.file(entry["config"], f"{key}.config"),
+            tuple(str(a) for a in args), entry.get("render_variant"), entry.get("group"),
+            entry.get("label") or entry["name"]))
+    for names, what in (([m.name for m in materials], "materials"), ([v.name for v in variants], "variants")):
+        duplicated = sorted({n for n in names if names.count(n) > 1})
+        if duplicated:
+            r.fail(what, f"duplicated names {duplicated}")
+    strata = raw.get("hemisphere_strata", list(HEMISPHERE_STRATA))
+    if not isinstance(strata, list) or len(strata) != 2:
+        r.fail("hemisphere_strata", f"expected [n_cos, n_phi], got {strata!r}")
+    strata = tuple(r.integer(n, f"hemisphere_strata[{i}]") for i, n in enumerate(strata))
+    stability = StabilitySpec()
+    if "stability" in raw:
+        s = r.mapping(raw["stability"], "stability", ("variants", "plans", "noise", "seeds"))
+        for i, name in enumerate(s.get("variants", [])):
+            if name not in [v.name for v in variants]:
+                r.fail(f"stability.variants[{i}]", f"no variant named {name!r}")
+        for i, plan in enumerate(s.get("plans", ["DS1"])):
+            if plan not in PLAN_NAMES or plan == "low":
+                r.fail(f"stability.plans[{i}]", f"expected DS1..DS4, got {plan!r}")
+        for i, noise in enumerate(s.get("noise", [0.0])):
+            if isinstance(noise, bool) or not isinstance(noise, (int, float)) or not 0.0 <= noise <= MAX_NOISE:
+                r.fail(f"stability.noise[{i}]", f"expected a relative noise in [0, {MAX_NOISE}], got {noise!r}")
+        seeds = [r.integer(seed, f"stability.seeds[{i}]", 0) for i, seed in enumerate(s.get("seeds", [0]))]
+        stability = StabilitySpec(tuple(s.get("variants", [])), tuple(s.get("plans", ["DS1"])),
+                                  tuple(float(n) for n in s.get("noise", [0.0])), tuple(seeds))
+    return Profile(
+        path=path,
+        render=RenderSpec(r.integer(render["spp"], "render.spp"), r.integer(render["resolution"], "render.resolution"),
+                          strata),
+        cost=CostSpec(r.integer(cost["spp"], "cost.spp"), r.integer(cost["resolution"], "cost.resolution"),
+                      r.integer(cost["repeats"], "cost.repeats"), r.integer(cost["batch"], "cost.batch")),
+        materials=tuple(materials), variants=tuple(variants), stability=stability,
+    )

@@ -1,0 +1,198 @@
+"""``neuralbrdf study``: run a profile's cells (cached, resumable, in parallel) and write the report.
+
+Layout of ``DIR``: ``cells/KEY/`` (one finished cell: ``cell.json``, ``result.json``, its data,
+run, model and evaluation; :mod:`neuralbrdf.study.cells`), ``truths/NAME.onnx`` (each material's
+truth, exported once), ``figures/*.png``, ``study.json`` and ``index.html``.  A cell with a
+``result.json`` is reused; any other cell folder is left over from a killed run and is cleared
+and rerun.  Cells run as child processes (``python -m neuralbrdf.study.cell``), ``jobs`` at a
+time, one thread each, with a progress bar; a cell whose process dies without a result is
+reported as ``cell_crashed`` (its log in ``cells/KEY/log.txt``) and rerun next time.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import asdict
+from datetime import datetime, timezone
+from pathlib import Path
+
+from tqdm import tqdm
+
+from neuralbrdf.atomic import atomic_write
+from neuralbrdf.study import aggregate, charts
+from neuralbrdf.study.cells import Cell, cell_key, plan_cells
+from neuralbrdf.study.profile import Profile, load_profile
+
+STUDY_FORMAT = 1
+
+
+def truth_path(profile: Profile, material: str, out_dir: Path) -> Path:
+    """The material's truth as an ``.onnx`` file, exported under ``out_dir/truths`` once."""
+    from neuralbrdf.evaluation.truth import export_truth
+
+    spec = next(m for m in profile.materials if m.name == material)
+    if spec.truth.endswith(".onnx"):
+        return Path(spec.truth)
+    path = out_dir / "truths" / f"{material}.onnx"
+    if not path.is_file():
+        export_truth(spec.truth, path)
+    return path
+
+
+def _cell_spec(cell: Cell, profile: Profile, truth: Path) -> dict:
+    material = next(m for m in profile.materials if m.name == cell.material)
+    return {"cell": asdict(cell), "is_main": cell.is_main, "material": asdict(material),
+            "variant": asdict(profile.variant(cell.variant)), "truth": str(truth),
+            "render": asdict(profile.render), "cost": asdict(profile.cost)}
+
+
+def run_one(cell: Cell, key: str, spec: dict, cells_dir: Path) -> tuple[dict, bool]:
+    """``(result, ran)``: the cached result, or the result of running the cell now."""
+    folder = cells_dir / key
+    result_path = folder / "result.json"
+    if result_path.is_file():
+        return json.loads(result_path.read_text()), False
+    if folder.exists():
+        shutil.rmtree(folder)
+    folder.mkdir(parents=True)
+    (folder / "cell.json").write_text(json.dumps(spec, indent=1))
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONWARNINGS": "ignore"}
+    with (folder / "log.txt").open("w") as log:
+        subprocess.run([sys.executable, "-m", "neuralbrdf.study.cell", str(folder)], stdout=log, stderr=subprocess.STDOUT,
+                       env=env, check=False)
+    if result_path.is_file():
+        return json.loads(result_path.read_text()), True
+    tail = (folder / "log.txt").read_text().strip().splitlines()[-1:] or ["(empty log)"]
+    return {**asdict(cell), "is_main": cell.is_main, "failure": "cell_crashed",
+            "message": f"the cell process died: {tail[0][:300]} (log: cells/{key}/log.txt)", "cost": {}, "error": {}}, True
+
+
+def run_cells(profile: Profile, out_dir: Path, jobs: int, progress: bool = True) -> tuple[list[dict], int]:
+    """Every cell's result in :func:`plan_cells` order, and how many ran now."""
+    cells = plan_cells(profile)
+    truths = {m.name: truth_path(profile, m.name, out_dir) for m in profile.materials}
+    keys = [cell_key(c, profile) for c in cells]
+    results: list[dict | None] = [None] * len(cells)
+    ran = 0
+    with ThreadPoolExecutor(max_workers=jobs) as pool, tqdm(total=len(cells), unit="cell", desc="study",
+                                                            disable=not progress, file=sys.stderr) as bar:
+        futures = {pool.submit(run_one, c, k, _cell_spec(c, profile, truths[c.material]), out_dir / "cells"): i
+                   for i, (c, k) in enumerate(zip(cells, keys))}
+        for future in as_completed(futures):
+            i = futures[future]
+            result, did_run = future.result()
+            results[i] = {**result, "key": keys[i]}
+            ran += did_run
+            bar.set_postfix_str(f"{cells[i].material}/{cells[i].variant} {cells[i].condition}", refresh=False)
+            bar.update()
+    return results, ran
+
+
+def write_figures(profile: Profile, results: list[dict], study: dict, out_dir: Path) -> dict:
+    figures_dir = out_dir / "figures"
+    points, front = study["points"], study["pareto"]
+    pooled_entries = {}
+    for cost_key in ("render_ratio", "fit_time_s"):
+        for q in front[cost_key]["pooled_points"]:
+            pooled_entries.setdefault(q["model"], {"model": q["model"], "method": q["method"]})[cost_key] = q[cost_key]
+            pooled_entries[q["model"]][aggregate.ACCURACY_METRIC] = q[aggregate.ACCURACY_METRIC]
+    figs = {"speed_accuracy_pooled": charts.speed_accuracy(
+        list(pooled_entries.values()), {k: front[k]["pooled"] for k in front},
+        "pooled over materials: each model's median over the materials it fits", figures_dir / "speed_accuracy_pooled.png"),
+        "speed_accuracy": {}, "stability": {}, "rel_rmse_vs_angle": {}, "per_channel": {}, "renders": {}}
+    for m in profile.materials:
+        entries = [{"model": p["model"], "method": p["method"], **p["cost"],
+                    aggregate.ACCURACY_METRIC: p["error"].get(aggregate.ACCURACY_METRIC)}
+                   for p in points if p["material"] == m.name and p["is_main"] and p["failure"] is None]
+        figs["speed_accuracy"][m.name] = charts.speed_accuracy(
+            entries, {k: front[k]["per_material"].get(m.name, []) for k in front}, f"{m.name}",
+            figures_dir / f"speed_accuracy_{m.name}.png")
+        main = [r for r in results if r["material"] == m.name and r.get("is_main") and r.get("per_angle")]
+        if main:
+            figs["rel_rmse_vs_angle"][m.name] = charts.rel_rmse_vs_angle(main, m.name, figures_dir / f"rel_rmse_angle_{m.name}.png")
+            figs["per_channel"][m.name] = charts.per_channel_boxes(main, m.name, figures_dir / f"per_channel_{m.name}.png")
+            rows = [(r["variant"], out_dir / "cells" / r["key"] / "evaluation") for r in main]
+            figs["renders"][m.name] = charts.renders_grid(rows, m.name, figures_dir / f"renders_{m.name}.png")
+    stable = [v for v in profile.stability.variants]
+    if stable:
+        sweep = [p for p in points if p["model"] in stable]
+        plans = [pl for pl in ("DS1", "DS2", "DS3", "DS4") if pl in profile.stability.plans]
+        figs["stability"]["plans"] = charts.box_by_condition(
+            [p for p in sweep if p["noise"] == 0.0], stable, plans, lambda p: p["plan"], str,
+            "error per sampling plan (no noise)", figures_dir / "stability_plans.png")
+        noise = sorted(set(profile.stability.noise))
+        figs["stability"]["noise"] = charts.box_by_condition(
+            [p for p in sweep if p["plan"] == "DS1"], stable, noise, lambda p: p["noise"], lambda n: f"{n * 100:g}%",
+            "error per relative measurement noise (DS1)", figures_dir / "stability_noise.png")
+    groups = dict.fromkeys(v.group for v in profile.variants if v.group)
+    for g, group in enumerate(groups):
+        members = [v for v in profile.variants if v.group == group]
+        labelled = [dict(p, model=next(v.label for v in members if v.name == p["model"])) for p in points
+                    if p["model"] in {v.name for v in members} and p["plan"] == "DS1" and p["noise"] == 0.0]
+        labels = [v.label for v in members]
+        figs["stability"][f"group {group}"] = _group_figure(labelled, labels, group,
+                                                           figures_dir / f"stability_group{g}.png")
+    if study["failures"]:
+        figs["failure_map"] = charts.failure_map(study["failures"], figures_dir / "failure_map.png")
+    return figs
+
+
+def _group_figure(labelled: list[dict], labels: list[str], group: str, path: Path) -> str:
+    points = [dict(p, condition=p["model"], model=group) for p in labelled]
+    return charts.box_by_condition(points, [group], labels, lambda p: p["condition"], str,
+                                   f"{group}: error over seeds and materials (DS1, no noise)", path)
+
+
+def _shown_path(path: Path) -> str:
+    """``path`` relative to the repository when it lies inside (no machine-specific prefix)."""
+    from neuralbrdf.study.profile import REPO_ROOT
+
+    try:
+        return str(path.resolve().relative_to(REPO_ROOT))
+    except ValueError:
+        return str(path)
+
+
+def run_study(profile_name: str, out_dir: str | Path, jobs: int = 1, command: str | None = None,
+              progress: bool = True) -> dict:
+    """Run (or resume) the study of ``profile_name`` into ``out_dir``; the content of ``study.json``."""
+    from neuralbrdf.study.cost import machine
+
+    started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
+    started = time.perf_counter()
+    profile = load_profile(profile_name)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    results, ran = run_cells(profile, out_dir, jobs, progress)
+    methods = {v.name: v.method for v in profile.variants}
+    points = aggregate.points_from_results(results, methods)
+    failure_rows = aggregate.failures(points)
+    study = {
+        "format": STUDY_FORMAT,
+        "points": points,
+        "pareto": aggregate.pareto(points),
+        "failures": failure_rows,
+        "failure_causes": list(aggregate.CAUSES),
+        "summary": aggregate.budgets(points),
+        "sentences": aggregate.method_sentences(points, failure_rows),
+        "machine": machine(),
+        "run": {"profile": _shown_path(profile.path), "command": command or f"neuralbrdf study --profile {profile_name}",
+                "jobs": jobs, "seeds": sorted({p["seed"] for p in points}), "started": started_at,
+                "cells_run": ran, "cells_cached": len(results) - ran,
+                "cells_time_s": sum(r.get("cell_wall_time_s") or 0.0 for r in results),
+                "hemisphere_pairs": (profile.render.hemisphere_strata[0] * profile.render.hemisphere_strata[1]) ** 2},
+    }
+    study["figures"] = write_figures(profile, results, study, out_dir)
+    study["run"]["wall_time_s"] = time.perf_counter() - started
+    with atomic_write(out_dir / "study.json", encoding="utf-8") as handle:
+        json.dump(study, handle, indent=1, allow_nan=False)
+    from neuralbrdf.study.report import write_report
+
+    write_report(study, out_dir)
+    return study

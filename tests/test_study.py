@@ -1,0 +1,250 @@
+"""The study command (SPEC §10): profile validation, cell keys, aggregation, and end to end on a tiny
+profile with the report opened in headless Chromium."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import shutil
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from neuralbrdf.cli.main import main as cli
+from neuralbrdf.errors import InputError
+from neuralbrdf.study import aggregate
+from neuralbrdf.study.cells import Cell, cell_key, plan_cells
+from neuralbrdf.study.profile import load_profile
+from neuralbrdf.study.report import NUMBER_FORMAT
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ROOT / "tests" / "data" / "study_tiny.yaml"
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "profile.yaml"
+    path.write_text(text)
+    return path
+
+
+BASE = """render: {spp: 2, resolution: 16}
+cost: {spp: 2, resolution: 16, repeats: 1, batch: 64}
+materials:
+  - {name: gold, truth: "virtual:gold"}
+variants:
+  - {name: abc, method: abc, config: configs/abc.yaml}
+"""
+
+
+@pytest.mark.parametrize("change, key", [
+    (("method: abc", "method: ABC"), "variants[0].method"),
+    (("configs/abc.yaml", "configs/nope.yaml"), "variants[0].config"),
+    (("spp: 2, resolution: 16}\ncost", "spp: 0, resolution: 16}\ncost"), "render.spp"),
+    (("truth: \"virtual:gold\"", "truth: gold.csv"), "materials[0].truth"),
+    (("variants:", "variant:"), "variant"),
+])
+def test_profile_errors_name_file_and_key(tmp_path, change, key):
+    path = _write(tmp_path, BASE.replace(*change))
+    with pytest.raises(InputError) as error:
+        load_profile(str(path))
+    assert str(path) in str(error.value) and key in str(error.value)
+
+
+def test_stability_entries_are_checked(tmp_path):
+    path = _write(tmp_path, BASE + "stability: {variants: [abc], plans: [DS5]}\n")
+    with pytest.raises(InputError, match=r"stability.plans\[0\]"):
+        load_profile(str(path))
+    path = _write(tmp_path, BASE + "stability: {variants: [mlp]}\n")
+    with pytest.raises(InputError, match=r"stability.variants\[0\]"):
+        load_profile(str(path))
+
+
+def test_cells_and_keys(tmp_path):
+    profile = load_profile(str(_write(tmp_path, BASE + "stability: {variants: [abc], plans: [DS1, DS4], "
+                                                       "noise: [0.0, 0.1], seeds: [0, 1]}\n")))
+    cells = plan_cells(profile)
+    # per seed: DS1 and DS4 without noise, DS1 with 10 % noise -> 3 conditions x 2 seeds, no duplicates
+    assert len(cells) == len(set(cells)) == 6
+    assert cells[0] == Cell("gold", "abc", "DS1", 0.0, 0) and cells[0].is_main
+    keys = {cell_key(c, profile) for c in cells}
+    assert len(keys) == 6
+    assert cell_key(cells[1], profile) == cell_key(cells[1], load_profile(str(profile.path)))
+    changed = load_profile(str(_write(tmp_path, BASE.replace("configs/abc.yaml}", "configs/abc.yaml, args: [-x]}")
+                                      + "stability: {variants: [abc]}\n")))
+    assert cell_key(cells[0], changed) != cell_key(cells[0], profile)
+
+
+def test_pareto_front_against_brute_force():
+    items = [("a", 1.0, 5.0), ("b", 2.0, 3.0), ("c", 3.0, 3.5), ("d", 0.5, 9.0), ("e", 4.0, 1.0), ("f", 4.0, 1.0)]
+    assert aggregate.pareto_front(items) == ["d", "a", "b", "e", "f"]
+    assert aggregate.pareto_front([]) == []
+
+
+def _point(model, plan, noise, seed, error, failure=None, material="m", main=False, ratio=1.0, delta_e=1.0):
+    return {"material": material, "variant": model, "plan": plan, "noise": noise, "seed": seed, "is_main": main,
+            "failure": failure, "message": None,
+            "cost": {"render_ratio": ratio, "fit_time_s": 1.0} if main else {"fit_time_s": 1.0},
+            "error": {"hemisphere_logcos_rmse": error, "image_delta_e2000_mean": delta_e}}
+
+
+def test_threshold_failures_and_budgets():
+    results = [
+        _point("x", "DS1", 0.0, 0, 0.010, main=True, ratio=2.0, delta_e=1.5),
+        _point("x", "DS1", 0.0, 1, 0.012),
+        _point("x", "DS4", 0.0, 0, 0.030),     # > 2 x median(0.010, 0.012) = 0.022
+        _point("x", "DS2", 0.0, 0, 0.020),
+        _point("y", "DS1", 0.0, 0, None, failure="export_refused", main=True),
+        _point("z", "DS1", 0.0, 0, 0.5, main=True, ratio=0.5, delta_e=8.0),
+    ]
+    points = aggregate.points_from_results(results, {"x": "abc", "y": "nlb", "z": "abc"})
+    assert [p["failure"] for p in points] == [None, None, "error_above_2x_ds1", None, "export_refused", None]
+    assert points[3]["cost"]["render_ratio"] == 2.0  # the variant's main-cell cost
+    rows = {(r["model"], r["condition"]): r for r in aggregate.failures(points)}
+    assert rows[("x", "DS4")]["causes"] == {"error_above_2x_ds1": 1} and rows[("x", "DS1")]["failed"] == 0
+    assert math.isclose(rows[("x", "DS1")]["median_error"], 0.011)
+    assert math.isclose(rows[("x", "DS1")]["seed_std_error"], 0.002 / math.sqrt(2))
+    assert rows[("x", "DS4")]["seed_std_error"] is None
+    budget = {b["budget_delta_e"]: b["model"] for b in aggregate.budgets(points)}
+    assert budget == {1.0: None, 2.0: "x", 5.0: "x", 10.0: "z"}
+    assert aggregate.pareto(points)["render_ratio"]["per_material"]["m"] == ["z", "x"]
+    sentences = aggregate.method_sentences(points, aggregate.failures(points))
+    assert "DS4" in sentences["x"] and "no failure" in sentences["z"]
+
+
+def _lookup(study: dict, path: str):
+    value = study
+    for part in path.split("."):
+        value = value[int(part)] if isinstance(value, list) else value[part]
+    return value
+
+
+PROBE = """<script>
+window.__errors = [];
+window.addEventListener('error', e => window.__errors.push(String(e.message || e.target && e.target.src)), true);
+window.addEventListener('load', () => {
+  const out = {images: [...document.images].map(i => [i.getAttribute('src'), i.naturalWidth]),
+               numbers: [...document.querySelectorAll('[data-json]')].map(e => [e.dataset.json, e.textContent]),
+               errors: window.__errors};
+  const pre = document.createElement('pre'); pre.id = 'probe'; pre.textContent = JSON.stringify(out);
+  document.body.appendChild(pre);
+});
+</script>"""
+
+
+def check_in_browser(out_dir: Path) -> dict:
+    """Open index.html (with a probe script added) in headless Chromium; assert images, console, numbers."""
+    page = (out_dir / "index.html").read_text(encoding="utf-8")
+    assert "<script" not in page and "http://" not in page and "https://" not in page  # static, nothing fetched
+    probe = out_dir.resolve() / "probe.html"
+    probe.write_text(page.replace("<head>", "<head>" + PROBE, 1), encoding="utf-8")
+    try:
+        run = subprocess.run(
+            [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--allow-file-access-from-files",
+             "--enable-logging=stderr", "--v=0", "--virtual-time-budget=20000", "--dump-dom", probe.as_uri()],
+            capture_output=True, text=True, timeout=120)
+    finally:
+        probe.unlink()
+    found = re.search(r'<pre id="probe">(.*?)</pre>', run.stdout, re.S)
+    assert found, run.stderr[-2000:]
+    import html
+
+    result = json.loads(html.unescape(found.group(1)))
+    console = [line for line in run.stderr.splitlines() if "CONSOLE" in line]
+    assert not console, console
+    assert not result["errors"], result["errors"]
+    assert result["images"] and all(width > 0 for _, width in result["images"]), result["images"]
+    study = json.loads((out_dir / "study.json").read_text())
+    assert result["numbers"]
+    for path, shown in result["numbers"]:
+        value = _lookup(study, path)
+        if value is None:
+            assert shown == "–", path
+        else:
+            assert shown == NUMBER_FORMAT.format(value), (path, shown, value)
+            assert math.isclose(float(shown), value, rel_tol=1e-3, abs_tol=1e-12)
+    return result
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium (installed by .ci/run)")
+def test_tiny_study_end_to_end(tmp_path, capsys):
+    out = tmp_path / "study"
+    assert cli(["study", "--profile", str(TINY), "--out", str(out), "--jobs", "2", "--no-progress"]) == 0
+    study = json.loads((out / "study.json").read_text())
+    points = study["points"]
+    assert [(p["model"], p["plan"]) for p in points] == [("abc", "DS1"), ("spectral_mlp", "DS1")]
+    for p in points:
+        assert set(p) >= {"material", "model", "plan", "noise", "seed", "cost", "error", "failure"}
+    for p in points:  # the main cells ran, were timed against roughconductor and rendered
+        assert p["failure"] is None, p["message"]
+        assert p["cost"]["render_ratio"] > 0 and p["cost"]["mqueries_per_s"] > 0 and p["cost"]["parameters"] > 0
+        assert p["error"]["image_delta_e2000_mean"] >= 0 and p["error"]["hemisphere_logcos_rmse"] > 0
+    assert set(study["pareto"]["render_ratio"]["pooled"]) <= {"abc", "spectral_mlp"}
+    assert study["pareto"]["render_ratio"]["pooled"]
+    assert [(f["condition"], f["cells"]) for f in study["failures"]] == [("DS1", 1), ("DS1", 1)]
+    result = check_in_browser(out)
+    assert len(result["images"]) >= 6
+    # a second run with nothing new reuses every cell
+    started = time.perf_counter()
+    assert cli(["study", "--profile", str(TINY), "--out", str(out), "--no-progress"]) == 0
+    again = json.loads((out / "study.json").read_text())
+    assert again["run"]["cells_run"] == 0 and again["run"]["cells_cached"] == 2
+    assert [p["error"] for p in again["points"]] == [p["error"] for p in points]
+    assert time.perf_counter() - started < 60  # seconds idle; imports dominate
+
+
+def test_killed_cell_is_rerun(tmp_path):
+    """A cell folder without result.json (a killed run) is cleared and rerun; one with it is reused."""
+    from neuralbrdf.study.runner import run_one
+
+    cell = Cell("gold", "abc", "DS1", 0.0, 0)
+    folder = tmp_path / "k"
+    folder.mkdir()
+    (folder / "stale.txt").write_text("left over")
+    (folder / "result.json").write_text(json.dumps({"cached": True}))
+    assert run_one(cell, "k", {}, tmp_path) == ({"cached": True}, False)
+    (folder / "result.json").unlink()
+    result, ran = run_one(cell, "k", {"not": "a cell"}, tmp_path)
+    assert ran and result["failure"] == "cell_crashed" and not (folder / "stale.txt").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium")
+def test_quick_profile(tmp_path):
+    out = tmp_path / "quick"
+    assert cli(["study", "--profile", "quick", "--out", str(out), "--jobs", "2", "--no-progress"]) == 0
+    study = json.loads((out / "study.json").read_text())
+    assert {p["material"] for p in study["points"]} == {"gold", "nylon"}
+    check_in_browser(out)
+
+
+def test_shipped_profiles_are_valid():
+    quick = load_profile("quick")
+    assert [m.name for m in quick.materials] == ["gold", "nylon"]
+    assert len(plan_cells(quick)) == 20
+    try:
+        load_profile("full")
+    except InputError as error:
+        if "no such file" not in str(error):
+            raise
+        pytest.skip(f"full.yaml names a config of a branch not merged yet ({error})")
+    full = load_profile("full")
+    assert len(full.materials) == 9 and {"abc", "nlb_compact", "spectral_mlp"} <= set(full.stability.variants)
+
+
+def test_parameter_count_counts_float_initializers():
+    import numpy as np
+    import onnx
+    from onnx import helper, numpy_helper
+
+    from neuralbrdf.study.cost import parameter_count
+
+    weights = [numpy_helper.from_array(np.zeros((3, 7), np.float32), "w"),
+               numpy_helper.from_array(np.zeros(7, np.float32), "b"),
+               numpy_helper.from_array(np.array([1, 2], np.int64), "shape")]  # not a parameter
+    graph = helper.make_graph([], "g", [], [], initializer=weights)
+    assert parameter_count(helper.make_model(graph)) == 3 * 7 + 7
+    assert isinstance(onnx.TensorProto.FLOAT, int)
