@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from neuralbrdf.atomic import atomic_paths
-from neuralbrdf.evaluation.images import IMAGE_METRICS, image_scores
+from neuralbrdf.evaluation.images import IMAGE_METRICS, displayed, image_scores
 from neuralbrdf.evaluation.scores import DIRECTION_METRICS, HEMISPHERE_STRATA, OnnxEvaluator, direction_scores
 
 DEFAULT_VARIANT = "llvm_ad_spectral"
@@ -64,16 +64,10 @@ def _render(path: Path, settings: RenderSettings, seed: int) -> np.ndarray:
     return image
 
 
-def _display(image: np.ndarray) -> np.ndarray:
-    import colour
-
-    return np.clip(colour.RGB_COLOURSPACES["sRGB"].cctf_encoding(np.clip(image, 0.0, 1.0)), 0.0, 1.0)
-
-
 def _write_png(image: np.ndarray, path: Path) -> None:
     import matplotlib.pyplot as plt
 
-    plt.imsave(path, _display(image))
+    plt.imsave(path, displayed(image))
 
 
 def _error_axes(ax, delta_e: np.ndarray, fig) -> None:
@@ -105,7 +99,7 @@ def _write_comparison(model: np.ndarray, truth: np.ndarray, delta_e: np.ndarray,
 
     fig, axes = plt.subplots(1, 3, figsize=(13, 4.4))
     for ax, image, label in ((axes[0], truth, f"truth: {names[1]}"), (axes[1], model, f"model: {names[0]}")):
-        ax.imshow(_display(image))
+        ax.imshow(displayed(image))
         ax.set_title(label, fontsize=9)
         ax.set_axis_off()
     _error_axes(axes[2], delta_e, fig)

@@ -35,6 +35,11 @@ def _checked(name: str, image) -> np.ndarray:
     return image
 
 
+def displayed(image) -> np.ndarray:
+    """What a display shows of a linear sRGB image: clipped to [0, 1], sRGB-encoded (IEC 61966-2-1)."""
+    return np.clip(_SRGB.cctf_encoding(np.clip(image, 0.0, 1.0)), 0.0, 1.0)
+
+
 def linear_srgb_to_lab(image) -> np.ndarray:
     """CIE L*a*b* (D65) of a linear sRGB image clipped to [0, 1]."""
     xyz = colour.RGB_to_XYZ(np.clip(image, 0.0, 1.0), _SRGB, apply_cctf_decoding=False)
@@ -56,7 +61,7 @@ def image_scores(model, truth) -> tuple[dict[str, float | None], np.ndarray]:
     energy = float(np.sum(truth * truth))
     if energy <= 0.0:
         raise ValueError("the truth image is black: the relative MSE is undefined")
-    displayed_mse = float(np.mean((_SRGB.cctf_encoding(np.clip(model, 0, 1)) - _SRGB.cctf_encoding(np.clip(truth, 0, 1))) ** 2))
+    displayed_mse = float(np.mean((displayed(model) - displayed(truth)) ** 2))
     metrics = {
         "image_rel_mse": float(np.sum((model - truth) ** 2)) / energy,
         "image_psnr": None if displayed_mse == 0.0 else float(10.0 * np.log10(1.0 / displayed_mse)),

@@ -44,7 +44,7 @@ from pytorch_lightning.cli import LRSchedulerCallable, OptimizerCallable
 
 from neuralbrdf import metrics
 from neuralbrdf.errors import InputError
-from neuralbrdf.lightning.measurement_data import SpectralSamples
+from neuralbrdf.lightning.measurement_data import SpectralSamples, flatten_samples
 from neuralbrdf.losses import ANGLE_UNITS, RESIDUALS, exp_weighted_loss
 from neuralbrdf.models.spectral_mlp import Activation, OutputActivation, SpectralMLP
 
@@ -200,12 +200,9 @@ class SpectralMlpModule(pl.LightningModule):
             state = torch.load(best, map_location="cpu", weights_only=True)["state_dict"]
             network.load_state_dict({k.removeprefix("network."): v for k, v in state.items()})
         table, theta_i, theta_r = datamodule.measurement()
-        rows = len(theta_i)
+        samples = flatten_samples(table, theta_i, theta_r)
         with torch.no_grad():
-            pred = network(
-                *(torch.as_tensor(np.repeat(a, len(table.wavelengths)), dtype=torch.float32) for a in (theta_i, theta_r)),
-                torch.as_tensor(np.tile(table.wavelengths, rows), dtype=torch.float32),
-            ).numpy().reshape(rows, -1)
+            pred = network(samples.theta_i_deg, samples.theta_r_deg, samples.wavelength_nm).numpy().reshape(len(theta_i), -1)
         scores = fit_scores(pred.astype(np.float64), table.values, theta_i, theta_r)
         if datamodule.hparams.path is None:
             truth = load_truth(f"virtual:{datamodule.hparams.virtual_material}")
