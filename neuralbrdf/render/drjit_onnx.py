@@ -58,6 +58,7 @@ import onnx
 from onnx import helper, numpy_helper
 
 from neuralbrdf.errors import InputError
+from neuralbrdf.render.drjit_program import Recording, apply
 from neuralbrdf.render.onnx_contract import (
     INPUT_WAVELENGTH,
     INPUT_WI,
@@ -108,7 +109,7 @@ def _map_cells(fn: Callable, *arrays: np.ndarray) -> np.ndarray:
     """Apply ``fn`` cell by cell to object arrays of one shape (never lets NumPy see a column)."""
     out = _empty_cells(arrays[0].shape)
     for index in np.ndindex(out.shape):
-        out[index] = fn(*(a[index] for a in arrays))
+        out[index] = apply(fn, *(a[index] for a in arrays))
     return out
 
 
@@ -690,21 +691,40 @@ def _op_reduce(kind: str):
         out = _empty_cells(flat.shape[:-1])
         for index in np.ndindex(out.shape):
             terms = flat[index]
-            if kind == "ReduceL2":
-                total = terms[0] * terms[0]
-                for t in terms[1:]:
-                    total = dr.fma(t, t, total)
-                total = dr.sqrt(total)
-            else:
-                total = terms[0]
-                for t in terms[1:]:
-                    total = total + t
-                if kind == "ReduceMean":
-                    total = _truediv(total, count)
-            out[index] = total
+            out[index] = apply(_reduce_cells(kind, count), *terms)
         if keepdims:
             out = np.expand_dims(out, tuple(inner_axes))
         return [_Batch(out, False)]
+
+    return run
+
+
+def _reduce_cells(kind: str, count: int) -> Callable:
+    """The reduction of ``count`` columns, as one operation on them."""
+
+    def run(*terms):
+        if kind == "ReduceL2":
+            total = terms[0] * terms[0]
+            for t in terms[1:]:
+                total = dr.fma(t, t, total)
+            return dr.sqrt(total)
+        total = terms[0]
+        for t in terms[1:]:
+            total = total + t
+        return _truediv(total, count) if kind == "ReduceMean" else total
+
+    return run
+
+
+def _affine(bias: float, weights: Sequence[float]) -> Callable:
+    """``bias + Σ_i x_i w_i`` as one operation on the columns ``x_i``: ``dr.fma`` per column in
+    order, Python arithmetic where a column is a Python float."""
+
+    def run(*columns):
+        acc = bias
+        for x, w in zip(columns, weights):
+            acc = acc + x * w if isinstance(x, (int, float)) else dr.fma(x, w, acc)
+        return acc
 
     return run
 
@@ -720,17 +740,10 @@ def _linear(columns: np.ndarray, weights: np.ndarray, bias: np.ndarray | None, c
     for lead in np.ndindex(columns.shape[:-1]):
         x = columns[lead]
         for j in range(m):
-            acc = 0.0 if bias is None else float(bias[j])
-            for i in range(k):
-                w = float(weights[i, j])
-                if w == 0.0:
-                    continue
-                ctx.multiply_adds += 1
-                if isinstance(x[i], (int, float)):
-                    acc = acc + x[i] * w
-                else:
-                    acc = dr.fma(x[i], w, acc)
-            out[(*lead, j)] = acc
+            terms = [i for i in range(k) if weights[i, j] != 0.0]
+            ctx.multiply_adds += len(terms)
+            row = _affine(0.0 if bias is None else float(bias[j]), [float(weights[i, j]) for i in terms])
+            out[(*lead, j)] = apply(row, *(x[i] for i in terms))
     return out
 
 
@@ -900,7 +913,8 @@ class DrJitGraph:
         available = set(self._constants) | set(self.input_names)
         order = _topological_order(graph, available, self.source)
         self._nodes = [(graph.node[i], i, _attributes(graph.node[i])) for i in order]
-        trial = self._run({name: _TRIAL_INPUTS[name] for name in self.input_names})
+        self._program = self._record()
+        trial = self._program(*self._input_columns({name: _TRIAL_INPUTS[name] for name in self.input_names}))
         if not all(math.isfinite(float(v)) for v in trial):
             raise InputError(
                 f"the graph evaluates to {[float(v) for v in trial]} at a regular direction pair; "
@@ -925,9 +939,29 @@ class DrJitGraph:
             if wavelength is None:
                 raise ValueError(f"{self.source}: this spectral model needs wavelengths")
             inputs[INPUT_WAVELENGTH] = wavelength
-        return self._run(inputs)
+        return self._program(*self._input_columns(inputs))
+
+    def _input_columns(self, inputs: Mapping[str, Any]) -> list[Any]:
+        """The input columns in the program's order: ``wi`` x, y, z, ``wo`` x, y, z, wavelength."""
+        columns = [*inputs[INPUT_WI], *inputs[INPUT_WO]]
+        if len(columns) != 6:
+            raise ValueError(f"{self.source}: wi and wo need three columns each")
+        if INPUT_WAVELENGTH in self.input_names:
+            columns.append(inputs[INPUT_WAVELENGTH])
+        return columns
+
+    def _record(self) -> Callable[..., list[Any]]:
+        """Interpret the graph once on placeholder columns and compile the column operations it
+        issues into a straight-line function (:mod:`~neuralbrdf.render.drjit_program`)."""
+        recording = Recording()
+        inputs = {name: [recording.new_register() for _ in range(3)] for name in (INPUT_WI, INPUT_WO)}
+        if INPUT_WAVELENGTH in self.input_names:
+            inputs[INPUT_WAVELENGTH] = recording.new_register()
+        outputs = self._run(inputs)
+        return recording.compile(self._input_columns(inputs), outputs)
 
     def _run(self, inputs: Mapping[str, Any]) -> list[Any]:
+        """Interpret the graph node by node on input columns (values or registers)."""
         values: dict[str, Any] = dict(self._constants)
         for name, columns in inputs.items():
             if name in (INPUT_WI, INPUT_WO):
