@@ -297,10 +297,10 @@ class _DrJitBackend:
         return _nonnegative([self.graph(wi, wo, w)[0] for w in wavelengths])
 
     def integrated(self, wi: mi.Vector3f, wo: mi.Vector3f, rule: ReducedQuadrature) -> list:
-        """``Σ_k f(λ_k) V[k, c]``, the network unrolled once per node (weights as literals)."""
+        """``Σ_k f(λ_k) V[k, c]``, the network unrolled once per node (weights as literals); one
+        clamp count for all nodes (one atomic update per call, not one per node)."""
         channels = [0.0, 0.0, 0.0]
-        for wavelength, weights in zip(rule.wavelengths_nm, rule.weights):
-            (f,) = _nonnegative([self.graph(wi, wo, wavelength)[0]])
+        for f, weights in zip(self.spectral(wi, wo, list(rule.wavelengths_nm)), rule.weights):
             channels = [dr.fma(f, float(w), c) for w, c in zip(weights, channels)]
         return channels
 
