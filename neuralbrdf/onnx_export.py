@@ -11,10 +11,10 @@ wrapped in an :class:`Exportable` with its contract metadata and written by :fun
    hemisphere pairs, mirror pairs, grazing pairs, pairs below the horizon, wavelengths inside and
    outside the model's range) and must agree within the float32 accuracy of the model itself
    (:func:`float32_error_allowance`);
-3. the file appears atomically, after :func:`neuralbrdf.render.onnx_contract.load_model` accepted
-   it, or not at all.
+3. the file appears atomically, after :func:`neuralbrdf.kinds.load_model` (the whole contract, its
+   kind's part included) accepted it, or not at all.
 
-Checkpoint loading per model kind lives with the export command (``export/to_onnx.py``).
+Checkpoints become :class:`Exportable` through their kind (:func:`neuralbrdf.kinds.load_exportable`).
 """
 
 from __future__ import annotations
@@ -37,7 +37,8 @@ from torch.onnx import symbolic_helper
 from neuralbrdf.atomic import atomic_path
 from neuralbrdf.errors import InputError
 from neuralbrdf.geometry import inplane_to_vectors, normalize, reflect, spherical_to_vector
-from neuralbrdf.render.onnx_contract import INPUT_WAVELENGTH, INPUT_WI, INPUT_WO, OUTPUT_F, load_model
+from neuralbrdf.kinds import load_model
+from neuralbrdf.render.onnx_contract import INPUT_WAVELENGTH, INPUT_WI, INPUT_WO, OUTPUT_F
 
 #: ONNX opset of exported graphs.
 OPSET = 17

@@ -17,7 +17,7 @@ from neuralbrdf.data.colorimetry import spectral_to_linear_srgb
 from neuralbrdf.render.drjit_onnx import DrJitGraph
 from neuralbrdf.physics.microfacet import microfacet_brdf
 from neuralbrdf.render import mitsuba_bsdf, register
-from neuralbrdf.render.onnx_contract import AbcMetadata
+from neuralbrdf.kinds.abc import AbcMetadata
 from neuralbrdf.render.sampling import (
     GLOSSY_WEIGHT_RANGE,
     AbcLobe,

@@ -27,10 +27,11 @@ from neuralbrdf.lightning.latent_fit_module import (
     PRETRAINED_COMPACT,
     LatentFitData,
     LatentFitModule,
-    load_fitted,
     start_candidates,
 )
-from neuralbrdf.lightning.nlb_module import NLBPretrainModule, load_pretrained, nlb_loss
+from neuralbrdf.kinds.nlb import load_fitted
+from neuralbrdf.lightning.nlb_module import NLBPretrainModule, load_pretrained
+from neuralbrdf.losses import nlb_loss
 from neuralbrdf.lightning.run import main as train_main
 from neuralbrdf.models.nlb import COMPACT, LOG1P_F_MAX, PAPER, PRE_ACTIVATION_MIN, LatentTable, NLBNetwork
 from neuralbrdf.virtual.instrument import default_data_path

@@ -9,8 +9,8 @@ minimisation of ``L_cus``, Eq. 4.2); this module runs it once on the material of
 (``fit/inplane_glossy_rel_rmse``, ``fit/inplane_diffuse_rel_rmse``, and
 ``fit/hemisphere_logcos_rmse`` with a truth), ``fit/abc/parameters`` (kd, A per channel; B, C, eta), ``fit/abc/success``
 and ``fit/abc/failure_reason``: a failed fit is reported as failed (and warned about), never
-passed off as a result.  Checkpoints carry ``neuralbrdf_kind = "abc"``, ``abc_parameters`` and
-``material`` for ``export/to_onnx.py``.
+passed off as a result.  Checkpoints carry ``neuralbrdf_kind = "abc"`` (:class:`~neuralbrdf.lightning.common.WritesKind`), ``abc_parameters`` and
+``material`` for the exporter (:mod:`neuralbrdf.kinds.abc`).
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from torch.utils.data import DataLoader
 from neuralbrdf.data.sources import MaterialData, load_material
 from neuralbrdf.evaluation.scores import fit_scores
 from neuralbrdf.fitting.abc_fit import AbcBounds, AbcFitResult, fit_abc
+from neuralbrdf.lightning.common import WritesKind
 from neuralbrdf.metrics import hemisphere_logcos_rmse
 from neuralbrdf.models.abc import ABCParameters
 
@@ -76,7 +77,7 @@ class SingleMaterialData(pl.LightningDataModule):
     train_dataloader = val_dataloader = test_dataloader = _loader
 
 
-class AbcFitModule(pl.LightningModule):
+class AbcFitModule(WritesKind, pl.LightningModule):
     """Fits ABC parameters once (first training step); evaluates them in val/test.
 
     Parameters mirror :func:`~neuralbrdf.fitting.abc_fit.fit_abc`; ``bounds`` overrides fields
@@ -164,8 +165,10 @@ class AbcFitModule(pl.LightningModule):
             "abc/start_losses": [None if not np.isfinite(x) else float(x) for x in self.result.start_losses],
         }
 
+    KIND = "abc"
+
     def on_save_checkpoint(self, checkpoint: dict) -> None:
-        checkpoint["neuralbrdf_kind"] = "abc"
+        super().on_save_checkpoint(checkpoint)
         if self.parameters_ is not None:
             checkpoint["abc_parameters"] = self.parameters_.to_dict()
             checkpoint["material"] = self.material_name

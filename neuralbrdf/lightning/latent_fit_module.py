@@ -52,7 +52,7 @@ Each may carry ``name`` (default: the file stem or virtual material).
 
 The frozen weights are checked bit for bit against the checkpoint at the end of every fit
 (:meth:`LatentFitModule.on_fit_end`).  A checkpoint of this module is a self-contained fitted
-material set — the network, the latents and their names — read back by :func:`load_fitted`
+material set — the network, the latents and their names — read back by :func:`neuralbrdf.kinds.nlb.load_fitted`
 (e.g. for export).
 """
 
@@ -62,7 +62,7 @@ import math
 import os
 import warnings
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 from typing import NamedTuple
 
@@ -77,17 +77,11 @@ from neuralbrdf.data.plans import PLAN_NAMES
 from neuralbrdf.data.sources import load_material
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
-from neuralbrdf.lightning.checkpoint_io import check_weights_match, read_checkpoint
-from neuralbrdf.lightning.nlb_module import (
-    PretrainedNLB,
-    check_loss_domain,
-    load_pretrained,
-    log_cosine,
-    nlb_loss,
-    scheduled_optimizer,
-)
+from neuralbrdf.lightning.common import WritesKind, scheduled_optimizer
+from neuralbrdf.lightning.nlb_module import PretrainedNLB, load_pretrained
+from neuralbrdf.losses import check_loss_domain, log_cosine, nlb_loss
 from neuralbrdf.models.abc import load_low2012_parameters
-from neuralbrdf.models.nlb import LatentTable, NLBNetwork
+from neuralbrdf.models.nlb import LatentTable
 
 #: The shipped pretrained compact network (SPEC §4.2), the default ``checkpoint``.
 PRETRAINED_COMPACT = Path(__file__).resolve().parents[1] / "pretrained" / "nlb_compact.ckpt"
@@ -303,7 +297,7 @@ def _theta_i_deg(wi: torch.Tensor) -> torch.Tensor:
     return torch.rad2deg(torch.acos(wi[:, 2].clamp(-1.0, 1.0)))
 
 
-class LatentFitModule(pl.LightningModule):
+class LatentFitModule(WritesKind, pl.LightningModule):
     """Optimises one latent per material on a frozen pretrained NLB network (module docstring).
 
     Parameters
@@ -401,7 +395,10 @@ class LatentFitModule(pl.LightningModule):
     def configure_callbacks(self):
         return [ValidateFinalStep()]
 
+    KIND = "nlb"
+
     def on_save_checkpoint(self, checkpoint: dict) -> None:
+        super().on_save_checkpoint(checkpoint)
         checkpoint["material_names"] = self.material_names
         checkpoint["nlb_config"] = asdict(self.network.config)
 
@@ -510,34 +507,3 @@ class ValidateFinalStep(pl.Callback):
         if trainer.should_stop or (last_batch and last_epoch):
             trainer.check_val_every_n_epoch = 1
 
-
-@dataclass(frozen=True)
-class FittedNLB:
-    """Fitted materials: the frozen ``network`` and one latent ``[latent_dim]`` per material name."""
-
-    network: NLBNetwork
-    latents: dict[str, torch.Tensor]
-    source: str
-
-
-def load_fitted(path: str | os.PathLike[str]) -> FittedNLB:
-    """The network and named latents of a :class:`LatentFitModule` checkpoint.
-
-    Raises :class:`InputError` when the file is missing or is not such a checkpoint.
-    """
-    path = Path(path)
-    checkpoint = read_checkpoint(path, "fitted NLB checkpoint")
-    missing = [key for key in ("nlb_config", "material_names", "state_dict") if key not in checkpoint]
-    if missing:  # e.g. a pretraining checkpoint: it names its materials but has no nlb_config
-        raise InputError(f"not a latent-fit checkpoint (LatentFitModule): missing {missing[0]!r}", path=path)
-    try:
-        names, state = checkpoint["material_names"], checkpoint["state_dict"]
-        check_weights_match(lambda: NLBNetwork(**checkpoint["nlb_config"]), state, path, "network.")
-        network = NLBNetwork(**checkpoint["nlb_config"])
-        latents = state["latents.latents"].float()
-    except (KeyError, TypeError) as exc:
-        raise InputError(f"not a latent-fit checkpoint (LatentFitModule): missing {exc}", path=path) from None
-    prefix = "network."
-    network.load_state_dict({k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)})
-    network.requires_grad_(False).eval()
-    return FittedNLB(network, dict(zip(names, latents)), str(path))

@@ -36,47 +36,11 @@ from pytorch_lightning.cli import LRSchedulerCallable, OptimizerCallable
 
 from neuralbrdf import metrics
 from neuralbrdf.errors import InputError
-from neuralbrdf.lightning.checkpoint_io import check_weights_match, read_checkpoint
+from neuralbrdf.checkpoints import check_weights_match, read_checkpoint
 from neuralbrdf.lightning.corpus_data import CorpusSamples
-from neuralbrdf.losses import l1_loss
+from neuralbrdf.lightning.common import scheduled_optimizer
+from neuralbrdf.losses import check_loss_domain, nlb_loss
 from neuralbrdf.models.nlb import COMPACT, LatentTable, NLBConfig, NLBNetwork
-
-LOSS_DOMAINS = ("log_cosine", "linear")
-
-
-def log_cosine(f: torch.Tensor, cos_theta_i: torch.Tensor) -> torch.Tensor:
-    """``ln(1 + f cos θi)`` of RGB values ``[N, 3]`` with per-sample cosines ``[N]``."""
-    return torch.log1p(f * cos_theta_i.clamp(min=0.0)[:, None])
-
-
-def check_loss_domain(domain: str, column: str = "loss_domain") -> str:
-    """``domain`` if it is one of :data:`LOSS_DOMAINS`, else :class:`InputError` naming ``column``."""
-    if domain not in LOSS_DOMAINS:
-        raise InputError(f"unknown loss domain {domain!r}; expected one of {', '.join(LOSS_DOMAINS)}", column=column)
-    return domain
-
-
-def nlb_loss(pred: torch.Tensor, target: torch.Tensor, wi: torch.Tensor, domain: str) -> torch.Tensor:
-    """L1 loss of RGB BRDF values in ``domain``: ``"log_cosine"`` or ``"linear"`` (module docstring)."""
-    if check_loss_domain(domain) == "linear":
-        return l1_loss(pred, target)
-    cos_i = wi[:, 2]
-    return l1_loss(log_cosine(pred, cos_i), log_cosine(target, cos_i))
-
-
-def scheduled_optimizer(groups, optimizer, lr_scheduler, interval: str):
-    """Optimiser over parameter ``groups`` ``[(parameters, lr_scale), ...]`` and its scheduler.
-
-    ``optimizer`` and ``lr_scheduler`` are the config's factories; each group's learning rate is
-    the configured one times its ``lr_scale``.  The scheduler steps every ``interval``.
-    """
-    opt = optimizer([{"params": list(params)} for params, _ in groups])
-    for group, (_, scale) in zip(opt.param_groups, groups):
-        group["lr"] *= scale
-    if lr_scheduler is None:
-        return opt
-    return {"optimizer": opt, "lr_scheduler": {"scheduler": lr_scheduler(opt), "interval": interval}}
-
 
 class NLBPretrainModule(pl.LightningModule):
     """Joint training of the NLB network and the corpus latents (module docstring).

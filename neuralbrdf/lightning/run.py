@@ -70,7 +70,7 @@ from pytorch_lightning.plugins.io import TorchCheckpointIO
 from neuralbrdf.atomic import TEMP_MARKER, atomic_path, atomic_write, command_inputs
 from neuralbrdf.errors import InputError
 from neuralbrdf.errors import one_line
-from neuralbrdf.lightning.checkpoint_io import read_checkpoint
+from neuralbrdf.checkpoints import read_checkpoint
 
 METRICS_FILE = "metrics.json"
 RUNS_ROOT = Path("runs")

@@ -1,7 +1,8 @@
 """Rendering of exported models: the ONNX contract (SPEC §6) and the Mitsuba 3 BSDF (SPEC §7).
 
-* :mod:`~neuralbrdf.render.onnx_contract` — what an exported ``.onnx`` file must hold, checked
-  by :func:`load_model` at scene load;
+* :mod:`~neuralbrdf.render.onnx_contract` — what every exported ``.onnx`` file must hold
+  (:func:`neuralbrdf.kinds.load_model` adds each kind's own checks; the plugin runs both at
+  scene load);
 * :mod:`~neuralbrdf.render.drjit_onnx` — the graph evaluated as Dr.Jit arithmetic (``drjit``
   backend);
 * :mod:`~neuralbrdf.render.sampling` — the cosine + glossy-lobe proposal and its fit;
@@ -13,7 +14,7 @@ import importlib
 
 #: Public names -> the submodule defining them, imported on first use: checking or exporting a
 #: file must not load Mitsuba and Dr.Jit (seconds), which only the BSDF plugin needs.
-_LAZY = {"OnnxModel": "onnx_contract", "load_model": "onnx_contract", "register": "mitsuba_bsdf"}
+_LAZY = {"OnnxModel": "onnx_contract", "register": "mitsuba_bsdf"}
 
 __all__ = sorted(_LAZY)
 

@@ -12,7 +12,7 @@ Properties
 ----------
 ``filename``
     The ``.onnx`` model (resolved through Mitsuba's file resolver, so relative to the scene file).
-    It is validated (:func:`~neuralbrdf.render.onnx_contract.load_model`) when the scene loads.
+    It is validated (:func:`neuralbrdf.kinds.load_model`) when the scene loads.
 ``backend``
     ``drjit`` (default): the graph is interpreted as Dr.Jit arithmetic
     (:mod:`~neuralbrdf.render.drjit_onnx`) and fuses into the render kernel; works in Mitsuba's
@@ -61,9 +61,10 @@ own spectra (:mod:`~neuralbrdf.render.spectral_quadrature`, held-out rms relativ
 ``to_string`` reports the rule and its error), evaluated unrolled in the drjit backend and as
 one stacked run in onnxruntime.
 
-The sampling proposal is fitted when the scene loads, by probing the model with onnxruntime
-(:func:`~neuralbrdf.render.sampling.fit_neural_mixture`; ABC models keep their analytic lobe,
-:func:`~neuralbrdf.render.sampling.fit_abc_mixture`).
+The sampling proposal is made when the scene loads by the model's kind
+(:attr:`neuralbrdf.kinds.Kind.proposal`), probing the model with onnxruntime: a GGX mixture
+fitted to it for the neural kinds (:func:`~neuralbrdf.render.sampling.fit_neural_mixture`), the
+analytic lobe for ABC (:func:`~neuralbrdf.render.sampling.fit_abc_mixture`).
 """
 
 from __future__ import annotations
@@ -77,6 +78,7 @@ import numpy as np
 import onnxruntime
 
 from neuralbrdf.data.colorimetry import XYZ_TO_LINEAR_SRGB, xyz_weights
+from neuralbrdf import kinds
 from neuralbrdf.errors import InputError
 from neuralbrdf.limits import DRJIT_MAX_MULTIPLY_ADDS
 from neuralbrdf.render.drjit_onnx import DrJitGraph
@@ -86,15 +88,9 @@ from neuralbrdf.render.onnx_contract import (
     INPUT_WO,
     OUTPUT_F,
     OnnxModel,
-    load_model,
     matrix_multiply_adds,
 )
-from neuralbrdf.render.sampling import (
-    LobeMixture,
-    fit_abc_mixture,
-    fit_neural_mixture,
-    probe_direction_pairs,
-)
+from neuralbrdf.render.sampling import LobeMixture, probe_direction_pairs
 from neuralbrdf.render.spectral_quadrature import (
     DEFAULT_RMS_TOLERANCE,
     ReducedQuadrature,
@@ -468,17 +464,14 @@ def _bsdf_class(variant: str) -> type:
         def __init__(self, props: mi.Properties) -> None:
             mi.BSDF.__init__(self, props)
             path, backend, rgb_tolerance = _read_properties(props)
-            self.model = load_model(path)
+            self.model = kinds.load_model(path)
             session = _session(path)
             if backend == "onnxruntime":
                 self.backend = _OnnxRuntimeBackend(session)
             else:
                 self.backend = _DrJitBackend(self.model)
             probe = _probe_function(self.model, session)
-            if self.model.abc is not None:
-                self.mixture: LobeMixture = fit_abc_mixture(probe, self.model.abc)
-            else:
-                self.mixture = fit_neural_mixture(probe)
+            self.mixture: LobeMixture = kinds.get(self.model.kind).proposal(self.model, probe)
             self._spectral_variant = mi.is_spectral
             self.rgb_rule = None
             if self.model.is_spectral and not mi.is_spectral:

@@ -50,13 +50,16 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
 from neuralbrdf.physics.microfacet import ggx_distribution, ggx_smith_g1
-from neuralbrdf.render.onnx_contract import AbcMetadata
+
+if TYPE_CHECKING:
+    from neuralbrdf.kinds.abc import AbcMetadata
 
 #: Incident polar angles (degrees) at which the model is probed to fit the proposal.
 PROBE_THETA_I_DEG = (0.0, 30.0, 50.0, 65.0, 80.0)
