@@ -17,7 +17,9 @@ Properties
     ``drjit`` (default): the graph is interpreted as Dr.Jit arithmetic
     (:mod:`~neuralbrdf.render.drjit_onnx`) and fuses into the render kernel; works in Mitsuba's
     default symbolic mode.  ``onnxruntime``: one ``InferenceSession.run`` per wavefront call of
-    ``eval``/``eval_pdf``/``sample``, which needs Dr.Jit's wavefront mode::
+    ``eval``/``eval_pdf``/``sample`` (two for a spectral model whose graph splits at the
+    wavelength, :mod:`~neuralbrdf.render.onnx_split`: the direction features once per lane),
+    which needs Dr.Jit's wavefront mode::
 
         dr.set_flag(dr.JitFlag.SymbolicLoops, False)
         dr.set_flag(dr.JitFlag.SymbolicCalls, False)
@@ -75,6 +77,7 @@ from pathlib import Path
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+import onnx
 import onnxruntime
 
 from neuralbrdf.data.colorimetry import XYZ_TO_LINEAR_SRGB, xyz_weights
@@ -90,6 +93,7 @@ from neuralbrdf.render.onnx_contract import (
     OnnxModel,
     matrix_multiply_adds,
 )
+from neuralbrdf.render.onnx_split import split_at_wavelength
 from neuralbrdf.render.sampling import LobeMixture, probe_direction_pairs
 from neuralbrdf.render.spectral_quadrature import (
     DEFAULT_RMS_TOLERANCE,
@@ -226,12 +230,28 @@ def _stacked_column(values: list, n: int) -> np.ndarray:
 
 
 class _OnnxRuntimeBackend:
-    """One ``InferenceSession.run`` per call, all lanes and wavelengths stacked in one batch."""
+    """One ``InferenceSession.run`` per call, all lanes and wavelengths stacked in one batch.
+
+    A spectral model whose graph splits at the wavelength (:mod:`~neuralbrdf.render.onnx_split`)
+    runs in two: its direction part once over the ``n`` lanes, its wavelength part over the
+    ``k · n`` stacked rows; used only where the parts reproduce the whole graph exactly on the
+    probe pairs at load.
+    """
 
     name = "onnxruntime"
 
-    def __init__(self, session: onnxruntime.InferenceSession) -> None:
+    def __init__(self, model: OnnxModel, session: onnxruntime.InferenceSession) -> None:
         self.session = session
+        self.split, self.parts = None, None
+        split = split_at_wavelength(model.proto) if model.is_spectral else None
+        if split is not None:
+            parts = (_session(split.directions), _session(split.wavelengths))
+            low, high = model.wavelength_range_nm
+            nm = np.linspace(low - 20.0, high + 20.0, 4)
+            if split.agrees(session, *parts, *probe_direction_pairs(), nm):
+                self.split, self.parts = split, parts
+        #: Session runs per ``rgb``/``spectral``/``integrated`` call.
+        self.runs_per_call = 1 if self.split is None else 2
 
     def rgb(self, wi: mi.Vector3f, wo: mi.Vector3f) -> list[mi.Float]:
         _check_wavefront_mode()
@@ -245,12 +265,15 @@ class _OnnxRuntimeBackend:
         _check_wavefront_mode()
         n = _lane_count(wi, wo, *[w for w in wavelengths if not isinstance(w, float)])
         k = len(wavelengths)
-        feeds = {
-            INPUT_WI: _rows(wi, n, k),
-            INPUT_WO: _rows(wo, n, k),
-            INPUT_WAVELENGTH: _stacked_column(wavelengths, n),
-        }
-        (f,) = self.session.run([OUTPUT_F], feeds)
+        stacked = _stacked_column(wavelengths, n)
+        if self.split is None:
+            feeds = {INPUT_WI: _rows(wi, n, k), INPUT_WO: _rows(wo, n, k), INPUT_WAVELENGTH: stacked}
+            (f,) = self.session.run([OUTPUT_F], feeds)
+        else:
+            direction_part, wavelength_part = self.parts
+            cut = direction_part.run(list(self.split.cut), {INPUT_WI: _rows(wi, n), INPUT_WO: _rows(wo, n)})
+            feeds = {name: self.split.repeat(values, k) for name, values in zip(self.split.cut, cut)}
+            (f,) = wavelength_part.run([OUTPUT_F], {**feeds, INPUT_WAVELENGTH: stacked})
         return _nonnegative_rows(f, n).reshape(k, n)
 
     def spectral(self, wi: mi.Vector3f, wo: mi.Vector3f, wavelengths: list) -> list[mi.Float]:
@@ -301,13 +324,14 @@ class _DrJitBackend:
         return channels
 
 
-def _session(path: Path) -> onnxruntime.InferenceSession:
-    """A CPU session whose threads sleep between runs instead of spinning: in wavefront mode
-    Dr.Jit's kernels run between the calls, and spinning threads would compete with them
-    (a spectral preview rendered 19 % slower with onnxruntime's default)."""
+def _session(source: Path | onnx.ModelProto) -> onnxruntime.InferenceSession:
+    """A CPU session (of a file or a model) whose threads sleep between runs instead of
+    spinning: in wavefront mode Dr.Jit's kernels run between the calls, and spinning threads
+    would compete with them (a spectral preview rendered 19 % slower with onnxruntime's default)."""
     options = onnxruntime.SessionOptions()
     options.add_session_config_entry("session.intra_op.allow_spinning", "0")
-    return onnxruntime.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    model = source.SerializeToString() if isinstance(source, onnx.ModelProto) else str(source)
+    return onnxruntime.InferenceSession(model, options, providers=["CPUExecutionProvider"])
 
 
 def _numpy_spectra(session: onnxruntime.InferenceSession, wi: np.ndarray, wo: np.ndarray, wavelengths) -> np.ndarray:
@@ -467,7 +491,7 @@ def _bsdf_class(variant: str) -> type:
             self.model = kinds.load_model(path)
             session = _session(path)
             if backend == "onnxruntime":
-                self.backend = _OnnxRuntimeBackend(session)
+                self.backend = _OnnxRuntimeBackend(self.model, session)
             else:
                 self.backend = _DrJitBackend(self.model)
             probe = _probe_function(self.model, session)
