@@ -27,9 +27,8 @@ backend for those (:attr:`DrJitGraph.multiply_adds` reports the size).
 every column operation it issues goes through :func:`~neuralbrdf.render.drjit_program.apply` and
 is recorded into one straight-line Python function (:mod:`~neuralbrdf.render.drjit_program`),
 which each call replays: the same Dr.Jit operations in the same order (the same kernel), without
-the NumPy bookkeeping of the interpretation (13.6 → 1.1 ms per trace of the spectral MLP, on
-the shared 2-core machine).  Mitsuba traces a BSDF again in every render pass, so this is paid
-per pass, not per sample.  An operator therefore computes on columns only through
+the NumPy bookkeeping of the interpretation (``benchmarks/README.md``, design measurements).
+Mitsuba traces a BSDF again in every render pass, so this is paid per pass, not per sample.  An operator therefore computes on columns only through
 :func:`_map_cells` or :func:`~neuralbrdf.render.drjit_program.apply`; a Dr.Jit function called
 directly on a placeholder raises ``TypeError`` when the graph is loaded.
 

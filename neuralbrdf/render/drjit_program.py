@@ -5,7 +5,7 @@ object arrays of columns, broadcasting, shape folding, the unrolled matrix produ
 graph what finally reaches Dr.Jit is always the same sequence of column operations (``dr.fma``
 with literal weights, the rational ``tanh``, ...), yet Mitsuba traces the BSDF afresh in every
 ``mi.render`` call — twice per bounce (``sample`` and ``eval_pdf``) and once per wavelength —
-and each trace paid the whole interpretation (≈ 3 ms of Python for the 3 × 10 spectral MLP).
+and each trace paid the whole interpretation (``benchmarks/README.md``, design measurements).
 
 Here the interpreter runs once, at load, with :class:`Register` placeholders in place of the
 per-sample input columns.  Every column operation goes through :func:`apply`, which calls the

@@ -3,8 +3,8 @@
 Mitsuba asks a spectral BSDF for the ray's 4 wavelengths (or, in RGB variants, the sRGB rule's
 few nodes) at the same direction pair.  The plugin's ``onnxruntime`` backend stacks the ``k``
 wavelengths into one run of ``k · n`` rows, so the graph's direction features — the ``[N, 3]``
-slices, sums and ``atan`` of the spectral MLP, ~45 % of its run time — were computed ``k``
-times.  :func:`split_at_wavelength` cuts the graph in two ONNX models:
+slices, sums and ``atan`` of the spectral MLP — were computed ``k`` times.
+:func:`split_at_wavelength` cuts the graph in two ONNX models:
 
 * the **direction part**: every node that depends on ``wi``/``wo`` but not on ``wavelength``
   (and the constant nodes it uses), from ``wi, wo [n, 3]`` to the *cut tensors* — its results
@@ -15,8 +15,8 @@ times.  :func:`split_at_wavelength` cuts the graph in two ONNX models:
 The two run the same operators on the same values as the whole graph; the backend uses the split
 only if it reproduces the whole graph exactly on probe inputs, each cut tensor holding one row
 per pair (:meth:`WavelengthSplit.agrees`).  A graph whose cut tensors are not per-sample
-``[N, ...]`` tensors (a shape computed from the inputs, say) is not split.  Measured on the 3 × 10 tanh spectral MLP, 4 wavelengths of 131 072
-pairs: 0.66× the run time of the whole graph (outputs bit-identical).
+``[N, ...]`` tensors (a shape computed from the inputs, say) is not split.  What it saves:
+``benchmarks/README.md``, design measurements.
 """
 
 from __future__ import annotations
