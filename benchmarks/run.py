@@ -65,11 +65,11 @@ import torch
 from neuralbrdf import kinds, onnx_export
 from neuralbrdf.atomic import atomic_write
 from neuralbrdf.kinds import abc as abc_kind
-from neuralbrdf.models.abc import ABCParameters
+from neuralbrdf.physics.abc import ABCParameters
 from neuralbrdf.models.directional import NlbWithLatent
 from neuralbrdf.models.nlb import NLBNetwork
 from neuralbrdf.render import preview
-from neuralbrdf.render.onnx_contract import contract_metadata
+from neuralbrdf.onnx_contract import contract_metadata
 from neuralbrdf.study.cost import bench_throughput, machine
 from neuralbrdf.study.cost import timed as _timed
 
@@ -134,7 +134,7 @@ def train_and_export(settings: Settings, workdir: Path, activation: str = "tanh"
     model = workdir / f"gold_spectral_mlp_{activation}.onnx"
     checkpoint = run_dir / "checkpoints" / "best.ckpt"
     start = time.perf_counter()
-    report = kinds.export_checkpoint(checkpoint, model)
+    report = onnx_export.export_checkpoint(checkpoint, model)
     export_s = time.perf_counter() - start
     return {
         "activation": activation,

@@ -8,11 +8,11 @@ import pytest
 import torch
 
 from neuralbrdf.data.plans import in_plane_plan
-from neuralbrdf.data.sources import load_material
+from neuralbrdf.sources import load_material
 from neuralbrdf.data.table import BrdfTable, write_table
 from neuralbrdf.geometry import inplane_to_spherical, inplane_to_vectors
 from neuralbrdf.lightning.run import main
-from neuralbrdf.models.abc import ABCParameters, abc_brdf
+from neuralbrdf.physics.abc import ABCParameters, abc_brdf
 
 pytestmark = pytest.mark.filterwarnings("ignore:LightningCLI's args parameter is intended")
 

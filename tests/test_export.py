@@ -20,7 +20,7 @@ from export_scripts import load_export_script
 
 from neuralbrdf.geometry import half_diff_angles, inplane_to_vectors
 from neuralbrdf.lightning.spectral_mlp_module import SpectralMlpModule
-from neuralbrdf.models.abc import ABCParameters, abc_brdf
+from neuralbrdf.physics.abc import ABCParameters, abc_brdf
 from neuralbrdf.models.directional import (
     AbcOnDirections,
     NlbWithLatent,
@@ -31,7 +31,7 @@ from neuralbrdf.models.nlb import NLBConfig, NLBNetwork
 from neuralbrdf import kinds, onnx_export
 from neuralbrdf.render.drjit_onnx import DrJitGraph
 from neuralbrdf.kinds import load_model
-from neuralbrdf.render.onnx_contract import contract_metadata
+from neuralbrdf.onnx_contract import contract_metadata
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -87,7 +87,7 @@ def spectral_mlp_checkpoint(path, module=None):
     checkpoint = {
         "state_dict": module.state_dict(),
         "hyper_parameters": {**dict(module.hparams), "_class_path": f"{module.__module__}.SpectralMlpModule"},
-        "datamodule_hyper_parameters": {"path": None, "virtual_material": "gold", "batch_size": 128},
+        "datamodule_hyper_parameters": {"path": None, "virtual": "gold", "batch_size": 128},
         "pytorch-lightning_version": pl.__version__,
         "epoch": 4,
         "global_step": 100,
@@ -263,7 +263,7 @@ def test_exported_file_passes_load_model_with_the_contract_metadata(exported, ca
     assert model.is_spectral == (case in ("spectral_mlp", "abc_spectral"))
     if case == "spectral_mlp":
         assert model.wavelength_range_nm == (420.0, 680.0)
-        assert "epoch 4" in model.provenance and '"virtual_material":"gold"' in model.provenance
+        assert "epoch 4" in model.provenance and '"virtual":"gold"' in model.provenance
     if case == "nlb":
         assert '"plan":"DS2"' in model.provenance
     if case.startswith("abc"):
@@ -367,7 +367,7 @@ def test_export_refuses_a_graph_that_does_not_reproduce_pytorch(checkpoints, tmp
     monkeypatch.setattr(onnx_export, "trace", corrupted_trace)
     out = tmp_path / "corrupt.onnx"
     with pytest.raises(onnx_export.ExportValidationError, match="differs from PyTorch"):
-        kinds.export_checkpoint(checkpoints["spectral_mlp"], out)
+        onnx_export.export_checkpoint(checkpoints["spectral_mlp"], out)
     assert to_onnx.main(["--ckpt", str(checkpoints["spectral_mlp"]), "--out", str(out)]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "not written" in err
@@ -385,14 +385,14 @@ def test_export_refuses_a_file_that_load_model_rejects(checkpoints, tmp_path, mo
     monkeypatch.setattr(onnx_export, "trace", without_metadata)
     out = tmp_path / "nometa.onnx"
     with pytest.raises(onnx_export.ExportValidationError, match="contract check: missing metadata"):
-        kinds.export_checkpoint(checkpoints["abc"], out)
+        onnx_export.export_checkpoint(checkpoints["abc"], out)
     assert _no_output_left(tmp_path, out.name)
 
 
 def test_sharp_abc_lobes_export(tmp_path):
     """Löw et al.'s sharp lobes (B ~ 1e5) need 1 - cos θh without cancellation in float32."""
     sharp = ABCParameters(kd=[0.011, 0.035, 0.104], A=[1191.4, 1099.3, 1082.1], B=255869.0, C=1.0847, eta=1.475)
-    kinds.export_checkpoint(abc_checkpoint(tmp_path / "sharp.ckpt", sharp, "blue-acrylic"), tmp_path / "sharp.onnx")
+    onnx_export.export_checkpoint(abc_checkpoint(tmp_path / "sharp.ckpt", sharp, "blue-acrylic"), tmp_path / "sharp.onnx")
 
 
 def _write_garbage(path):

@@ -23,12 +23,8 @@ from neuralbrdf.data.plans import plan_spherical
 from neuralbrdf.data.table import BrdfTable, write_table
 from neuralbrdf.errors import InputError
 from neuralbrdf.geometry import normalize, spherical_pair_to_vectors
-from neuralbrdf.lightning.latent_fit_module import (
-    PRETRAINED_COMPACT,
-    LatentFitData,
-    LatentFitModule,
-    start_candidates,
-)
+from neuralbrdf.lightning.latent_fit_data import LatentFitData
+from neuralbrdf.lightning.latent_fit_module import PRETRAINED_COMPACT, LatentFitModule, start_candidates
 from neuralbrdf.kinds.nlb import load_fitted
 from neuralbrdf.lightning.nlb_module import NLBPretrainModule, load_pretrained
 from neuralbrdf.losses import nlb_loss
@@ -274,7 +270,7 @@ def network_table(module, material, plan, path):
 def test_latent_fit_leaves_every_network_weight_bit_identical(tmp_path):
     module = tiny_module()
     checkpoint = save_checkpoint(module, tmp_path / "tiny.ckpt")
-    sources = [{"table": str(network_table(module, k, "DS2", tmp_path / f"m{k}.csv"))} for k in (1, 4)]
+    sources = [{"path": str(network_table(module, k, "DS2", tmp_path / f"m{k}.csv"))} for k in (1, 4)]
     data = LatentFitData(sources, eval_plan=None, steps_per_epoch=40)
     fit = LatentFitModule(str(checkpoint), optimizer=lambda p: torch.optim.Adam(p, lr=0.05))
     trainer = pl.Trainer(accelerator="cpu", max_epochs=2, logger=False, enable_checkpointing=False,
@@ -309,7 +305,7 @@ def test_latent_fit_starts_each_material_at_its_best_pretrained_code(tmp_path):
     expected = torch.stack([pretrained.latent_mean, *pretrained.latents[[2, 4, 0, 5]]])
     torch.testing.assert_close(candidates, expected, rtol=0, atol=0)
     # Tables made from merl:b and analytic:5: each start is exactly that code (zero loss).
-    sources = [{"table": str(network_table(module, k, "DS2", tmp_path / f"m{k}.csv"))} for k in (4, 5)]
+    sources = [{"path": str(network_table(module, k, "DS2", tmp_path / f"m{k}.csv"))} for k in (4, 5)]
     data = LatentFitData(sources, eval_plan=None)
     data.setup()
     fit = LatentFitModule(str(checkpoint), init_candidates=2)
@@ -335,9 +331,9 @@ def test_latent_fit_detects_a_changed_weight(tmp_path):
     [
         [],
         [{"tabel": "x.csv"}],
-        [{"table": "a.csv", "gcms": "b.csv"}],
-        [{"gcms": "b.csv"}],
-        [{"table": "a.csv", "plan": "DS1"}],
+        [{"path": "a.csv", "gcms": "b.csv"}],
+        [{"virtual": "gold", "reference": "r.csv"}],
+        [{"path": "a.csv", "plan": "DS1"}],
         [{"nbrdf": "a.h5", "plan": "DS9"}],
         [{"virtual": "gold"}, {"virtual": "gold"}],
         ["gold"],
@@ -352,8 +348,8 @@ def test_bad_latent_sources_raise(sources):
 def test_latent_sources_of_the_same_measurement_agree(tmp_path):
     gcms, reference = default_data_path("gold"), default_data_path("munsell_n9")
     write_table(load_measurement(gcms, reference), tmp_path / "gold.csv")
-    sources = [{"virtual": "gold"}, {"gcms": str(gcms), "reference": str(reference), "name": "raw"},
-               {"table": str(tmp_path / "gold.csv"), "name": "table"}]
+    sources = [{"virtual": "gold"}, {"path": str(gcms), "reference": str(reference), "name": "raw"},
+               {"path": str(tmp_path / "gold.csv"), "name": "table"}]
     data = LatentFitData(sources, eval_plan=None)
     data.setup()
     assert data.material_names == ["gold", "raw", "table"]
@@ -475,7 +471,8 @@ def test_compact_pretrain_config_runs(pretrained_run):
 
 
 def test_paper_pretrain_config_runs(tmp_path):
-    run_train("--config", str(CONFIGS / "nlb_pretrain_paper.yaml"), "--run_dir", str(tmp_path),
+    run_train("--config", str(CONFIGS / "nlb_pretrain.yaml"), "--config", str(CONFIGS / "nlb_pretrain_paper.yaml"),
+              "--run_dir", str(tmp_path),
               "--trainer.max_epochs", "1", "--trainer.log_every_n_steps", "1",
               "--data.batches_per_epoch", "2", "--data.val_batches", "1", "--data.num_workers", "0",
               "--data.batch_size", "64", "--data.n_analytic", "8", "--model.n_materials", "8",
@@ -514,7 +511,7 @@ def test_latent_fit_checkpoint_is_the_model_its_metrics_describe(pretrained_run,
     """Issue 13, class 4: fitted.ckpt always exists and holds the final latents, which the
     last-logged metrics describe (validation follows the last step whatever the epoch count)."""
     module = tiny_module()
-    sources = [{"table": str(network_table(module, k, "DS2", tmp_path / f"m{k}.csv"))} for k in (1, 4)]
+    sources = [{"path": str(network_table(module, k, "DS2", tmp_path / f"m{k}.csv"))} for k in (1, 4)]
     run_train("--config", str(CONFIGS / "nlb_latent.yaml"), "--run_dir", str(tmp_path / "run"),
               "--model.checkpoint", str(pretrained_run / "checkpoints" / "last.ckpt"),
               "--trainer.check_val_every_n_epoch", "10", "--data.steps_per_epoch", "3",

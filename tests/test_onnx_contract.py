@@ -17,7 +17,7 @@ from neuralbrdf.kinds.abc import A_KEY as ABC_A_KEY
 from neuralbrdf.kinds.abc import B_KEY as ABC_B_KEY
 from neuralbrdf.kinds.abc import KD_KEY as ABC_KD_KEY
 from neuralbrdf.kinds.abc import AbcMetadata
-from neuralbrdf.render.onnx_contract import (
+from neuralbrdf.onnx_contract import (
     FORMAT_VERSION,
     FORMAT_VERSION_KEY,
     KIND_KEY,
@@ -235,7 +235,7 @@ def test_the_old_80_direction_probe_misses_a_negative_mirror_spike_the_dense_pro
 
 
 def test_dense_probe_covers_mirror_and_grazing_directions():
-    from neuralbrdf.render.onnx_contract import dense_probe
+    from neuralbrdf.onnx_contract import dense_probe
 
     wi, wo, near_mirror = dense_probe()
     assert len(wi) > 10_000 and np.all(wi[:, 2] > 0) and np.all(wo[:, 2] > 0)
@@ -266,7 +266,7 @@ def test_external_weight_data_is_refused_before_it_is_read(tmp_path):
 
 
 def test_declared_sizes_and_file_size_are_bounded(tmp_path, monkeypatch):
-    from neuralbrdf.render import onnx_contract
+    from neuralbrdf import onnx_contract
 
     model = fx.tiny_rgb_model()
     path = tmp_path / "m.onnx"
@@ -283,7 +283,7 @@ def test_a_constant_shape_creating_a_huge_tensor_is_refused_before_onnxruntime(t
     """A 1e10-element ``ConstantOfShape`` would be folded (allocated) by onnxruntime at session start."""
     from onnx import helper, numpy_helper
 
-    from neuralbrdf.render import onnx_contract
+    from neuralbrdf import onnx_contract
 
     model = fx.tiny_rgb_model()
     model.graph.initializer.append(numpy_helper.from_array(np.array([100_000, 100_000], dtype=np.int64), "big"))

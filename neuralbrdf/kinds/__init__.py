@@ -9,17 +9,19 @@ package that defines ``KIND``, a :class:`Kind` saying
   entry of a checkpoint, :data:`CHECKPOINT_KIND_KEY`);
 * whether its models must be spectral;
 * how to read and check its own metadata entries (``neuralbrdf.<kind>.*``);
-* the sampling proposal the Mitsuba plugin draws directions from (analytic for ABC, a GGX
-  mixture fitted to the model for the neural kinds; :mod:`neuralbrdf.render.sampling`);
-* how to turn one of its checkpoints into an :class:`~neuralbrdf.onnx_export.Exportable`.
+* the sampling proposal the Mitsuba plugin draws directions from, by name (a GGX mixture
+  fitted to the model for the neural kinds, the analytic lobe for ABC;
+  :data:`neuralbrdf.render.sampling.PROPOSALS`);
+* how to turn one of its checkpoints into an :class:`Exportable`.
 
 A new kind is one new module here: the registry imports every module of the package on first
 use.  Generic evaluation (onnxruntime, the Dr.Jit interpreter) reads the ``.onnx`` graph and
 needs nothing from the kind.
 
 :func:`load_model` is the full contract check (the generic one of
-:func:`neuralbrdf.render.onnx_contract.load_model` and the kind's own); :func:`load_exportable`
-and :func:`export_checkpoint` are the exporter.
+:func:`neuralbrdf.onnx_contract.load_model` and the kind's own); :func:`load_exportable`
+gives a checkpoint's model to the exporter (:mod:`neuralbrdf.onnx_export`).  This module sits
+below the exporter and the renderer: it imports neither.
 """
 
 from __future__ import annotations
@@ -32,16 +34,13 @@ import pkgutil
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+
+from torch import nn
 
 from neuralbrdf.checkpoints import read_checkpoint
 from neuralbrdf.errors import InputError, one_line
-from neuralbrdf.render import onnx_contract
-
-if TYPE_CHECKING:
-    from neuralbrdf.onnx_export import Exportable, ExportReport
-    from neuralbrdf.render.onnx_contract import OnnxModel
-    from neuralbrdf.render.sampling import LobeMixture, ProbeFunction
+from neuralbrdf import onnx_contract
+from neuralbrdf.onnx_contract import OnnxModel
 
 #: Checkpoint entry naming the kind; written by every Lightning module of a fitted model
 #: (:class:`neuralbrdf.lightning.kind_hook.WritesKind`).
@@ -52,11 +51,20 @@ def _no_details(metadata: Mapping[str, str], path, is_spectral: bool) -> None:
     return None
 
 
-def fitted_proposal(model: OnnxModel, probe: ProbeFunction) -> LobeMixture:
-    """GGX lobes and weights fitted to the model through ``probe`` (the neural kinds' proposal)."""
-    from neuralbrdf.render.sampling import fit_neural_mixture
+@dataclass(frozen=True)
+class Exportable:
+    """A model ready to trace: the module, its contract metadata and whether it is spectral."""
 
-    return fit_neural_mixture(probe)
+    module: nn.Module
+    kind: str
+    material: str
+    metadata: dict[str, str]
+    wavelength_range_nm: tuple[float, float] | None
+
+    @property
+    def is_spectral(self) -> bool:
+        return self.wavelength_range_nm is not None
+
 
 
 @dataclass(frozen=True)
@@ -73,10 +81,11 @@ class Kind:
         Its models must take a ``wavelength`` input.
     read_metadata:
         ``(metadata, path, is_spectral) -> details``: checks the kind's own ``neuralbrdf.<kind>.*``
-        entries and returns what it read (stored as :attr:`OnnxModel.details`), raising
+        entries and returns what it read (stored as :attr:`~neuralbrdf.onnx_contract.OnnxModel.details`), raising
         :class:`InputError` naming the file and key.
     proposal:
-        ``(model, probe) -> LobeMixture``: the renderer's sampling proposal.
+        The name of the renderer's sampling proposal (:data:`neuralbrdf.render.sampling.PROPOSALS`),
+        fitted at scene load from the model and its :attr:`~neuralbrdf.onnx_contract.OnnxModel.details`.
     from_checkpoint:
         ``(checkpoint, path, material) -> Exportable`` for kinds trained by this library; ``None``
         for kinds that are written directly (``reference``).
@@ -88,7 +97,7 @@ class Kind:
     summary: str
     spectral_only: bool = False
     read_metadata: Callable[[Mapping[str, str], object, bool], object] = _no_details
-    proposal: Callable[[OnnxModel, ProbeFunction], LobeMixture] = fitted_proposal
+    proposal: str = "fitted_ggx"
     from_checkpoint: Callable[[dict, Path, str | None], Exportable] | None = None
     recognises: Callable[[dict], bool] | None = None
 
@@ -129,7 +138,7 @@ def load_model(path: str | os.PathLike[str]) -> OnnxModel:
     """``path`` checked against the whole contract: the shared part and its kind's own.
 
     Raises :class:`InputError` naming the file for everything
-    :func:`neuralbrdf.render.onnx_contract.load_model` refuses, an unregistered kind, a
+    :func:`neuralbrdf.onnx_contract.load_model` refuses, an unregistered kind, a
     non-spectral model of a spectral-only kind, and bad kind-specific metadata.
     """
     model = onnx_contract.load_model(path)
@@ -211,8 +220,3 @@ def load_exportable(ckpt: str | os.PathLike[str], material: str | None = None) -
     return exportable
 
 
-def export_checkpoint(ckpt: str | os.PathLike[str], out: str | os.PathLike[str], material: str | None = None) -> ExportReport:
-    """Export checkpoint ``ckpt`` to the ``.onnx`` file ``out``; nothing is written on failure."""
-    from neuralbrdf.onnx_export import write_model
-
-    return write_model(load_exportable(ckpt, material), out)

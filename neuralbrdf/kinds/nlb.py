@@ -17,8 +17,10 @@ import torch
 
 from neuralbrdf.checkpoints import check_weights_match, read_checkpoint
 from neuralbrdf.errors import InputError
-from neuralbrdf.kinds import Kind, pick_material, provenance
+from neuralbrdf.kinds import Exportable, Kind, pick_material, provenance
+from neuralbrdf.models.directional import NlbWithLatent
 from neuralbrdf.models.nlb import NLBNetwork
+from neuralbrdf.onnx_contract import contract_metadata
 
 #: Entries a latent-fit checkpoint has beside Lightning's own.
 _FIT_KEYS = ("nlb_config", "material_names", "state_dict")
@@ -56,11 +58,7 @@ def load_fitted(path: str | os.PathLike[str]) -> FittedNLB:
     return _fitted(read_checkpoint(path, "fitted NLB checkpoint"), path)
 
 
-def from_checkpoint(checkpoint: dict, path: Path, material: str | None):
-    from neuralbrdf.models.directional import NlbWithLatent
-    from neuralbrdf.onnx_export import Exportable
-    from neuralbrdf.render.onnx_contract import contract_metadata
-
+def from_checkpoint(checkpoint: dict, path: Path, material: str | None) -> Exportable:
     fitted = _fitted(checkpoint, path)
     name = pick_material(list(fitted.latents), material, path)
     module = NlbWithLatent(fitted.network, fitted.latents[name])

@@ -11,10 +11,8 @@ the quantity of the hemisphere log-cosine RMSE (SPEC §5) and of Löw et al.'s f
 (report Eq. 4.2), so training and evaluation agree.  Over this corpus, whose values span
 10⁻⁴ to 10⁷ sr⁻¹ (sharp peaks, grazing ABC tails), the raw L1 does not train: its per-sample
 gradient through the output scales with the predicted value, so the few bright samples drive
-every update.  Measured with the compact network, learning rate 1e-2, 2400 steps of 8192
-samples: ``"log_cosine"`` reached ``val/logcos_rmse`` 0.065, ``"linear"`` stalled within the
-first epoch at 1.23, and latents fitted on it to eight MERL proxies (DS1, log-cosine fit)
-had a mean hemisphere log-cosine RMSE on the Löw et al. set of 0.056 against 0.026.  Both L1s are
+every update; the comparison that decided it is in ``benchmarks/README.md`` (design
+measurements).  Both L1s are
 logged on the validation batches (``val/l1_logcos``, ``val/l1_linear``) whichever is trained,
 with ``val/logcos_rmse`` (the SPEC §5 metric over the validation samples; under DDP the
 per-process mean squares are averaged, weighted by count).

@@ -29,7 +29,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from neuralbrdf.models.abc import ABCParameters, abc_brdf
+from neuralbrdf.physics.abc import ABCParameters, abc_brdf
 from neuralbrdf.models.nlb import NLBNetwork, above_horizon
 from neuralbrdf.models.spectral_mlp import SpectralMLP
 
