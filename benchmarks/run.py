@@ -65,9 +65,9 @@ import torch
 from neuralbrdf import kinds, onnx_export
 from neuralbrdf.atomic import atomic_write
 from neuralbrdf.kinds import abc as abc_kind
-from neuralbrdf.physics.abc import ABCParameters
+from neuralbrdf.physics.abc import AbcParameters
 from neuralbrdf.models.directional import NlbWithLatent
-from neuralbrdf.models.nlb import NLBNetwork
+from neuralbrdf.models.nlb import NlbNetwork
 from neuralbrdf.render import preview
 from neuralbrdf.onnx_contract import contract_metadata
 from neuralbrdf.study.cost import bench_throughput, machine
@@ -98,7 +98,7 @@ TARGETS = {
     "fastest_backend_queries_per_s": ">= 150e6 on 2 cores",
 }
 #: Löw et al.-like parameters of the ABC throughput model (speed only).
-ABC_BENCH_PARAMETERS = ABCParameters(kd=[0.1, 0.08, 0.05], A=[1.0, 0.8, 0.6], B=200.0, C=1.1, eta=1.5)
+ABC_BENCH_PARAMETERS = AbcParameters(kd=[0.1, 0.08, 0.05], A=[1.0, 0.8, 0.6], B=200.0, C=1.1, eta=1.5)
 PRETRAINED_NLB = ROOT / "neuralbrdf" / "pretrained" / "nlb_compact.ckpt"
 
 
@@ -233,7 +233,7 @@ def nlb_module() -> tuple[torch.nn.Module, str]:
         pretrained = load_pretrained(PRETRAINED_NLB)
         return NlbWithLatent(pretrained.network, pretrained.latent_mean), "pretrained compact network"
     torch.manual_seed(SEED)
-    network = NLBNetwork()
+    network = NlbNetwork()
     with torch.no_grad():  # random everywhere: a zero layer would let Dr.Jit drop the network
         for parameter in network.parameters():
             parameter.copy_(torch.randn_like(parameter) * 0.2)

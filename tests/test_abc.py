@@ -15,7 +15,7 @@ from neuralbrdf.fitting import AbcBounds, fit_abc
 from neuralbrdf.geometry import inplane_to_vectors, spherical_pair_to_vectors, spherical_to_vector
 from neuralbrdf.metrics import hemisphere_logcos_rmse
 from neuralbrdf.data.low2012 import load_low2012_parameters
-from neuralbrdf.physics.abc import ABCParameters, abc_brdf
+from neuralbrdf.physics.abc import AbcParameters, abc_brdf
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 LOW_CSV = DATA / "abc-low2012" / "low2012_abc_merl.csv"
@@ -23,8 +23,8 @@ needs_low = pytest.mark.skipif(not LOW_CSV.is_file(), reason=f"Löw et al. param
 REPORT_MATERIALS = ("tungsten-carbide", "nylon", "brass", "blue-acrylic", "specular-black-phenolic")
 
 # Löw et al.'s published fits of two report materials (copied, so the tests below run without the data).
-NYLON = ABCParameters(kd=[0.2327, 0.2325, 0.2074], A=[19.21563, 18.19409, 16.93832], B=3334.451788, C=0.886752, eta=1.38252)
-PHENOLIC = ABCParameters(
+NYLON = AbcParameters(kd=[0.2327, 0.2325, 0.2074], A=[19.21563, 18.19409, 16.93832], B=3334.451788, C=0.886752, eta=1.38252)
+PHENOLIC = AbcParameters(
     kd=[0.0014, 0.0017, 0.0019], A=[2866.69698, 2568.57011, 3042.95351], B=291094.225596, C=1.252478, eta=1.41541
 )
 
@@ -38,7 +38,7 @@ def reference_fresnel(c, eta):
     return (g - c) ** 2 / (2 * (g + c) ** 2) * (1 + (c * (g + c) - 1) ** 2 / (c * (g - c) + 1) ** 2)
 
 
-def reference_abc(wi, wo, p: ABCParameters):
+def reference_abc(wi, wo, p: AbcParameters):
     """SPEC §4.1 in plain Python for one direction pair."""
     ci, co = wi[2], wo[2]
     if ci <= 0 or co <= 0:
@@ -65,7 +65,7 @@ def random_upper_directions(rng, n, min_cos=1e-3):
 # --------------------------------------------------------------------------- the BRDF
 
 
-@pytest.mark.parametrize("params", [NYLON, PHENOLIC, ABCParameters([0.1, 0.2, 0.3], [2.0, 1.0, 0.5], 15.0, 2.0, 1.6)])
+@pytest.mark.parametrize("params", [NYLON, PHENOLIC, AbcParameters([0.1, 0.2, 0.3], [2.0, 1.0, 0.5], 15.0, 2.0, 1.6)])
 def test_abc_brdf_matches_an_independent_scalar_implementation(params):
     rng = np.random.default_rng(1)
     wi, wo = random_upper_directions(rng, 400), random_upper_directions(rng, 400)
@@ -99,7 +99,7 @@ def test_reciprocity_and_isotropy():
 
 @pytest.mark.parametrize(
     "params",
-    [NYLON, PHENOLIC, ABCParameters([0.0] * 3, [1e4] * 3, 1e8, 0.05, 100.0), ABCParameters([0.3] * 3, [1.0] * 3, 0.0, 0.0, 1.01)],
+    [NYLON, PHENOLIC, AbcParameters([0.0] * 3, [1e4] * 3, 1e8, 0.05, 100.0), AbcParameters([0.3] * 3, [1.0] * 3, 0.0, 0.0, 1.01)],
 )
 def test_finite_non_negative_on_a_dense_hemisphere_grid_including_grazing(params):
     theta = np.concatenate([np.linspace(0.0, 89.0, 90), [89.9, 89.99, 89.999, 90.0]])
@@ -118,7 +118,7 @@ def test_finite_non_negative_on_a_dense_hemisphere_grid_including_grazing(params
 
 
 def test_fresnel_factor_tends_to_one_at_grazing_and_gradients_stay_finite():
-    p = ABCParameters([0.1] * 3, [1.0] * 3, 100.0, 1.5, 1.5)
+    p = AbcParameters([0.1] * 3, [1.0] * 3, 100.0, 1.5, 1.5)
     angles = np.array([60.0, 80.0, 89.0, 89.9, 89.99])
     wi, wo = inplane_to_vectors(angles, angles)  # mirror pairs: n·h = 1, G = 1, D = 1
     cos = np.cos(np.radians(angles))
@@ -135,9 +135,9 @@ def test_fresnel_factor_tends_to_one_at_grazing_and_gradients_stay_finite():
 
 
 def test_parameters_round_trip_through_json():
-    spectral = ABCParameters(kd=[0.1] * 31, A=[1.0] * 31, B=10, C=1, eta=1.5, wavelengths=np.arange(400, 701, 10))
+    spectral = AbcParameters(kd=[0.1] * 31, A=[1.0] * 31, B=10, C=1, eta=1.5, wavelengths=np.arange(400, 701, 10))
     for params in (NYLON, spectral):
-        again = ABCParameters.from_dict(json.loads(json.dumps(params.to_dict())))
+        again = AbcParameters.from_dict(json.loads(json.dumps(params.to_dict())))
         assert again.to_dict() == params.to_dict()
 
 
@@ -156,12 +156,12 @@ def test_parameters_round_trip_through_json():
 def test_parameters_from_dict_rejects_bad_values_naming_the_key(change, key):
     mapping = {**NYLON.to_dict(), **change}
     with pytest.raises(InputError) as info:
-        ABCParameters.from_dict(mapping, source="params.json")
+        AbcParameters.from_dict(mapping, source="params.json")
     assert info.value.column == key and info.value.path == "params.json"
     missing = NYLON.to_dict()
     del missing["eta"]
     with pytest.raises(InputError, match="missing"):
-        ABCParameters.from_dict(missing)
+        AbcParameters.from_dict(missing)
 
 
 # --------------------------------------------------------------------------- Löw et al. 2012
@@ -211,12 +211,12 @@ def test_low2012_loader_rejects_missing_and_empty_files(tmp_path):
 # --------------------------------------------------------------------------- fitting
 
 
-def table_from(params: ABCParameters, plan: str = "DS1") -> BrdfTable:
+def table_from(params: AbcParameters, plan: str = "DS1") -> BrdfTable:
     angles = plan_spherical(plan)
     return BrdfTable(*angles, params.evaluate(*spherical_pair_to_vectors(*angles)), params.wavelengths)
 
 
-def low_set_error(fitted: ABCParameters, truth: ABCParameters) -> float:
+def low_set_error(fitted: AbcParameters, truth: AbcParameters) -> float:
     angles = plan_spherical("low")
     wi, wo = spherical_pair_to_vectors(*angles)
     return hemisphere_logcos_rmse(fitted.evaluate(wi, wo), truth.evaluate(wi, wo), angles[0])
@@ -235,7 +235,7 @@ def test_fit_recovers_known_parameters_from_noise_free_ds1(truth):
 def test_fit_works_on_spectral_tables_with_a_per_wavelength_a():
     wavelengths = np.arange(400.0, 701.0, 10.0)
     ramp = (wavelengths - 400.0) / 300.0
-    truth = ABCParameters(kd=0.05 + 0.2 * ramp, A=40.0 * (1.2 - ramp), B=2000.0, C=1.1, eta=1.5, wavelengths=wavelengths)
+    truth = AbcParameters(kd=0.05 + 0.2 * ramp, A=40.0 * (1.2 - ramp), B=2000.0, C=1.1, eta=1.5, wavelengths=wavelengths)
     result = fit_abc(table_from(truth), n_starts=4)
     assert result.success, result.failure_reason
     assert result.parameters.n_channels == 31

@@ -20,14 +20,14 @@ from export_scripts import load_export_script
 
 from neuralbrdf.geometry import half_diff_angles, inplane_to_vectors
 from neuralbrdf.lightning.spectral_mlp_module import SpectralMlpModule
-from neuralbrdf.physics.abc import ABCParameters, abc_brdf
+from neuralbrdf.physics.abc import AbcParameters, abc_brdf
 from neuralbrdf.models.directional import (
     AbcOnDirections,
     NlbWithLatent,
     SpectralMlpOnDirections,
     rusinkiewicz_theta_h_d,
 )
-from neuralbrdf.models.nlb import NLBConfig, NLBNetwork
+from neuralbrdf.models.nlb import NlbConfig, NlbNetwork
 from neuralbrdf import kinds, onnx_export
 from neuralbrdf.render.drjit_onnx import DrJitGraph
 from neuralbrdf.kinds import load_model
@@ -40,9 +40,9 @@ to_onnx = load_export_script("to_onnx")
 
 RTOL = onnx_export.RELATIVE_TOLERANCE
 ATOL = onnx_export.ABSOLUTE_FLOOR_SR
-NLB_CONFIG = NLBConfig(latent_dim=4, width=16, depth=2, residual=False, half_vector=True)
-ABC_RGB = ABCParameters(kd=[0.1, 0.2, 0.3], A=[0.5, 0.8, 1.0], B=20.0, C=1.5, eta=1.5)
-ABC_SPECTRAL = ABCParameters(
+NLB_CONFIG = NlbConfig(latent_dim=4, width=16, depth=2, residual=False, half_vector=True)
+ABC_RGB = AbcParameters(kd=[0.1, 0.2, 0.3], A=[0.5, 0.8, 1.0], B=20.0, C=1.5, eta=1.5)
+ABC_SPECTRAL = AbcParameters(
     kd=np.linspace(0.05, 0.4, 7),
     A=np.array([0.2, 0.9, 0.4, 1.2, 0.7, 0.3, 1.0]),
     B=40.0,
@@ -100,7 +100,7 @@ def spectral_mlp_checkpoint(path, module=None):
 def random_nlb(seed=1):
     """A small NLB network with every weight random (its output layer starts at zero)."""
     torch.manual_seed(seed)
-    network = NLBNetwork(**asdict(NLB_CONFIG))
+    network = NlbNetwork(**asdict(NLB_CONFIG))
     with torch.no_grad():
         for parameter in network.parameters():
             parameter.copy_(torch.randn_like(parameter) * 0.5)
@@ -391,7 +391,7 @@ def test_export_refuses_a_file_that_load_model_rejects(checkpoints, tmp_path, mo
 
 def test_sharp_abc_lobes_export(tmp_path):
     """Löw et al.'s sharp lobes (B ~ 1e5) need 1 - cos θh without cancellation in float32."""
-    sharp = ABCParameters(kd=[0.011, 0.035, 0.104], A=[1191.4, 1099.3, 1082.1], B=255869.0, C=1.0847, eta=1.475)
+    sharp = AbcParameters(kd=[0.011, 0.035, 0.104], A=[1191.4, 1099.3, 1082.1], B=255869.0, C=1.0847, eta=1.475)
     onnx_export.export_checkpoint(abc_checkpoint(tmp_path / "sharp.ckpt", sharp, "blue-acrylic"), tmp_path / "sharp.onnx")
 
 

@@ -2,7 +2,7 @@
 
 J. Löw, J. Kronander, A. Ynnerman, J. Unger, "BRDF models for accurate and efficient rendering
 of glossy surfaces", ACM TOG 31(1), 2012: RGB parameters of the ABC model
-(:class:`~neuralbrdf.physics.abc.ABCParameters`, SPEC §2.4, §4.1) fitted to all MERL samples.
+(:class:`~neuralbrdf.physics.abc.AbcParameters`, SPEC §2.4, §4.1) fitted to all MERL samples.
 """
 
 from __future__ import annotations
@@ -11,14 +11,14 @@ import os
 
 from neuralbrdf.data.csvio import read_csv_rows
 from neuralbrdf.errors import InputError
-from neuralbrdf.physics.abc import ABCParameters
+from neuralbrdf.physics.abc import AbcParameters
 
 #: Column order of Löw et al.'s published fits (``../shared/data/abc-low2012``).
 LOW2012_COLUMNS = ("material", "kd_r", "kd_g", "kd_b", "A_r", "A_g", "A_b", "B", "C", "eta")
 
 
-def load_low2012_parameters(path: str | os.PathLike[str]) -> dict[str, ABCParameters]:
-    """Löw et al.'s (2012) published RGB ABC fits, ``{material: ABCParameters}``.
+def load_low2012_parameters(path: str | os.PathLike[str]) -> dict[str, AbcParameters]:
+    """Löw et al.'s (2012) published RGB ABC fits, ``{material: AbcParameters}``.
 
     The CSV has the header :data:`LOW2012_COLUMNS` and one row per material; every defect
     (missing or unknown column, non-numeric or out-of-range cell, duplicated or empty material)
@@ -57,7 +57,7 @@ def load_low2012_parameters(path: str | os.PathLike[str]) -> dict[str, ABCParame
             except ValueError:
                 raise InputError(f"not a number: {cell!r}", path=path, line=line, column=name) from None
         try:
-            fits[material] = ABCParameters(
+            fits[material] = AbcParameters(
                 kd=[numbers["kd_r"], numbers["kd_g"], numbers["kd_b"]],
                 A=[numbers["A_r"], numbers["A_g"], numbers["A_b"]],
                 B=numbers["B"],

@@ -50,7 +50,7 @@ import torch
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
 from neuralbrdf.losses import log_cosine_loss, log_cosine_terms
-from neuralbrdf.physics.abc import ABCParameters, abc_brdf
+from neuralbrdf.physics.abc import AbcParameters, abc_brdf
 
 #: A parameter within this fraction of its box width from a bound counts as pinned.
 PINNED_FRACTION = 1e-3
@@ -114,7 +114,7 @@ class AbcFitResult:
         Wall-clock time of the fit in seconds.
     """
 
-    parameters: ABCParameters
+    parameters: AbcParameters
     loss: float
     baseline_loss: float
     success: bool
@@ -265,7 +265,7 @@ def _fit(table: BrdfTable, n_starts: int, seed: int, bounds: AbcBounds, max_eval
     A, B, C, eta = (t.numpy() for t in problem.unpack(torch.from_numpy(run.x)))
     loss = problem.loss_of(problem.predict(torch.from_numpy(run.x)))
     # TNC keeps x inside the (finite) box, so the parameters are finite and valid.
-    parameters = ABCParameters(problem.kd.numpy(), A, float(B), float(C), float(eta), table.wavelengths)
+    parameters = AbcParameters(problem.kd.numpy(), A, float(B), float(C), float(eta), table.wavelengths)
 
     reasons = []
     if not (math.isfinite(loss) and np.all(np.isfinite(run.x))):

@@ -29,7 +29,7 @@ from pathlib import Path
 
 from neuralbrdf.errors import InputError
 from neuralbrdf.kinds import Exportable, Kind, pick_material, provenance
-from neuralbrdf.physics.abc import ABCParameters
+from neuralbrdf.physics.abc import AbcParameters
 from neuralbrdf.models.directional import AbcOnDirections
 from neuralbrdf.onnx_contract import contract_metadata, kind_key, metadata_float, metadata_float_list
 
@@ -85,7 +85,7 @@ def read_metadata(metadata: Mapping[str, str], path, is_spectral: bool) -> AbcMe
     return AbcMetadata(kd=kd, A=A, B=B, C=C, eta=eta)
 
 
-def exportable(parameters: ABCParameters, material: str, provenance_text: str) -> Exportable:
+def exportable(parameters: AbcParameters, material: str, provenance_text: str) -> Exportable:
     """The model of ABC ``parameters`` with its contract metadata, ready to export."""
     module = AbcOnDirections(parameters)
     wavelength_range = module.wavelength_range_nm if module.is_spectral else None
@@ -103,7 +103,7 @@ def from_checkpoint(checkpoint: dict, path: Path, material: str | None):
     for key in ("abc_parameters", "material"):
         if key not in checkpoint:
             raise InputError("ABC checkpoint lacks this key", path=path, column=key)
-    parameters = ABCParameters.from_dict(checkpoint["abc_parameters"], source=str(path))
+    parameters = AbcParameters.from_dict(checkpoint["abc_parameters"], source=str(path))
     name = pick_material([str(checkpoint["material"])], material, path)
     return exportable(parameters, name, provenance(checkpoint, path))
 

@@ -19,7 +19,7 @@ from neuralbrdf.checkpoints import check_weights_match, read_checkpoint
 from neuralbrdf.errors import InputError
 from neuralbrdf.kinds import Exportable, Kind, pick_material, provenance
 from neuralbrdf.models.directional import NlbWithLatent
-from neuralbrdf.models.nlb import NLBNetwork
+from neuralbrdf.models.nlb import NlbNetwork
 from neuralbrdf.onnx_contract import contract_metadata
 
 #: Entries a latent-fit checkpoint has beside Lightning's own.
@@ -28,31 +28,31 @@ _PREFIX = "network."
 
 
 @dataclass(frozen=True)
-class FittedNLB:
+class FittedNlb:
     """Fitted materials: the frozen ``network`` and one latent ``[latent_dim]`` per material name."""
 
-    network: NLBNetwork
+    network: NlbNetwork
     latents: dict[str, torch.Tensor]
     source: str
 
 
-def _fitted(checkpoint: dict, path: Path) -> FittedNLB:
+def _fitted(checkpoint: dict, path: Path) -> FittedNlb:
     missing = [key for key in _FIT_KEYS if key not in checkpoint]
     if missing:  # e.g. a pretraining checkpoint: it names its materials but has no nlb_config
         raise InputError(f"not a latent-fit checkpoint (LatentFitModule): missing {missing[0]!r}", path=path)
     try:
         names, state = checkpoint["material_names"], checkpoint["state_dict"]
-        check_weights_match(lambda: NLBNetwork(**checkpoint["nlb_config"]), state, path, _PREFIX)
-        network = NLBNetwork(**checkpoint["nlb_config"])
+        check_weights_match(lambda: NlbNetwork(**checkpoint["nlb_config"]), state, path, _PREFIX)
+        network = NlbNetwork(**checkpoint["nlb_config"])
         latents = state["latents.latents"].float()
     except (KeyError, TypeError) as exc:
         raise InputError(f"not a latent-fit checkpoint (LatentFitModule): missing {exc}", path=path) from None
     network.load_state_dict({k[len(_PREFIX):]: v for k, v in state.items() if k.startswith(_PREFIX)})
     network.requires_grad_(False).eval()
-    return FittedNLB(network, dict(zip(names, latents)), str(path))
+    return FittedNlb(network, dict(zip(names, latents)), str(path))
 
 
-def load_fitted(path: str | os.PathLike[str]) -> FittedNLB:
+def load_fitted(path: str | os.PathLike[str]) -> FittedNlb:
     """The network and named latents of a latent-fit checkpoint, else :class:`InputError`."""
     path = Path(path)
     return _fitted(read_checkpoint(path, "fitted NLB checkpoint"), path)

@@ -25,7 +25,7 @@ from neuralbrdf.evaluation.scores import fit_scores
 from neuralbrdf.fitting.abc_fit import AbcBounds, AbcFitResult, fit_abc
 from neuralbrdf.lightning.common import WritesKind
 from neuralbrdf.metrics import hemisphere_logcos_rmse
-from neuralbrdf.physics.abc import ABCParameters
+from neuralbrdf.physics.abc import AbcParameters
 from neuralbrdf.sources import MaterialData
 
 
@@ -44,7 +44,7 @@ class AbcFitModule(WritesKind, pl.LightningModule):
         self.automatic_optimization = False
         self.bounds = AbcBounds(**{k: tuple(v) for k, v in (bounds or {}).items()})
         self.result: AbcFitResult | None = None
-        self.parameters_: ABCParameters | None = None
+        self.parameters_: AbcParameters | None = None
         self.material_name: str | None = None
         #: :func:`~neuralbrdf.evaluation.scores.fit_scores` of the last evaluation.
         self.scores: dict[str, float | None] = {}
@@ -128,5 +128,5 @@ class AbcFitModule(WritesKind, pl.LightningModule):
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         if "abc_parameters" in checkpoint:
-            self.parameters_ = ABCParameters.from_dict(checkpoint["abc_parameters"], source="checkpoint")
+            self.parameters_ = AbcParameters.from_dict(checkpoint["abc_parameters"], source="checkpoint")
             self.material_name = checkpoint.get("material")

@@ -62,7 +62,7 @@ from neuralbrdf import metrics
 from neuralbrdf.errors import InputError
 from neuralbrdf.lightning.common import WritesKind, scheduled_optimizer
 from neuralbrdf.lightning.latent_fit_data import EvalSet, FitSamples
-from neuralbrdf.lightning.nlb_module import PretrainedNLB, load_pretrained
+from neuralbrdf.lightning.nlb_module import PretrainedNlb, load_pretrained
 from neuralbrdf.losses import check_loss_domain, log_cosine, nlb_loss
 from neuralbrdf.models.nlb import LatentTable
 
@@ -81,7 +81,7 @@ class LatentFitModule(WritesKind, pl.LightningModule):
     Parameters
     ----------
     checkpoint:
-        :class:`~neuralbrdf.lightning.nlb_module.NLBPretrainModule` checkpoint; ``None``: the
+        :class:`~neuralbrdf.lightning.nlb_module.NlbPretrainModule` checkpoint; ``None``: the
         shipped ``neuralbrdf/pretrained/nlb_compact.ckpt``.
     latent_init:
         Constant every latent starts from; ``None``: the centroid of the pretrained corpus
@@ -260,7 +260,7 @@ class LatentFitModule(WritesKind, pl.LightningModule):
         return scheduled_optimizer(groups, self.optimizer_factory, self.lr_scheduler_factory, "step")
 
 
-def start_candidates(pretrained: PretrainedNLB, n_analytic: int) -> torch.Tensor:
+def start_candidates(pretrained: PretrainedNlb, n_analytic: int) -> torch.Tensor:
     """Candidate starting codes ``[K, latent_dim]``: the centroid, every MERL proxy code and
     ``n_analytic`` analytic codes evenly spaced in the table (module docstring)."""
     merl = [i for i, name in enumerate(pretrained.names) if name.startswith("merl:")]

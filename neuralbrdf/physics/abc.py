@@ -106,7 +106,7 @@ def abc_brdf(wi, wo, kd, A, B, C, eta):
 
 
 @dataclass(frozen=True, eq=False)
-class ABCParameters:
+class AbcParameters:
     """The ABC model's parameters (SPEC §4.1), validated on construction.
 
     Attributes
@@ -194,7 +194,7 @@ class ABCParameters:
         }
 
     @classmethod
-    def from_dict(cls, mapping, source: str = "<dict>") -> ABCParameters:
+    def from_dict(cls, mapping, source: str = "<dict>") -> AbcParameters:
         """Parameters from a mapping with keys kd, A, B, C, eta (and optionally wavelengths).
 
         Missing, unknown or invalid keys raise :class:`InputError` naming ``source`` and the key.
