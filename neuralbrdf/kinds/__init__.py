@@ -91,6 +91,9 @@ class Kind:
         for kinds that are written directly (``reference``).
     recognises:
         ``checkpoint -> bool`` for checkpoints written before :data:`CHECKPOINT_KIND_KEY` existed.
+    scalar_parameters:
+        Fitted values the graph holds as scalar constants rather than weight tensors (ABC's
+        ``B``, ``C``, ``η``), so that a parameter count can include them.
     """
 
     name: str
@@ -100,6 +103,7 @@ class Kind:
     proposal: str = "fitted_ggx"
     from_checkpoint: Callable[[dict, Path, str | None], Exportable] | None = None
     recognises: Callable[[dict], bool] | None = None
+    scalar_parameters: int = 0
 
 
 _REGISTRY: dict[str, Kind] = {}

@@ -115,4 +115,5 @@ KIND = Kind(
     proposal="abc_lobe",
     from_checkpoint=from_checkpoint,
     recognises=lambda checkpoint: "abc_parameters" in checkpoint,
+    scalar_parameters=3,  # B, C, eta (kd and A are weight tensors of the graph)
 )
