@@ -33,7 +33,7 @@ from neuralbrdf.atomic import atomic_write
 from neuralbrdf.data.nbrdf import REPORT_MATERIALS
 from neuralbrdf.evaluation.evaluate import RenderSettings, evaluate
 from neuralbrdf.evaluation.truth import export_truth
-from neuralbrdf.kinds import export_checkpoint
+from neuralbrdf.onnx_export import export_checkpoint
 from neuralbrdf.lightning.run import main as train
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -98,7 +98,7 @@ def virtual_rows(work: Path, settings: Settings) -> list[dict]:
         truth = _cached(work / f"truth_{name}.onnx", lambda p, n=name: export_truth(f"virtual:{n}", p))
         for label, config in SPECTRAL_CONFIGS.items():
             run = work / f"{name}_{label}"
-            fit_time = _train(config, run, settings, "--data.virtual_material", name)
+            fit_time = _train(config, run, settings, "--data.virtual", name)
             model = _cached(work / f"{name}_{label}.onnx",
                             lambda p, r=run: export_checkpoint(r / "checkpoints" / "best.ckpt", p))
             result = _score(model, truth, work / f"eval_{name}_{label}", settings, "llvm_ad_spectral")

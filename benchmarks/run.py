@@ -68,11 +68,11 @@ import torch
 from neuralbrdf import kinds, onnx_export
 from neuralbrdf.atomic import atomic_write
 from neuralbrdf.kinds import abc as abc_kind
-from neuralbrdf.models.abc import ABCParameters
+from neuralbrdf.physics.abc import AbcParameters
 from neuralbrdf.models.directional import NlbWithLatent
-from neuralbrdf.models.nlb import NLBNetwork
+from neuralbrdf.models.nlb import NlbNetwork
 from neuralbrdf.render import preview
-from neuralbrdf.render.onnx_contract import contract_metadata
+from neuralbrdf.kinds import contract_metadata
 from neuralbrdf.study.cost import bench_throughput, machine
 from neuralbrdf.study.cost import timed as _timed
 
@@ -104,7 +104,7 @@ TARGETS = {
     "nlb_compact/fastest_backend_queries_per_s": ">= 10e6 on 2 cores",
 }
 #: Löw et al.-like parameters of the ABC throughput model (speed only).
-ABC_BENCH_PARAMETERS = ABCParameters(kd=[0.1, 0.08, 0.05], A=[1.0, 0.8, 0.6], B=200.0, C=1.1, eta=1.5)
+ABC_BENCH_PARAMETERS = AbcParameters(kd=[0.1, 0.08, 0.05], A=[1.0, 0.8, 0.6], B=200.0, C=1.1, eta=1.5)
 PRETRAINED_NLB = ROOT / "neuralbrdf" / "pretrained" / "nlb_compact.ckpt"
 
 
@@ -144,7 +144,7 @@ def train_and_export(settings: Settings, workdir: Path, activation: str = "tanh"
     model = workdir / f"gold_spectral_mlp_{activation}.onnx"
     checkpoint = run_dir / "checkpoints" / "best.ckpt"
     start = time.perf_counter()
-    report = kinds.export_checkpoint(checkpoint, model)
+    report = onnx_export.export_checkpoint(checkpoint, model)
     export_s = time.perf_counter() - start
     return {
         "activation": activation,
@@ -248,7 +248,7 @@ def nlb_module() -> tuple[torch.nn.Module, str]:
         pretrained = load_pretrained(PRETRAINED_NLB)
         return NlbWithLatent(pretrained.network, pretrained.latent_mean), "pretrained compact network"
     torch.manual_seed(SEED)
-    network = NLBNetwork()
+    network = NlbNetwork()
     with torch.no_grad():  # random everywhere: a zero layer would let Dr.Jit drop the network
         for parameter in network.parameters():
             parameter.copy_(torch.randn_like(parameter) * 0.2)

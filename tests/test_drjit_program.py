@@ -9,7 +9,7 @@ from drjit.llvm import Float
 import onnx_fixtures as fx
 from neuralbrdf.render.drjit_onnx import DrJitGraph
 from neuralbrdf.render.drjit_program import Recording, Register, apply
-from neuralbrdf.render.onnx_contract import load_model
+from neuralbrdf.kinds import load_model
 
 rng = np.random.default_rng(5)
 N = 512

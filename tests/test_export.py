@@ -1,5 +1,5 @@
 """Export to the ONNX contract (SPEC §6): the direction-space models of
-``neuralbrdf.models.directional`` against independent computations, and ``export/to_onnx.py`` —
+``neuralbrdf.models.directional`` against independent computations, and ``neuralbrdf export`` (``export/to_onnx.py``) —
 PyTorch = onnxruntime = Dr.Jit on every kind's file, ``load_model`` accepts it, a graph that does
 not reproduce PyTorch is never written, bad checkpoints exit 2 with one line."""
 
@@ -16,33 +16,32 @@ import pytest
 import pytorch_lightning as pl
 import torch
 from drjit.llvm import Float
-from export_scripts import load_export_script
 
 from neuralbrdf.geometry import half_diff_angles, inplane_to_vectors
 from neuralbrdf.lightning.spectral_mlp_module import SpectralMlpModule
-from neuralbrdf.models.abc import ABCParameters, abc_brdf
+from neuralbrdf.physics.abc import AbcParameters, abc_brdf
 from neuralbrdf.models.directional import (
     AbcOnDirections,
     NlbWithLatent,
     SpectralMlpOnDirections,
     rusinkiewicz_theta_h_d,
 )
-from neuralbrdf.models.nlb import NLBConfig, NLBNetwork
+from neuralbrdf.models.nlb import NlbConfig, NlbNetwork
 from neuralbrdf import kinds, onnx_export
+from neuralbrdf.cli import export_command
 from neuralbrdf.render.drjit_onnx import DrJitGraph
 from neuralbrdf.kinds import load_model
-from neuralbrdf.render.onnx_contract import contract_metadata
+from neuralbrdf.kinds import contract_metadata
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-to_onnx = load_export_script("to_onnx")
 
 RTOL = onnx_export.RELATIVE_TOLERANCE
 ATOL = onnx_export.ABSOLUTE_FLOOR_SR
-NLB_CONFIG = NLBConfig(latent_dim=4, width=16, depth=2, residual=False, half_vector=True)
-ABC_RGB = ABCParameters(kd=[0.1, 0.2, 0.3], A=[0.5, 0.8, 1.0], B=20.0, C=1.5, eta=1.5)
-ABC_SPECTRAL = ABCParameters(
+NLB_CONFIG = NlbConfig(latent_dim=4, width=16, depth=2, residual=False, half_vector=True)
+ABC_RGB = AbcParameters(kd=[0.1, 0.2, 0.3], A=[0.5, 0.8, 1.0], B=20.0, C=1.5, eta=1.5)
+ABC_SPECTRAL = AbcParameters(
     kd=np.linspace(0.05, 0.4, 7),
     A=np.array([0.2, 0.9, 0.4, 1.2, 0.7, 0.3, 1.0]),
     B=40.0,
@@ -87,7 +86,7 @@ def spectral_mlp_checkpoint(path, module=None):
     checkpoint = {
         "state_dict": module.state_dict(),
         "hyper_parameters": {**dict(module.hparams), "_class_path": f"{module.__module__}.SpectralMlpModule"},
-        "datamodule_hyper_parameters": {"path": None, "virtual_material": "gold", "batch_size": 128},
+        "datamodule_hyper_parameters": {"path": None, "virtual": "gold", "batch_size": 128},
         "pytorch-lightning_version": pl.__version__,
         "epoch": 4,
         "global_step": 100,
@@ -100,7 +99,7 @@ def spectral_mlp_checkpoint(path, module=None):
 def random_nlb(seed=1):
     """A small NLB network with every weight random (its output layer starts at zero)."""
     torch.manual_seed(seed)
-    network = NLBNetwork(**asdict(NLB_CONFIG))
+    network = NlbNetwork(**asdict(NLB_CONFIG))
     with torch.no_grad():
         for parameter in network.parameters():
             parameter.copy_(torch.randn_like(parameter) * 0.5)
@@ -155,7 +154,7 @@ def exported(checkpoints, tmp_path_factory):
     for case, (checkpoint, material) in CASES.items():
         out = d / f"{case}.onnx"
         args = ["--ckpt", str(checkpoints[checkpoint]), "--out", str(out)]
-        assert to_onnx.main(args + (["--material", material] if material else [])) == 0
+        assert export_command.main(args + (["--material", material] if material else [])) == 0
         files[case] = out
     return files
 
@@ -263,7 +262,7 @@ def test_exported_file_passes_load_model_with_the_contract_metadata(exported, ca
     assert model.is_spectral == (case in ("spectral_mlp", "abc_spectral"))
     if case == "spectral_mlp":
         assert model.wavelength_range_nm == (420.0, 680.0)
-        assert "epoch 4" in model.provenance and '"virtual_material":"gold"' in model.provenance
+        assert "epoch 4" in model.provenance and '"virtual":"gold"' in model.provenance
     if case == "nlb":
         assert '"plan":"DS2"' in model.provenance
     if case.startswith("abc"):
@@ -301,7 +300,7 @@ def test_pytorch_onnxruntime_and_drjit_agree_on_the_exported_file(exported, chec
 
 def test_nlb_latents_select_the_material(exported, checkpoints, tmp_path):
     brass = tmp_path / "brass.onnx"
-    assert to_onnx.main(["--ckpt", str(checkpoints["nlb"]), "--out", str(brass), "--material", "brass"]) == 0
+    assert export_command.main(["--ckpt", str(checkpoints["nlb"]), "--out", str(brass), "--material", "brass"]) == 0
     wi, wo, _ = random_pairs(64)
     run = lambda path: onnxruntime.InferenceSession(str(path)).run(["f"], {"wi": wi, "wo": wo})[0]  # noqa: E731
     assert not np.allclose(run(brass), run(exported["nlb"]), rtol=1e-3)
@@ -367,8 +366,8 @@ def test_export_refuses_a_graph_that_does_not_reproduce_pytorch(checkpoints, tmp
     monkeypatch.setattr(onnx_export, "trace", corrupted_trace)
     out = tmp_path / "corrupt.onnx"
     with pytest.raises(onnx_export.ExportValidationError, match="differs from PyTorch"):
-        kinds.export_checkpoint(checkpoints["spectral_mlp"], out)
-    assert to_onnx.main(["--ckpt", str(checkpoints["spectral_mlp"]), "--out", str(out)]) == 1
+        onnx_export.export_checkpoint(checkpoints["spectral_mlp"], out)
+    assert export_command.main(["--ckpt", str(checkpoints["spectral_mlp"]), "--out", str(out)]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "not written" in err
     assert _no_output_left(tmp_path, out.name)
@@ -385,14 +384,14 @@ def test_export_refuses_a_file_that_load_model_rejects(checkpoints, tmp_path, mo
     monkeypatch.setattr(onnx_export, "trace", without_metadata)
     out = tmp_path / "nometa.onnx"
     with pytest.raises(onnx_export.ExportValidationError, match="contract check: missing metadata"):
-        kinds.export_checkpoint(checkpoints["abc"], out)
+        onnx_export.export_checkpoint(checkpoints["abc"], out)
     assert _no_output_left(tmp_path, out.name)
 
 
 def test_sharp_abc_lobes_export(tmp_path):
     """Löw et al.'s sharp lobes (B ~ 1e5) need 1 - cos θh without cancellation in float32."""
-    sharp = ABCParameters(kd=[0.011, 0.035, 0.104], A=[1191.4, 1099.3, 1082.1], B=255869.0, C=1.0847, eta=1.475)
-    kinds.export_checkpoint(abc_checkpoint(tmp_path / "sharp.ckpt", sharp, "blue-acrylic"), tmp_path / "sharp.onnx")
+    sharp = AbcParameters(kd=[0.011, 0.035, 0.104], A=[1191.4, 1099.3, 1082.1], B=255869.0, C=1.0847, eta=1.475)
+    onnx_export.export_checkpoint(abc_checkpoint(tmp_path / "sharp.ckpt", sharp, "blue-acrylic"), tmp_path / "sharp.onnx")
 
 
 def _write_garbage(path):
@@ -433,7 +432,7 @@ def test_out_equal_to_the_checkpoint_is_refused_and_the_checkpoint_kept(tmp_path
     """Issue 13 class 1: ``--out c.ckpt --ckpt c.ckpt`` used to replace the checkpoint."""
     path = spectral_mlp_checkpoint(tmp_path / "c.ckpt")
     before = path.read_bytes()
-    assert to_onnx.main(["--ckpt", str(path), "--out", str(path)]) == 2
+    assert export_command.main(["--ckpt", str(path), "--out", str(path)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "is also an input of this command" in err, err
     assert path.read_bytes() == before
@@ -477,7 +476,7 @@ def test_bad_checkpoint_exits_2_with_one_line_naming_it(case, tmp_path, capsys):
     make, extra, message = BAD_CHECKPOINTS[case]
     path = make(tmp_path)
     out = tmp_path / "model.onnx"
-    assert to_onnx.main(["--ckpt", str(path), "--out", str(out), *extra]) == 2
+    assert export_command.main(["--ckpt", str(path), "--out", str(out), *extra]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("error: ") and str(path) in err and message in err, err
     assert _no_output_left(tmp_path, out.name)

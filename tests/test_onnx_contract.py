@@ -11,19 +11,17 @@ from onnx import TensorProto
 
 import onnx_fixtures as fx
 from neuralbrdf.errors import InputError
-from neuralbrdf import kinds
-from neuralbrdf.kinds import load_model
+from neuralbrdf.kinds import contract_metadata, load_model
 from neuralbrdf.kinds.abc import A_KEY as ABC_A_KEY
 from neuralbrdf.kinds.abc import B_KEY as ABC_B_KEY
 from neuralbrdf.kinds.abc import KD_KEY as ABC_KD_KEY
 from neuralbrdf.kinds.abc import AbcMetadata
-from neuralbrdf.render.onnx_contract import (
+from neuralbrdf.onnx_contract import (
     FORMAT_VERSION,
     FORMAT_VERSION_KEY,
     KIND_KEY,
     MATERIAL_KEY,
     WAVELENGTH_MAX_KEY,
-    contract_metadata,
     probe_directions,
 )
 
@@ -199,8 +197,12 @@ def test_graph_onnxruntime_cannot_run(tmp_path):
 
 
 def test_contract_metadata_refuses_what_load_model_refuses():
-    with pytest.raises(InputError, match="unknown model kind 'gan'"):
-        kinds.get("gan")  # the registry behind kinds.load_model and the exporter's final check
+    with pytest.raises(InputError, match="unknown model kind"):
+        contract_metadata("gan", "m", "p")
+    with pytest.raises(InputError, match="spectral_mlp model must take a 'wavelength' input"):
+        contract_metadata("spectral_mlp", "m", "p")
+    with pytest.raises(InputError, match="ABC model lacks metadata keys"):
+        contract_metadata("abc", "m", "p")
     with pytest.raises(InputError, match="start with 'neuralbrdf.nlb.'"):
         contract_metadata("nlb", "m", "p", kind_metadata=ABC.entries())
     with pytest.raises(InputError, match="wavelength range"):
@@ -235,7 +237,7 @@ def test_the_old_80_direction_probe_misses_a_negative_mirror_spike_the_dense_pro
 
 
 def test_dense_probe_covers_mirror_and_grazing_directions():
-    from neuralbrdf.render.onnx_contract import dense_probe
+    from neuralbrdf.onnx_contract import dense_probe
 
     wi, wo, near_mirror = dense_probe()
     assert len(wi) > 10_000 and np.all(wi[:, 2] > 0) and np.all(wo[:, 2] > 0)
@@ -266,7 +268,7 @@ def test_external_weight_data_is_refused_before_it_is_read(tmp_path):
 
 
 def test_declared_sizes_and_file_size_are_bounded(tmp_path, monkeypatch):
-    from neuralbrdf.render import onnx_contract
+    from neuralbrdf import onnx_contract
 
     model = fx.tiny_rgb_model()
     path = tmp_path / "m.onnx"
@@ -283,7 +285,7 @@ def test_a_constant_shape_creating_a_huge_tensor_is_refused_before_onnxruntime(t
     """A 1e10-element ``ConstantOfShape`` would be folded (allocated) by onnxruntime at session start."""
     from onnx import helper, numpy_helper
 
-    from neuralbrdf.render import onnx_contract
+    from neuralbrdf import onnx_contract
 
     model = fx.tiny_rgb_model()
     model.graph.initializer.append(numpy_helper.from_array(np.array([100_000, 100_000], dtype=np.int64), "big"))

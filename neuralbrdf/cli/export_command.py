@@ -19,7 +19,7 @@ import sys
 from neuralbrdf import kinds
 from neuralbrdf.atomic import command_inputs
 from neuralbrdf.errors import InputError
-from neuralbrdf.onnx_export import ExportValidationError
+from neuralbrdf.onnx_export import ExportValidationError, export_checkpoint
 
 
 def _kinds_help() -> str:
@@ -50,7 +50,7 @@ def main(argv: list[str] | None = None, prog: str = "neuralbrdf export") -> int:
     args = build_parser(prog).parse_args(argv)
     try:
         with command_inputs():  # --out may not be the checkpoint it reads (neuralbrdf.atomic)
-            report = kinds.export_checkpoint(args.ckpt, args.out, args.material)
+            report = export_checkpoint(args.ckpt, args.out, args.material)
     except InputError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

@@ -9,17 +9,22 @@ package that defines ``KIND``, a :class:`Kind` saying
   entry of a checkpoint, :data:`CHECKPOINT_KIND_KEY`);
 * whether its models must be spectral;
 * how to read and check its own metadata entries (``neuralbrdf.<kind>.*``);
-* the sampling proposal the Mitsuba plugin draws directions from (analytic for ABC, a GGX
-  mixture fitted to the model for the neural kinds; :mod:`neuralbrdf.render.sampling`);
-* how to turn one of its checkpoints into an :class:`~neuralbrdf.onnx_export.Exportable`.
+* the sampling proposal the Mitsuba plugin draws directions from, by name (a GGX mixture
+  fitted to the model for the neural kinds, the analytic lobe for ABC;
+  :data:`neuralbrdf.render.sampling.PROPOSALS`);
+* how to turn one of its checkpoints into an :class:`Exportable`.
 
 A new kind is one new module here: the registry imports every module of the package on first
 use.  Generic evaluation (onnxruntime, the Dr.Jit interpreter) reads the ``.onnx`` graph and
 needs nothing from the kind.
 
-:func:`load_model` is the full contract check (the generic one of
-:func:`neuralbrdf.render.onnx_contract.load_model` and the kind's own); :func:`load_exportable`
-and :func:`export_checkpoint` are the exporter.
+:func:`load_model` is the full contract check of a file and :func:`contract_metadata` builds a
+file's metadata the same way (the generic part of :mod:`neuralbrdf.onnx_contract` and the
+kind's own); :func:`load_exportable`
+gives a checkpoint's model to the exporter (:mod:`neuralbrdf.onnx_export`).  This module sits
+below the exporter and the renderer: it imports neither.  Kind modules import PyTorch only inside
+their checkpoint loaders, so that checking a file (what the renderer does at scene load) stays
+light.
 """
 
 from __future__ import annotations
@@ -34,17 +39,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from neuralbrdf.checkpoints import read_checkpoint
+from neuralbrdf import onnx_contract
 from neuralbrdf.errors import InputError, one_line
-from neuralbrdf.render import onnx_contract
+from neuralbrdf.onnx_contract import OnnxModel
 
 if TYPE_CHECKING:
-    from neuralbrdf.onnx_export import Exportable, ExportReport
-    from neuralbrdf.render.onnx_contract import OnnxModel
-    from neuralbrdf.render.sampling import LobeMixture, ProbeFunction
+    from torch import nn
 
 #: Checkpoint entry naming the kind; written by every Lightning module of a fitted model
-#: (:class:`neuralbrdf.lightning.kind_hook.WritesKind`).
+#: (:class:`neuralbrdf.lightning.common.WritesKind`).
 CHECKPOINT_KIND_KEY = "neuralbrdf_kind"
 
 
@@ -52,11 +55,20 @@ def _no_details(metadata: Mapping[str, str], path, is_spectral: bool) -> None:
     return None
 
 
-def fitted_proposal(model: OnnxModel, probe: ProbeFunction) -> LobeMixture:
-    """GGX lobes and weights fitted to the model through ``probe`` (the neural kinds' proposal)."""
-    from neuralbrdf.render.sampling import fit_neural_mixture
+@dataclass(frozen=True)
+class Exportable:
+    """A model ready to trace: the module, its contract metadata and whether it is spectral."""
 
-    return fit_neural_mixture(probe)
+    module: nn.Module
+    kind: str
+    material: str
+    metadata: dict[str, str]
+    wavelength_range_nm: tuple[float, float] | None
+
+    @property
+    def is_spectral(self) -> bool:
+        return self.wavelength_range_nm is not None
+
 
 
 @dataclass(frozen=True)
@@ -73,39 +85,47 @@ class Kind:
         Its models must take a ``wavelength`` input.
     read_metadata:
         ``(metadata, path, is_spectral) -> details``: checks the kind's own ``neuralbrdf.<kind>.*``
-        entries and returns what it read (stored as :attr:`OnnxModel.details`), raising
+        entries and returns what it read (stored as :attr:`~neuralbrdf.onnx_contract.OnnxModel.details`), raising
         :class:`InputError` naming the file and key.
     proposal:
-        ``(model, probe) -> LobeMixture``: the renderer's sampling proposal.
+        The name of the renderer's sampling proposal (:data:`neuralbrdf.render.sampling.PROPOSALS`),
+        fitted at scene load from the model and its :attr:`~neuralbrdf.onnx_contract.OnnxModel.details`.
     from_checkpoint:
         ``(checkpoint, path, material) -> Exportable`` for kinds trained by this library; ``None``
         for kinds that are written directly (``reference``).
     recognises:
         ``checkpoint -> bool`` for checkpoints written before :data:`CHECKPOINT_KIND_KEY` existed.
+    scalar_parameters:
+        Fitted values the graph holds as scalar constants rather than weight tensors (ABC's
+        ``B``, ``C``, ``η``), so that a parameter count can include them.
     """
 
     name: str
     summary: str
     spectral_only: bool = False
     read_metadata: Callable[[Mapping[str, str], object, bool], object] = _no_details
-    proposal: Callable[[OnnxModel, ProbeFunction], LobeMixture] = fitted_proposal
+    proposal: str = "fitted_ggx"
     from_checkpoint: Callable[[dict, Path, str | None], Exportable] | None = None
     recognises: Callable[[dict], bool] | None = None
+    scalar_parameters: int = 0
 
 
 _REGISTRY: dict[str, Kind] = {}
 
 
 def _discover() -> dict[str, Kind]:
+    """The registry, filled on first use from every module of this package (all or nothing)."""
     if not _REGISTRY:
+        found: dict[str, Kind] = {}
         for module_info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
             module = importlib.import_module(f"{__name__}.{module_info.name}")
             kind = getattr(module, "KIND", None)
             if not isinstance(kind, Kind):
                 raise TypeError(f"{module.__name__} defines no KIND = Kind(...)")
-            if kind.name in _REGISTRY:
+            if kind.name in found:
                 raise TypeError(f"kind {kind.name!r} is defined twice ({module.__name__})")
-            _REGISTRY[kind.name] = kind
+            found[kind.name] = kind
+        _REGISTRY.update(found)
     return _REGISTRY
 
 
@@ -129,15 +149,37 @@ def load_model(path: str | os.PathLike[str]) -> OnnxModel:
     """``path`` checked against the whole contract: the shared part and its kind's own.
 
     Raises :class:`InputError` naming the file for everything
-    :func:`neuralbrdf.render.onnx_contract.load_model` refuses, an unregistered kind, a
+    :func:`neuralbrdf.onnx_contract.load_generic_model` refuses, an unregistered kind, a
     non-spectral model of a spectral-only kind, and bad kind-specific metadata.
     """
-    model = onnx_contract.load_model(path)
-    kind = get(model.kind, path=model.path, column=onnx_contract.KIND_KEY)
-    if kind.spectral_only and not model.is_spectral:
-        raise InputError(f"a {kind.name} model must take a 'wavelength' input", path=model.path)
-    details = kind.read_metadata(model.metadata, model.path, model.is_spectral)
+    model = onnx_contract.load_generic_model(path)
+    details = _kind_details(model.kind, model.metadata, model.path, model.is_spectral)
     return dataclasses.replace(model, details=details)
+
+
+def contract_metadata(
+    kind: str,
+    material: str,
+    provenance: str,
+    *,
+    wavelength_range_nm: tuple[float, float] | None = None,
+    kind_metadata: Mapping[str, str] | None = None,
+) -> dict[str, str]:
+    """A file's ``metadata_props``: :func:`~neuralbrdf.onnx_contract.generic_metadata` checked as
+    :func:`load_model` checks it (``kind`` registered, spectral where it must be, its own entries
+    ``kind_metadata`` valid); :class:`InputError` otherwise."""
+    metadata = onnx_contract.generic_metadata(
+        kind, material, provenance, wavelength_range_nm=wavelength_range_nm, kind_metadata=kind_metadata
+    )
+    _kind_details(kind, metadata, "<metadata>", wavelength_range_nm is not None)
+    return metadata
+
+
+def _kind_details(name: str, metadata: Mapping[str, str], path, is_spectral: bool) -> object:
+    kind = get(name, path=path, column=onnx_contract.KIND_KEY)
+    if kind.spectral_only and not is_spectral:
+        raise InputError(f"a {kind.name} model must take a 'wavelength' input", path=path)
+    return kind.read_metadata(metadata, path, is_spectral)
 
 
 # --------------------------------------------------------------------------- checkpoints
@@ -195,6 +237,8 @@ def pick_material(available: list[str], requested: str | None, path: str | os.Pa
 
 def load_exportable(ckpt: str | os.PathLike[str], material: str | None = None) -> Exportable:
     """The model of checkpoint ``ckpt`` as a function of directions, with its contract metadata."""
+    from neuralbrdf.checkpoints import read_checkpoint
+
     path = Path(ckpt)
     checkpoint = read_checkpoint(path)
     kind = checkpoint_kind(checkpoint, path)
@@ -211,8 +255,3 @@ def load_exportable(ckpt: str | os.PathLike[str], material: str | None = None) -
     return exportable
 
 
-def export_checkpoint(ckpt: str | os.PathLike[str], out: str | os.PathLike[str], material: str | None = None) -> ExportReport:
-    """Export checkpoint ``ckpt`` to the ``.onnx`` file ``out``; nothing is written on failure."""
-    from neuralbrdf.onnx_export import write_model
-
-    return write_model(load_exportable(ckpt, material), out)

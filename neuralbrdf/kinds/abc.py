@@ -2,8 +2,8 @@
 
 The graph is :class:`~neuralbrdf.models.directional.AbcOnDirections` (RGB, or spectral with a
 ``wavelength`` input when the parameters have wavelengths).  Beside the graph the file stores
-the parameters it implements, which the renderer reads to sample the analytic lobe
-(:func:`neuralbrdf.render.sampling.fit_abc_mixture`):
+the parameters it implements, which the renderer reads to sample the analytic lobe (proposal
+``abc_lobe``, :func:`neuralbrdf.render.sampling.fit_abc_mixture`):
 
 =================================  ===========================================================
 key                                value
@@ -28,8 +28,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from neuralbrdf.errors import InputError
-from neuralbrdf.kinds import Kind, pick_material, provenance
-from neuralbrdf.render.onnx_contract import kind_key, metadata_float, metadata_float_list
+from neuralbrdf.kinds import Exportable, Kind, contract_metadata, pick_material, provenance
+from neuralbrdf.onnx_contract import kind_key, metadata_float, metadata_float_list
+from neuralbrdf.physics.abc import AbcParameters
 
 NAME = "abc"
 KD_KEY = kind_key(NAME, "kd")
@@ -83,18 +84,9 @@ def read_metadata(metadata: Mapping[str, str], path, is_spectral: bool) -> AbcMe
     return AbcMetadata(kd=kd, A=A, B=B, C=C, eta=eta)
 
 
-def proposal(model, probe):
-    """The analytic ABC lobe of the file's parameters, glossy weights fitted through ``probe``."""
-    from neuralbrdf.render.sampling import fit_abc_mixture
-
-    return fit_abc_mixture(probe, model.details)
-
-
-def exportable(parameters, material: str, provenance_text: str):
-    """An :class:`~neuralbrdf.onnx_export.Exportable` of ABC ``parameters`` (an ``ABCParameters``)."""
+def exportable(parameters: AbcParameters, material: str, provenance_text: str) -> Exportable:
+    """The model of ABC ``parameters`` with its contract metadata, ready to export."""
     from neuralbrdf.models.directional import AbcOnDirections
-    from neuralbrdf.onnx_export import Exportable
-    from neuralbrdf.render.onnx_contract import contract_metadata
 
     module = AbcOnDirections(parameters)
     wavelength_range = module.wavelength_range_nm if module.is_spectral else None
@@ -104,17 +96,14 @@ def exportable(parameters, material: str, provenance_text: str):
     metadata = contract_metadata(
         NAME, material, provenance_text, wavelength_range_nm=wavelength_range, kind_metadata=stored.entries()
     )
-    read_metadata(metadata, "<metadata>", wavelength_range is not None)
     return Exportable(module, NAME, material, metadata, wavelength_range)
 
 
 def from_checkpoint(checkpoint: dict, path: Path, material: str | None):
-    from neuralbrdf.models.abc import ABCParameters
-
     for key in ("abc_parameters", "material"):
         if key not in checkpoint:
             raise InputError("ABC checkpoint lacks this key", path=path, column=key)
-    parameters = ABCParameters.from_dict(checkpoint["abc_parameters"], source=str(path))
+    parameters = AbcParameters.from_dict(checkpoint["abc_parameters"], source=str(path))
     name = pick_material([str(checkpoint["material"])], material, path)
     return exportable(parameters, name, provenance(checkpoint, path))
 
@@ -123,7 +112,8 @@ KIND = Kind(
     name=NAME,
     summary="the ABC microfacet model with fitted parameters, sampled analytically (SPEC §4.1)",
     read_metadata=read_metadata,
-    proposal=proposal,
+    proposal="abc_lobe",
     from_checkpoint=from_checkpoint,
     recognises=lambda checkpoint: "abc_parameters" in checkpoint,
+    scalar_parameters=3,  # B, C, eta (kd and A are weight tensors of the graph)
 )

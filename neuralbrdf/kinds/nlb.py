@@ -12,13 +12,15 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import torch
-
-from neuralbrdf.checkpoints import check_weights_match, read_checkpoint
 from neuralbrdf.errors import InputError
-from neuralbrdf.kinds import Kind, pick_material, provenance
-from neuralbrdf.models.nlb import NLBNetwork
+from neuralbrdf.kinds import Exportable, Kind, contract_metadata, pick_material, provenance
+
+if TYPE_CHECKING:
+    import torch
+
+    from neuralbrdf.models.nlb import NlbNetwork
 
 #: Entries a latent-fit checkpoint has beside Lightning's own.
 _FIT_KEYS = ("nlb_config", "material_names", "state_dict")
@@ -26,40 +28,43 @@ _PREFIX = "network."
 
 
 @dataclass(frozen=True)
-class FittedNLB:
+class FittedNlb:
     """Fitted materials: the frozen ``network`` and one latent ``[latent_dim]`` per material name."""
 
-    network: NLBNetwork
+    network: NlbNetwork
     latents: dict[str, torch.Tensor]
     source: str
 
 
-def _fitted(checkpoint: dict, path: Path) -> FittedNLB:
+def _fitted(checkpoint: dict, path: Path) -> FittedNlb:
+    from neuralbrdf.checkpoints import check_weights_match
+    from neuralbrdf.models.nlb import NlbNetwork
+
     missing = [key for key in _FIT_KEYS if key not in checkpoint]
     if missing:  # e.g. a pretraining checkpoint: it names its materials but has no nlb_config
         raise InputError(f"not a latent-fit checkpoint (LatentFitModule): missing {missing[0]!r}", path=path)
     try:
         names, state = checkpoint["material_names"], checkpoint["state_dict"]
-        check_weights_match(lambda: NLBNetwork(**checkpoint["nlb_config"]), state, path, _PREFIX)
-        network = NLBNetwork(**checkpoint["nlb_config"])
+        check_weights_match(lambda: NlbNetwork(**checkpoint["nlb_config"]), state, path, _PREFIX)
+        network = NlbNetwork(**checkpoint["nlb_config"])
         latents = state["latents.latents"].float()
     except (KeyError, TypeError) as exc:
         raise InputError(f"not a latent-fit checkpoint (LatentFitModule): missing {exc}", path=path) from None
     network.load_state_dict({k[len(_PREFIX):]: v for k, v in state.items() if k.startswith(_PREFIX)})
     network.requires_grad_(False).eval()
-    return FittedNLB(network, dict(zip(names, latents)), str(path))
+    return FittedNlb(network, dict(zip(names, latents)), str(path))
 
 
-def load_fitted(path: str | os.PathLike[str]) -> FittedNLB:
+def load_fitted(path: str | os.PathLike[str]) -> FittedNlb:
     """The network and named latents of a latent-fit checkpoint, else :class:`InputError`."""
+    from neuralbrdf.checkpoints import read_checkpoint
+
     path = Path(path)
     return _fitted(read_checkpoint(path, "fitted NLB checkpoint"), path)
 
 
-def from_checkpoint(checkpoint: dict, path: Path, material: str | None):
+def from_checkpoint(checkpoint: dict, path: Path, material: str | None) -> Exportable:
     from neuralbrdf.models.directional import NlbWithLatent
-    from neuralbrdf.onnx_export import Exportable
-    from neuralbrdf.render.onnx_contract import contract_metadata
 
     fitted = _fitted(checkpoint, path)
     name = pick_material(list(fitted.latents), material, path)
@@ -70,7 +75,7 @@ def from_checkpoint(checkpoint: dict, path: Path, material: str | None):
 
 def _recognises(checkpoint: dict) -> bool:
     class_path = str((checkpoint.get("hyper_parameters") or {}).get("_class_path", ""))
-    return class_path.rsplit(".", 1)[-1] == "LatentFitModule" or all(key in checkpoint for key in _FIT_KEYS)
+    return class_path.rsplit(".", 1)[-1] == "LatentFitModule" or ("material_names" in checkpoint and "nlb_config" in checkpoint)
 
 
 KIND = Kind(

@@ -14,7 +14,7 @@ import inspect
 from pathlib import Path
 
 from neuralbrdf.errors import InputError
-from neuralbrdf.kinds import Kind, pick_material, provenance
+from neuralbrdf.kinds import Exportable, Kind, contract_metadata, pick_material, provenance
 
 #: Prefix of the network's tensors in the Lightning module's state dict.
 _PREFIX = "network."
@@ -24,15 +24,14 @@ def _material(checkpoint: dict) -> str:
     data = checkpoint.get("datamodule_hyper_parameters") or {}
     if data.get("path"):
         return Path(str(data["path"])).stem
-    return str(data.get("virtual_material") or "spectral_mlp")
+    # ``virtual_material``: the key's name in checkpoints written before the sources vocabulary
+    return str(data.get("virtual") or data.get("virtual_material") or "spectral_mlp")
 
 
-def from_checkpoint(checkpoint: dict, path: Path, material: str | None):
+def from_checkpoint(checkpoint: dict, path: Path, material: str | None) -> Exportable:
     from neuralbrdf.checkpoints import check_weights_match
     from neuralbrdf.models.directional import SpectralMlpOnDirections
     from neuralbrdf.models.spectral_mlp import SpectralMLP
-    from neuralbrdf.onnx_export import Exportable
-    from neuralbrdf.render.onnx_contract import contract_metadata
 
     for key in ("state_dict", "hyper_parameters"):
         if key not in checkpoint:

@@ -1,4 +1,5 @@
-"""What the Lightning modules share: the optimiser factory and the kind written into checkpoints."""
+"""What the Lightning modules share: the optimiser factory, the kind written into checkpoints,
+and the collate function of data modules whose batches are whole materials."""
 
 from __future__ import annotations
 
@@ -31,3 +32,8 @@ class WritesKind:
 
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         checkpoint[CHECKPOINT_KIND_KEY] = self.KIND
+
+
+def identity_collate(item):
+    """A DataLoader ``collate_fn`` that hands over each item as it is (one material per batch)."""
+    return item

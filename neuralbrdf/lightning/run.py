@@ -1,6 +1,7 @@
 """Training runs: the ``train.py`` command line, its run directory and ``metrics.json``.
 
-``python train.py fit|validate|test --config configs/X.yaml [--key value ...]`` is a
+``neuralbrdf train fit|validate|test --config X [--key value ...]`` (or ``python train.py …``;
+``X`` a shipped config's name or any YAML file, :mod:`neuralbrdf.configs_dir`) is a
 :class:`~pytorch_lightning.cli.LightningCLI` in subclass mode: the model and the data module are
 named by ``class_path`` in the YAML, so every model kind (spectral MLP, ABC, NLB) trains through
 the same entry point; any option can be overridden on the command line (``--data.path FILE``,
@@ -47,8 +48,10 @@ configuration file that is not YAML, an invalid hyper-parameter raised as
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
+import logging
 import math
 import os
 import shutil
@@ -71,6 +74,9 @@ from neuralbrdf.atomic import TEMP_MARKER, atomic_path, atomic_write, command_in
 from neuralbrdf.errors import InputError
 from neuralbrdf.errors import one_line
 from neuralbrdf.checkpoints import read_checkpoint
+from neuralbrdf.configs_dir import overlay_base, resolve_config
+from neuralbrdf.lightning.common import WritesKind
+from neuralbrdf.lightning.train_help import help_text
 
 METRICS_FILE = "metrics.json"
 RUNS_ROOT = Path("runs")
@@ -362,6 +368,7 @@ class NeuralBrdfCLI(LightningCLI):
         except BaseException as exc:
             self._restore_earlier_log()
             self._after_failure(exc)
+            exc.neuralbrdf_run_dir = self.run_dir  # where a failed fit's metrics.json says why
             raise
         self._restore_earlier_log()
         self._drop_set_aside()
@@ -500,16 +507,39 @@ def _input_error(exc: BaseException) -> InputError | None:
     return None
 
 
-def _check_config_files(args: list[str]) -> None:
-    """Every ``--config FILE`` must be a readable UTF-8 text file (jsonargparse shows a traceback
-    for a binary one)."""
-    for k, arg in enumerate(args):
-        if arg == "--config" and k + 1 < len(args):
-            path = args[k + 1]
-        elif arg.startswith("--config="):
-            path = arg.split("=", 1)[1]
-        else:
+def _config_args(args: list[str]) -> tuple[list[str], list[str]]:
+    """``(the other arguments, the config files named)``: ``--config X``, ``--config=X``, ``-c X``."""
+    rest, configs, k = [], [], 0
+    while k < len(args):
+        if args[k] in ("--config", "-c") and k + 1 < len(args):
+            configs.append(args[k + 1])
+            k += 2
             continue
+        if args[k].startswith("--config="):
+            configs.append(args[k].split("=", 1)[1])
+        else:
+            rest.append(args[k])
+        k += 1
+    return rest, configs
+
+
+def _resolve_config_files(args: list[str]) -> list[str]:
+    """``args`` with each config named by a shipped config's name replaced by its file
+    (:func:`~neuralbrdf.configs_dir.resolve_config`) and an overlay's base config put before it when
+    not given (:func:`~neuralbrdf.configs_dir.overlay_base`); every config must be a readable UTF-8
+    text file (jsonargparse shows a traceback for a binary one)."""
+    rest, names = _config_args(args)
+    configs: list[Path] = []
+    for name in names:
+        path = resolve_config(name)
+        base = overlay_base(path) if path.is_file() else None
+        if base is not None and base.resolve() not in {c.resolve() for c in configs}:
+            configs.append(base)
+        configs.append(path)
+    # the subcommand stays first; the configs come before every other option, which override them
+    head = rest[:1] if rest and not rest[0].startswith("-") else []
+    resolved = [*head, *(a for path in configs for a in ("--config", str(path))), *rest[len(head):]]
+    for path in configs:
         try:
             Path(path).read_bytes().decode("utf-8")
         except FileNotFoundError:
@@ -518,6 +548,58 @@ def _check_config_files(args: list[str]) -> None:
             raise InputError(f"not a YAML configuration: not UTF-8 text ({error.reason} at byte {error.start})", path=path) from None
         except OSError as error:
             raise InputError(f"cannot read the configuration ({error.strerror or error})", path=path) from None
+    return resolved
+
+
+#: Loggers of Lightning's start-up lines (GPU/TPU/HPU available, tips), silenced unless --verbose.
+LIGHTNING_LOGGERS = ("pytorch_lightning", "lightning", "lightning_fabric", "lightning.pytorch")
+
+
+@contextlib.contextmanager
+def _quiet(verbose: bool):
+    """Unless ``verbose``: Lightning's INFO lines and library deprecation notices off for the run,
+    restored afterwards (other warnings still show)."""
+    loggers = [logging.getLogger(name) for name in LIGHTNING_LOGGERS]
+    levels = [logger.level for logger in loggers]
+    with warnings.catch_warnings():
+        if not verbose:
+            for logger in loggers:
+                logger.setLevel(logging.WARNING)
+            warnings.filterwarnings("ignore", category=DeprecationWarning)
+            warnings.filterwarnings("ignore", category=FutureWarning)
+            warnings.filterwarnings("ignore", message=r".*(smaller than the logging interval|LeafSpec).*")
+        try:
+            yield
+        finally:
+            for logger, level in zip(loggers, levels):
+                logger.setLevel(level)
+
+
+def _failed_run(exc: BaseException) -> str:
+    """`` (run: DIR)`` for a failed fit whose run directory holds its metrics.json, else ``""``."""
+    run_dir = getattr(exc, "neuralbrdf_run_dir", None)
+    return f" (run: {run_dir}; its {METRICS_FILE} holds the cause)" if run_dir and (run_dir / METRICS_FILE).is_file() else ""
+
+
+def _summary(cli: NeuralBrdfCLI) -> str:
+    """Where a finished run is, its fit metrics and how to export it."""
+    lines = [f"run: {cli.run_dir}"]
+    path = cli.run_dir / METRICS_FILE
+    metrics = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {}
+    shown = [(k, v) for k, v in sorted(metrics.items()) if isinstance(v, float) and k.startswith(
+        ("fit/inplane", "fit/hemisphere", "fit/val/", "test/", "validate/", "fit/materials/"))]
+    if shown:
+        lines.append("metrics: " + ", ".join(f"{k} {v:.4g}" for k, v in shown[:12])
+                     + (f" (+{len(shown) - 12} more in {path})" if len(shown) > 12 else ""))
+    checkpoints = sorted((cli.run_dir / "checkpoints").glob("*.ckpt")) if cli.subcommand == "fit" else []
+    best = next((c for c in checkpoints if c.stem in ("best", "fitted")), None)
+    if best is not None:
+        lines.append(f"checkpoint: {best}")
+    if best is not None and isinstance(cli.model, WritesKind):  # a fitted model, not a pretraining
+        names = list(getattr(cli.model, "material_names", None) or [])
+        material = f" --material NAME (one file per material: {', '.join(names)})" if len(names) > 1 else ""
+        lines.append(f"export: neuralbrdf export --ckpt {best} --out MODEL.onnx{material}")
+    return "\n".join(lines)
 
 
 def main(args: list[str] | None = None) -> int:
@@ -529,23 +611,34 @@ def main(args: list[str] | None = None) -> int:
     # validate/test restore a checkpoint whose ModelCheckpoint state names the fit's folder; the
     # evaluation stages write no checkpoints, so the "dirpath has changed" notice is noise.
     warnings.filterwarnings("ignore", message=r"The dirpath has changed from")
+    # ``args`` is always given (config names resolved), also when run from train.py's command line.
+    warnings.filterwarnings("ignore", message=r"LightningCLI's args parameter is intended")
     # The ABC fit runs its own bounded optimiser (SciPy), not a torch one.
     warnings.filterwarnings("ignore", message=r".*configure_optimizers` returned `None`")
+    args = sys.argv[1:] if args is None else list(args)
+    if not args or args[0] in ("-h", "--help"):
+        print(help_text(), file=sys.stdout if args else sys.stderr)
+        return 0 if args else 2
+    verbose = "--verbose" in args
+    args = [arg for arg in args if arg != "--verbose"]
     try:
-        _check_config_files(sys.argv[1:] if args is None else args)
-        with command_inputs():
-            NeuralBrdfCLI(args=args)
+        with _quiet(verbose):
+            args = _resolve_config_files(args)
+            with command_inputs():
+                cli = NeuralBrdfCLI(args=args)
     except FitFailed as failure:
-        print(f"error: fit failed: {failure}", file=sys.stderr)
+        print(f"error: fit failed: {failure}{_failed_run(failure)}", file=sys.stderr)
         return 1
     except Exception as exc:
         error = _input_error(exc)
         cause = getattr(exc, "neuralbrdf_fit_failure", None)
         if error is None and cause is not None and isinstance(exc, DATA_FAILURES):
-            print(f"error: fit failed: {cause}", file=sys.stderr)
+            print(f"error: fit failed: {cause}{_failed_run(exc)}", file=sys.stderr)
             return 1
         if error is None:
             raise
         print(f"error: {error}", file=sys.stderr)
         return 2
+    if cli.subcommand is not None and cli.run_dir is not None:
+        print(_summary(cli), file=sys.stderr)
     return 0

@@ -178,7 +178,7 @@ class SpectralMlpModule(WritesKind, pl.LightningModule):
             pred = network(samples.theta_i_deg, samples.theta_r_deg, samples.wavelength_nm).numpy().reshape(len(theta_i), -1)
         scores = fit_scores(pred.astype(np.float64), table.values, theta_i, theta_r)
         if datamodule.hparams.path is None:
-            truth = load_truth(f"virtual:{datamodule.hparams.virtual_material}")
+            truth = load_truth(f"virtual:{datamodule.hparams.virtual}")
             hemisphere = hemisphere_scores(TorchEvaluator(SpectralMlpOnDirections(network), True),
                                            TorchEvaluator(truth.module, True), strata=TRAINING_HEMISPHERE_STRATA)
             scores["hemisphere_logcos_rmse"] = hemisphere["hemisphere_logcos_rmse"]

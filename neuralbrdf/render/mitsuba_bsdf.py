@@ -63,8 +63,8 @@ own spectra (:mod:`~neuralbrdf.render.spectral_quadrature`, held-out rms relativ
 ``to_string`` reports the rule and its error), evaluated unrolled in the drjit backend and as
 one stacked run in onnxruntime.
 
-The sampling proposal is made when the scene loads by the model's kind
-(:attr:`neuralbrdf.kinds.Kind.proposal`), probing the model with onnxruntime: a GGX mixture
+The sampling proposal named by the model's kind (:attr:`neuralbrdf.kinds.Kind.proposal`) is
+fitted when the scene loads, probing the model with onnxruntime: a GGX mixture
 fitted to it for the neural kinds (:func:`~neuralbrdf.render.sampling.fit_neural_mixture`), the
 analytic lobe for ABC (:func:`~neuralbrdf.render.sampling.fit_abc_mixture`).
 """
@@ -85,7 +85,7 @@ from neuralbrdf import kinds
 from neuralbrdf.errors import InputError
 from neuralbrdf.limits import DRJIT_MAX_MULTIPLY_ADDS
 from neuralbrdf.render.drjit_onnx import DrJitGraph
-from neuralbrdf.render.onnx_contract import (
+from neuralbrdf.onnx_contract import (
     INPUT_WAVELENGTH,
     INPUT_WI,
     INPUT_WO,
@@ -94,7 +94,7 @@ from neuralbrdf.render.onnx_contract import (
     matrix_multiply_adds,
 )
 from neuralbrdf.render.onnx_split import split_at_wavelength
-from neuralbrdf.render.sampling import LobeMixture, probe_direction_pairs
+from neuralbrdf.render.sampling import LobeMixture, fit_proposal, probe_direction_pairs
 from neuralbrdf.render.spectral_quadrature import (
     DEFAULT_RMS_TOLERANCE,
     ReducedQuadrature,
@@ -164,7 +164,7 @@ def reset_clamped_values() -> None:
 def _nonnegative(columns: list) -> list:
     """``columns`` with negative and non-finite values set to 0; lanes with any such value are
     counted (:func:`clamped_values`).  The load-time probe of
-    :func:`~neuralbrdf.render.onnx_contract.load_model` refuses models it finds negative; this
+    :func:`neuralbrdf.kinds.load_model` refuses models it finds negative; this
     guarantees that no negative radiance reaches an image where the probe did not look."""
     out, bad = [], None
     for column in columns:
@@ -212,7 +212,7 @@ def _lane_count(*arrays) -> int:
 
 def _rows(vector: mi.Vector3f, n: int, copies: int = 1) -> np.ndarray:
     """``[copies · n, 3]`` float32 rows of a Dr.Jit 3-vector, the ``n`` lanes repeated ``copies``
-    times (a width-1 vector broadcast); interleaved and tiled by Dr.Jit in one kernel, 3× faster
+    times (a width-1 vector broadcast); interleaved and tiled by Dr.Jit in one kernel, faster
     than transposing and tiling in NumPy."""
     if dr.width(vector) != n:
         vector = vector + dr.zeros(mi.Vector3f, n)
@@ -327,7 +327,7 @@ class _DrJitBackend:
 def _session(source: Path | onnx.ModelProto) -> onnxruntime.InferenceSession:
     """A CPU session (of a file or a model) whose threads sleep between runs instead of
     spinning: in wavefront mode Dr.Jit's kernels run between the calls, and spinning threads
-    would compete with them (a spectral preview rendered 19 % slower with onnxruntime's default)."""
+    would compete with them (``benchmarks/README.md``, design measurements)."""
     options = onnxruntime.SessionOptions()
     options.add_session_config_entry("session.intra_op.allow_spinning", "0")
     model = source.SerializeToString() if isinstance(source, onnx.ModelProto) else str(source)
@@ -495,7 +495,7 @@ def _bsdf_class(variant: str) -> type:
             else:
                 self.backend = _DrJitBackend(self.model)
             probe = _probe_function(self.model, session)
-            self.mixture: LobeMixture = kinds.get(self.model.kind).proposal(self.model, probe)
+            self.mixture: LobeMixture = fit_proposal(kinds.get(self.model.kind).proposal, probe, self.model.details)
             self._spectral_variant = mi.is_spectral
             self.rgb_rule = None
             if self.model.is_spectral and not mi.is_spectral:

@@ -27,7 +27,7 @@ import numpy as np
 import onnx
 from onnx import helper, shape_inference
 
-from neuralbrdf.render.onnx_contract import INPUT_WAVELENGTH, INPUT_WI, INPUT_WO, OUTPUT_F
+from neuralbrdf.onnx_contract import INPUT_WAVELENGTH, INPUT_WI, INPUT_WO, OUTPUT_F
 
 
 @dataclass(frozen=True)

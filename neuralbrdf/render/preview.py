@@ -264,7 +264,7 @@ def within_drjit_budget(material: Material) -> Material:
     if material.model is None or material.backend != "drjit":
         return material
     from neuralbrdf.kinds import load_model
-    from neuralbrdf.render.onnx_contract import matrix_multiply_adds
+    from neuralbrdf.onnx_contract import matrix_multiply_adds
 
     count = matrix_multiply_adds(load_model(material.model).proto)
     if count <= DRJIT_MAX_MULTIPLY_ADDS:

@@ -15,7 +15,7 @@ scratch.  Steps:
    a user's table is used as it is.
 2. **Fit** with ``train.py``'s entry (:func:`neuralbrdf.lightning.run.main`): the variant's config
    and overrides, the data, ``--seed_everything SEED``; wall time measured.
-3. **Export** through the checkpoint's kind (:func:`neuralbrdf.kinds.export_checkpoint`, what
+3. **Export** through the checkpoint's kind (:func:`neuralbrdf.onnx_export.export_checkpoint`, what
    ``neuralbrdf export`` runs); a graph that fails its validation is "export refused".
 4. **Evaluate** with :func:`neuralbrdf.evaluation.evaluate.evaluate` (direction metrics; for the
    main cell also the renders) and the glossy relative RMSE per incident angle and per channel
@@ -130,7 +130,7 @@ def fit(spec: dict, table: Path, run_dir: Path) -> tuple[float, dict]:
 
     variant, cell = spec["variant"], spec["cell"]
     args = ["fit", "--config", variant["config"], *variant["args"], *_data_args(variant["method"], table),
-            "--run_dir", str(run_dir), "--seed_everything", str(cell["seed"])]
+            "--run_dir", str(run_dir), "--seed_everything", str(cell["seed"]), "--trainer.enable_progress_bar", "false"]
     started = time.perf_counter()
     captured = io.StringIO()
     try:
@@ -164,8 +164,7 @@ def fit(spec: dict, table: Path, run_dir: Path) -> tuple[float, dict]:
 def export(spec: dict, run_dir: Path, out: Path) -> Path:
     """Export the fitted checkpoint (step 3) through its kind; :class:`CellFailure` when refused."""
     from neuralbrdf.errors import InputError
-    from neuralbrdf.kinds import export_checkpoint
-    from neuralbrdf.onnx_export import ExportValidationError
+    from neuralbrdf.onnx_export import ExportValidationError, export_checkpoint
 
     checkpoint = run_dir / "checkpoints" / CHECKPOINTS[spec["variant"]["method"]]
     try:
@@ -226,7 +225,7 @@ def cost(spec: dict, model: Path, variant: str) -> dict:
         "mqueries_per_s": throughput[fastest]["queries_per_s"] / 1e6,
         "fastest_backend": fastest,
         "throughput": {b: {"queries_per_s": r["queries_per_s"], "median_s": r["median_s"]} for b, r in throughput.items()},
-        "parameters": costs.parameter_count(proto),
+        "parameters": costs.parameter_count(proto, loaded.kind),
     }
 
 
