@@ -1,0 +1,267 @@
+"""Pick, per object, the cheapest model a scene can use (SPEC §11): ``neuralbrdf select``.
+
+For a Mitsuba scene whose ``neuralbrdf`` BSDFs have cost ladders (:mod:`neuralbrdf.lod.ladder`):
+
+1. **Noise first.** The all-full scene is rendered at a low resolution with two seeds; the mean
+   CIEDE2000 between the two is the Monte Carlo noise of one render.  The sample count doubles
+   (up to ``max_spp``) until that noise is at most ``noise_fraction × T``; the JSON states it.
+2. **Each rung's effect.** For every material and every rung, the scene is rendered with that
+   material swapped for the rung and the others full, with the reference's seed (matched seeds:
+   where the paths are the same the noise cancels), and compared with the all-full render: its
+   whole-image mean ΔE2000 is the rung's *error contribution*, its render time beside the
+   all-full time the rung's *saving*.  A rung's contribution includes the noise of the pixels
+   whose paths it changes (another sampler decorrelates them), so it is an over-estimate.
+3. **Choice.** The combination (one rung per material, full included) with the smallest
+   predicted render time (all-full time minus the measured savings) whose summed contributions
+   stay within ``T``: contributions add when materials cover different pixels, the common case;
+   the verification catches the rest.  Exhaustive over the combinations.
+4. **Verification.** The chosen scene is rendered with the reference's seed and compared with
+   the all-full render; while its mean ΔE2000 exceeds ``T`` the material with the largest
+   contribution moves back to its next more expensive rung.  Then the all-full and the selected
+   scenes are timed in interleaved renders (median of ``timing_repeats``) for the speed-up.
+
+Outputs (together or neither): ``SELECTED.xml``, the scene with each material pointing at its
+chosen rung file (file paths rewritten relative to the output's folder), and ``SELECTED.json``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import statistics
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from neuralbrdf.atomic import atomic_paths
+from neuralbrdf.errors import InputError
+from neuralbrdf.evaluation.images import delta_e2000_map
+from neuralbrdf.lod.ladder import FULL_RUNG, Ladder, Rung, file_sha256, read_ladder
+from neuralbrdf.render.scene_file import SceneFile, render_scene_file
+
+#: Default ladder folder of ``MODEL.onnx``: ``MODEL.ladder`` beside it.
+LADDER_SUFFIX = ".ladder"
+#: Most combinations the exhaustive choice enumerates.
+MAX_COMBINATIONS = 200_000
+
+
+@dataclass(frozen=True)
+class SelectSettings:
+    tolerance: float = 1.0
+    variant: str = "llvm_ad_spectral"
+    #: Width of the selection renders (height from the scene's aspect ratio).
+    resolution: int = 96
+    spp: int = 32
+    max_spp: int = 1024
+    #: The seed-to-seed ΔE2000 mean must be at most this fraction of the tolerance.
+    noise_fraction: float = 0.25
+    seed: int = 0
+    timing_repeats: int = 3
+
+
+def default_ladder_dir(model: Path) -> Path:
+    return model.with_name(model.stem + LADDER_SUFFIX)
+
+
+def find_ladders(scene: SceneFile, extra_dirs: list[Path]) -> dict[str, Ladder | None]:
+    """Per material name, the ladder whose parent has the model file's SHA-256: among
+    ``extra_dirs`` and ``MODEL.ladder`` beside each model (``None``: no ladder, stays full)."""
+    candidates = [read_ladder(d) for d in extra_dirs]
+    found = {}
+    for material in scene.materials():
+        sha = file_sha256(material.model)
+        own = default_ladder_dir(material.model)
+        pool = candidates + ([read_ladder(own)] if (own / "ladder.json").is_file() else [])
+        found[material.name] = next((ladder for ladder in pool if ladder.parent_sha256 == sha), None)
+    return found
+
+
+def _film_aspect(scene: SceneFile) -> float:
+    """Height / width of the scene's first film (Mitsuba's defaults 768 x 576 where unstated)."""
+    for sensor in scene.root.iter("sensor"):
+        for film in sensor.iter("film"):
+            size = {child.get("name"): child.get("value") for child in film if child.tag == "integer"}
+            try:
+                return float(size.get("height", 576)) / float(size.get("width", 768))
+            except ValueError:
+                raise InputError("the film's width/height are not numbers", path=scene.path) from None
+    raise InputError("the scene has no <sensor> with a <film>", path=scene.path)
+
+
+class _Renderer:
+    """Renders choices ``{material: Rung}`` of the scene at the selection settings."""
+
+    def __init__(self, scene: SceneFile, settings: SelectSettings) -> None:
+        self.base = scene.copy()
+        width = settings.resolution
+        self.base.set_resolution(width, max(1, round(width * _film_aspect(scene))))
+        self.settings = settings
+        self.renders = 0
+
+    def render(self, choice: dict[str, Rung], spp: int, seed: int) -> tuple[np.ndarray, float]:
+        scene = self.base.copy()
+        for name, rung in choice.items():
+            if rung.name != FULL_RUNG:
+                scene.set_model(name, rung.path)
+        self.renders += 1
+        image, seconds = render_scene_file(scene, spp, seed)
+        if not np.all(np.isfinite(image)):
+            raise InputError("a render of the scene is not finite", path=scene.path)
+        return image, seconds
+
+
+def _mean_delta_e(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.mean(delta_e2000_map(a, b)))
+
+
+def _best_combination(options: dict[str, list[dict]], tolerance: float) -> dict[str, dict]:
+    """The rung per material with the largest summed saving whose summed error is within
+    ``tolerance`` (the full rung has error 0 and saving 0, so a solution always exists)."""
+    names = list(options)
+    total = 1
+    for name in names:
+        total *= len(options[name])
+    if total > MAX_COMBINATIONS:
+        raise InputError(f"{total} rung combinations; at most {MAX_COMBINATIONS} are searched")
+    best, best_key = None, None
+    for combination in itertools.product(*(options[n] for n in names)):
+        error = sum(o["error_contribution"] for o in combination)
+        if error > tolerance:
+            continue
+        key = (sum(o["time_saving_s"] for o in combination), -error)
+        if best_key is None or key > best_key:
+            best, best_key = combination, key
+    return dict(zip(names, best))
+
+
+def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings = SelectSettings(),
+           ladder_dirs: list[Path] | None = None, log=print) -> dict:
+    """Run the selection (module docstring), write ``out_xml`` and the JSON beside it; return the JSON."""
+    from neuralbrdf.render.preview import set_variant
+
+    began = time.perf_counter()
+    if not settings.tolerance > 0:
+        raise InputError(f"--tolerance must be > 0, got {settings.tolerance}")
+    out_xml = Path(out_xml)
+    if out_xml.suffix.lower() != ".xml":
+        raise InputError("the output must be an .xml file (SELECTED.json is written beside it)", path=out_xml)
+    out_json = out_xml.with_suffix(".json")
+    scene = SceneFile(scene_path)
+    materials = scene.materials()
+    if not materials:
+        raise InputError("the scene has no neuralbrdf material to select models for", path=scene.path)
+    ladders = find_ladders(scene, list(ladder_dirs or []))
+    full = {m.name: Rung(FULL_RUNG, m.model, "", 1.0, 0.0) for m in materials}
+    set_variant(settings.variant)
+    renderer = _Renderer(scene, settings)
+
+    # 1. noise
+    spp = settings.spp
+    while True:
+        reference, reference_s = renderer.render(full, spp, settings.seed)
+        other, _ = renderer.render(full, spp, settings.seed + 1)
+        noise = _mean_delta_e(reference, other)
+        log(f"noise: seed-to-seed mean dE2000 {noise:.3f} at {spp} spp")
+        if noise <= settings.noise_fraction * settings.tolerance or spp >= settings.max_spp:
+            break
+        spp = min(settings.max_spp, 2 * spp)
+    noise_ok = noise <= settings.noise_fraction * settings.tolerance
+
+    # 2. each rung's effect
+    options: dict[str, list[dict]] = {}
+    for material in materials:
+        entry = {"rung": FULL_RUNG, "file": str(material.model), "kind": None, "relative_cost": 1.0,
+                 "hemisphere_logcos_rmse": 0.0, "error_contribution": 0.0, "time_s": reference_s,
+                 "time_saving_s": 0.0}
+        options[material.name] = [entry]
+        ladder = ladders[material.name]
+        if ladder is None:
+            log(f"{material.name}: no ladder for {material.model}; stays full")
+            continue
+        entry["kind"] = ladder.rungs[0].kind or None
+        for rung in ladder.rungs[1:]:
+            image, seconds = renderer.render({**full, material.name: rung}, spp, settings.seed)
+            error = _mean_delta_e(image, reference)
+            options[material.name].append({
+                "rung": rung.name, "file": str(rung.path), "kind": rung.kind, "relative_cost": rung.relative_cost,
+                "hemisphere_logcos_rmse": rung.hemisphere_logcos_rmse, "error_contribution": error,
+                "time_s": seconds, "time_saving_s": reference_s - seconds,
+            })
+            log(f"{material.name} -> {rung.name}: dE2000 {error:.3f}, {seconds:.2f} s (full {reference_s:.2f} s)")
+
+    # 3. choice, 4. verification
+    chosen = _best_combination(options, settings.tolerance)
+    rung_of = {name: _rung(option, full[name]) for name, option in chosen.items()}
+    while True:
+        image, _ = renderer.render(rung_of, spp, settings.seed)
+        verified = _mean_delta_e(image, reference)
+        described = ", ".join(f"{name}={option['rung']}" for name, option in chosen.items())
+        log(f"selected {described}: dE2000 {verified:.3f}")
+        if verified <= settings.tolerance:
+            break
+        worst = max(chosen, key=lambda n: chosen[n]["error_contribution"])
+        dearer = [o for o in options[worst] if o["relative_cost"] > chosen[worst]["relative_cost"]]
+        chosen[worst] = min(dearer, key=lambda o: o["relative_cost"]) if dearer else options[worst][0]
+        rung_of[worst] = _rung(chosen[worst], full[worst])
+
+    times = {"full": [], "selected": []}
+    for _ in range(settings.timing_repeats):
+        times["full"].append(renderer.render(full, spp, settings.seed + 2)[1])
+        times["selected"].append(renderer.render(rung_of, spp, settings.seed + 2)[1])
+    reference_time, selected_time = statistics.median(times["full"]), statistics.median(times["selected"])
+
+    result = {
+        "scene": str(scene.path),
+        "tolerance_delta_e2000": settings.tolerance,
+        "materials": [
+            {"name": name, "model": str(full[name].path), "chosen_rung": option["rung"], "file": option["file"],
+             "kind": option["kind"], "error_contribution": option["error_contribution"],
+             "cost": option["relative_cost"], "hemisphere_logcos_rmse": option["hemisphere_logcos_rmse"],
+             "time_saving_s": option["time_saving_s"], "has_ladder": ladders[name] is not None}
+            for name, option in chosen.items()
+        ],
+        "reference_time_s": reference_time,
+        "selected_time_s": selected_time,
+        "speedup": reference_time / selected_time,
+        "image_delta_e2000_mean": verified,
+        "noise": {"seed_to_seed_delta_e2000_mean": noise, "spp": spp, "below_fraction_of_tolerance": noise_ok,
+                  "required_fraction": settings.noise_fraction},
+        "render": {"variant": settings.variant, "width": settings.resolution,
+                   "aspect": _film_aspect(scene), "spp": spp, "seed": settings.seed,
+                   "timing_repeats": settings.timing_repeats, "times_s": times},
+        "candidates": options,
+        "renders": renderer.renders,
+        "selection_time_s": time.perf_counter() - began,
+        "settings": asdict(settings),
+    }
+    if not noise_ok:
+        log(f"warning: the noise ({noise:.3f}) stayed above {settings.noise_fraction} x T at {spp} spp")
+    selected = scene.copy()
+    for name, rung in rung_of.items():
+        selected.set_model(name, rung.path)
+    _relocate_paths(selected, out_xml.resolve().parent)
+    with atomic_paths(out_xml, out_json) as (xml_tmp, json_tmp):
+        xml_tmp.write_text(selected.text() + "\n")
+        json_tmp.write_text(json.dumps(result, indent=2, allow_nan=False) + "\n")
+    return result
+
+
+def _rung(option: dict, full: Rung) -> Rung:
+    if option["rung"] == FULL_RUNG:
+        return full
+    return Rung(option["rung"], Path(option["file"]), option["kind"], option["relative_cost"],
+                option["hemisphere_logcos_rmse"])
+
+
+def _relocate_paths(scene: SceneFile, folder: Path) -> None:
+    """Rewrite the scene's file paths (``filename`` properties, ``<include>``) relative to ``folder``."""
+    for element in scene.root.iter():
+        attribute = "filename" if element.tag == "include" else ("value" if element.get("name") == "filename" else None)
+        if attribute is None or element.get(attribute) is None or "$" in element.get(attribute):
+            continue
+        path = Path(element.get(attribute))
+        absolute = path if path.is_absolute() else scene.folder / path
+        element.set(attribute, os.path.relpath(absolute.resolve(), folder))
