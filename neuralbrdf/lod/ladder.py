@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import statistics
 import tempfile
 import time
 from dataclasses import asdict, dataclass, field
@@ -42,7 +41,7 @@ from neuralbrdf.atomic import atomic_paths
 from neuralbrdf.errors import InputError
 from neuralbrdf.evaluation.scores import OnnxEvaluator, hemisphere_scores
 from neuralbrdf.fitting.abc_fit import fit_abc
-from neuralbrdf.lod.distill import DistillSettings, abc_table, distill_spectral_mlp, teacher_samples
+from neuralbrdf.lod.distill import ABC_WAVELENGTHS_NM, DistillSettings, abc_table, distill_spectral_mlp, teacher_samples
 from neuralbrdf.models.directional import AbcOnDirections
 from neuralbrdf.onnx_export import Exportable, write_model
 from neuralbrdf.render.onnx_contract import AbcMetadata, contract_metadata, load_model
@@ -108,7 +107,7 @@ def _candidates(parent: OnnxEvaluator, settings: LadderSettings):
     """``(name, describes, build)`` of every stand-in rung this parent gets."""
     name = parent.model.path.name
     out = [("abc", f"ABC fit (SPEC §4.1) to {settings.abc_pairs} x "
-                   f"{31 if parent.is_spectral else 3} samples of {name}",
+                   f"{len(ABC_WAVELENGTHS_NM) if parent.is_spectral else 3} samples of {name}",
             lambda provenance: _abc_rung(parent, settings, provenance))]
     if parent.is_spectral:
         samples = []
@@ -134,7 +133,8 @@ def _candidates(parent: OnnxEvaluator, settings: LadderSettings):
 
 def drjit_costs(protos: dict[str, onnx.ModelProto], spectral: bool, batches: tuple[int, int], rounds: int) -> dict[str, float]:
     """Dr.Jit nanoseconds per query of each graph inside a kernel: the slope
-    ``(t(large) − t(small)) / (large − small)`` of the median wall times of two batch sizes, so that
+    ``(t(large) − t(small)) / (large − small)`` of the shortest wall times of two batch sizes (the
+    shortest: other processes only ever add time on a shared machine), so that
     the per-call cost of interpreting the graph in Python (which a render pays once per kernel,
     not per sample) cancels.  Rounds are interleaved over the graphs and batch sizes, one warm-up
     call each first, on random upper-hemisphere pairs (:func:`neuralbrdf.study.cost.probe_inputs`)."""
@@ -168,11 +168,8 @@ def drjit_costs(protos: dict[str, onnx.ModelProto], spectral: bool, batches: tup
             for batch in batches:
                 times[name, batch].append(timed(lambda: call(graph, batch)))
     small, large = batches
-    return {
-        name: max(1e9 * (statistics.median(times[name, large]) - statistics.median(times[name, small])) / (large - small),
-                  1e-3)
-        for name in graphs
-    }
+    return {name: max(1e9 * (min(times[name, large]) - min(times[name, small])) / (large - small), 1e-3)
+            for name in graphs}
 
 
 def parent_error(rung: Path, parent: OnnxEvaluator) -> float:
@@ -236,7 +233,7 @@ def build_ladder(model_path: str | Path, out_dir: str | Path, settings: LadderSe
                    "material": parent.model.material, "spectral": parent.is_spectral},
         "error_metric": "hemisphere_logcos_rmse against the parent (SPEC §5; 102 400 stratified pairs, theta <= 80 "
                         "deg; spectra at 400-700 nm every 10 nm, else linear sRGB)",
-        "cost_metric": "Dr.Jit ns per query inside a kernel (slope of the median wall times of batches of "
+        "cost_metric": "Dr.Jit ns per query inside a kernel (slope of the shortest wall times of batches of "
                        f"{settings.cost_batches[0]} and {settings.cost_batches[1]} random pairs, one wavelength per "
                        f"query for spectral models, {settings.cost_rounds} interleaved rounds); relative_cost = rung / full",
         "rungs": sorted(rungs, key=lambda r: r["relative_cost"], reverse=True),

@@ -12,9 +12,11 @@ For a Mitsuba scene whose ``neuralbrdf`` BSDFs have cost ladders (:mod:`neuralbr
    all-full time the rung's *saving*.  A rung's contribution includes the noise of the pixels
    whose paths it changes (another sampler decorrelates them), so it is an over-estimate.
 3. **Choice.** The combination (one rung per material, full included) with the smallest
-   predicted render time (all-full time minus the measured savings) whose summed contributions
-   stay within ``T``: contributions add when materials cover different pixels, the common case;
-   the verification catches the rest.  Exhaustive over the combinations.
+   predicted render time whose summed contributions stay within ``T`` (contributions add when
+   materials cover different pixels, the common case; the verification catches the rest).
+   The prediction weighs each rung's relative cost (from its ladder) by the material's share of
+   the render time, estimated from the measured savings (:func:`time_share`); exhaustive over
+   the combinations (:func:`best_combination`).
 4. **Verification.** The chosen scene is rendered with the reference's seed and compared with
    the all-full render; while its mean ΔE2000 exceeds ``T`` the material with the largest
    contribution moves back to its next more expensive rung.  Then the all-full and the selected
@@ -117,22 +119,34 @@ def _mean_delta_e(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.mean(delta_e2000_map(a, b)))
 
 
-def _best_combination(options: dict[str, list[dict]], tolerance: float) -> dict[str, dict]:
-    """The rung per material with the largest summed saving whose summed error is within
-    ``tolerance`` (the full rung has error 0 and saving 0, so a solution always exists)."""
+def time_share(options: list[dict]) -> float:
+    """Seconds of the all-full render attributable to one material: each rung's measured saving
+    divided by the fraction of the cost it removes, ``saving / (1 − relative_cost)``, median over
+    the rungs cheaper than the full model, clipped at 0 (savings are timings, and noisy)."""
+    estimates = [o["time_saving_s"] / (1.0 - o["relative_cost"]) for o in options if o["relative_cost"] < 1.0]
+    return max(0.0, statistics.median(estimates)) if estimates else 0.0
+
+
+def best_combination(options: dict[str, list[dict]], tolerance: float) -> dict[str, dict]:
+    """The rung per material with the smallest predicted render time, ``Σ share_m · relative_cost``
+    (:func:`time_share`), among the combinations whose summed error contributions are within
+    ``tolerance``; ties go to the smaller summed relative cost, then error (an object that covers
+    nothing gets its cheapest rung).  The full rung has error 0, so a solution always exists."""
     names = list(options)
     total = 1
     for name in names:
         total *= len(options[name])
     if total > MAX_COMBINATIONS:
         raise InputError(f"{total} rung combinations; at most {MAX_COMBINATIONS} are searched")
+    shares = {name: time_share(options[name]) for name in names}
     best, best_key = None, None
     for combination in itertools.product(*(options[n] for n in names)):
         error = sum(o["error_contribution"] for o in combination)
         if error > tolerance:
             continue
-        key = (sum(o["time_saving_s"] for o in combination), -error)
-        if best_key is None or key > best_key:
+        predicted = sum(shares[n] * o["relative_cost"] for n, o in zip(names, combination))
+        key = (round(predicted, 6), sum(o["relative_cost"] for o in combination), error)
+        if best_key is None or key < best_key:
             best, best_key = combination, key
     return dict(zip(names, best))
 
@@ -193,7 +207,7 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
             log(f"{material.name} -> {rung.name}: dE2000 {error:.3f}, {seconds:.2f} s (full {reference_s:.2f} s)")
 
     # 3. choice, 4. verification
-    chosen = _best_combination(options, settings.tolerance)
+    chosen = best_combination(options, settings.tolerance)
     rung_of = {name: _rung(option, full[name]) for name, option in chosen.items()}
     while True:
         image, _ = renderer.render(rung_of, spp, settings.seed)
@@ -220,7 +234,8 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
             {"name": name, "model": str(full[name].path), "chosen_rung": option["rung"], "file": option["file"],
              "kind": option["kind"], "error_contribution": option["error_contribution"],
              "cost": option["relative_cost"], "hemisphere_logcos_rmse": option["hemisphere_logcos_rmse"],
-             "time_saving_s": option["time_saving_s"], "has_ladder": ladders[name] is not None}
+             "time_saving_s": option["time_saving_s"], "time_share_s": time_share(options[name]),
+             "has_ladder": ladders[name] is not None}
             for name, option in chosen.items()
         ],
         "reference_time_s": reference_time,

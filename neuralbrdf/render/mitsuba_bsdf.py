@@ -457,6 +457,47 @@ def _read_properties(props: mi.Properties) -> tuple[Path, str, float]:
     return Path(str(mi.file_resolver().resolve(filename))), backend, rgb_tolerance
 
 
+#: Load-time work per model file (:func:`_load_time_work`), keyed by the file's identity.
+_LOAD_TIME_CACHE: dict[tuple, tuple] = {}
+#: Entries kept; the oldest goes first.
+_LOAD_TIME_CACHE_SIZE = 64
+
+
+def _file_identity(path: Path) -> tuple:
+    status = path.stat()
+    return str(path.resolve()), status.st_size, status.st_mtime_ns, status.st_ino
+
+
+def validated_model(path: Path) -> OnnxModel:
+    """:func:`load_model` of ``path``, reused while the file is unchanged (same size, time, inode)."""
+    key = ("model", _file_identity(path))
+    if key not in _LOAD_TIME_CACHE:
+        _remember(key, load_model(path))
+    return _LOAD_TIME_CACHE[key]
+
+
+def _remember(key: tuple, value) -> None:
+    if len(_LOAD_TIME_CACHE) >= _LOAD_TIME_CACHE_SIZE:
+        del _LOAD_TIME_CACHE[next(iter(_LOAD_TIME_CACHE))]
+    _LOAD_TIME_CACHE[key] = value
+
+
+def _load_time_work(path: Path, rgb_tolerance: float) -> tuple[OnnxModel, LobeMixture, ReducedQuadrature | None]:
+    """The validated model, its fitted sampling proposal and (spectral model, RGB variant) its sRGB
+    rule, computed once per unchanged file, variant and tolerance: a scene loaded again — the
+    selector of :mod:`neuralbrdf.lod.select` loads one scene many times — skips the probing."""
+    spectral_to_rgb = not mi.is_spectral
+    key = ("work", _file_identity(path), spectral_to_rgb, rgb_tolerance)
+    if key not in _LOAD_TIME_CACHE:
+        model = validated_model(path)
+        session = _session(path)
+        probe = _probe_function(model, session)
+        mixture = fit_abc_mixture(probe, model.abc) if model.abc is not None else fit_neural_mixture(probe)
+        rgb_rule = _rgb_rule(model, session, rgb_tolerance) if model.is_spectral and spectral_to_rgb else None
+        _remember(key, (model, mixture, rgb_rule))
+    return _LOAD_TIME_CACHE[key]
+
+
 def _bsdf_class(variant: str) -> type:
     """The BSDF class for ``variant`` (a Python BSDF derives from that variant's ``mi.BSDF``)."""
     if variant in _BSDF_CLASSES:
@@ -468,21 +509,12 @@ def _bsdf_class(variant: str) -> type:
         def __init__(self, props: mi.Properties) -> None:
             mi.BSDF.__init__(self, props)
             path, backend, rgb_tolerance = _read_properties(props)
-            self.model = load_model(path)
-            session = _session(path)
+            self.model, self.mixture, self.rgb_rule = _load_time_work(path, rgb_tolerance)
             if backend == "onnxruntime":
-                self.backend = _OnnxRuntimeBackend(session)
+                self.backend = _OnnxRuntimeBackend(_session(path))
             else:
                 self.backend = _DrJitBackend(self.model)
-            probe = _probe_function(self.model, session)
-            if self.model.abc is not None:
-                self.mixture: LobeMixture = fit_abc_mixture(probe, self.model.abc)
-            else:
-                self.mixture = fit_neural_mixture(probe)
             self._spectral_variant = mi.is_spectral
-            self.rgb_rule = None
-            if self.model.is_spectral and not mi.is_spectral:
-                self.rgb_rule = _rgb_rule(self.model, session, rgb_tolerance)
             self.m_flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
             self.m_components = [self.m_flags]
 

@@ -86,7 +86,11 @@ class SceneFile:
             filename = _property(element, "filename")
             if filename is None:
                 raise InputError(f"neuralbrdf material {name!r} has no 'filename' property", path=self.path)
-            found.append(NeuralMaterial(name, self._resolve(filename.get("value", "")), element))
+            model = self._resolve(filename.get("value", ""))
+            if not model.is_file():
+                raise InputError(f"the model file of neuralbrdf material {name!r} does not exist: {model}",
+                                 path=self.path)
+            found.append(NeuralMaterial(name, model, element))
         return found
 
     def _resolve(self, filename: str) -> Path:
@@ -154,10 +158,10 @@ class SceneFile:
         """``mi.Scene`` of the edited text in the current variant (module docstring)."""
         import mitsuba as mi
 
-        for material in self.materials():
-            from neuralbrdf.render.onnx_contract import load_model
+        from neuralbrdf.render.mitsuba_bsdf import validated_model
 
-            load_model(material.model)  # one clear InputError (naming the file) before Mitsuba wraps it
+        for material in self.materials():
+            validated_model(material.model)  # one clear InputError (naming the file) before Mitsuba wraps it
         with _resolver_first(self.folder):
             try:
                 return mi.load_string(self.text(), **parameters)
