@@ -9,7 +9,13 @@ colour variants and the sampler render it unchanged:
   (:func:`~neuralbrdf.lod.distill.abc_table`); kind ``abc``, so it keeps its analytic sampler;
 * ``mlp_LxH`` — spectral parents only: smaller spectral MLPs (``L`` hidden layers of ``H`` units)
   distilled from the parent (:func:`~neuralbrdf.lod.distill.distill_spectral_mlp`); kind
-  ``spectral_mlp``.
+  ``spectral_mlp``;
+* ``full_rgbT`` — spectral parents in RGB variants only: the parent file itself with the
+  plugin's reduced spectrum → sRGB rule (:mod:`~neuralbrdf.render.spectral_quadrature`) fitted
+  to the looser held-out tolerance ``T`` (property ``rgb_tolerance``, default 1e-3): fewer
+  network evaluations per RGB query.  Its error is the hemisphere log-cos RMSE of its linear
+  sRGB against the exact 31-wavelength integral, its cost the ratio of the rules' wavelength
+  counts (the network evaluations per RGB query).  No new file: the ladder records the property.
 
 Each rung records in its ``metadata_props`` (keys :data:`RUNG_KEY` …) what it approximates (the
 parent's file name and SHA-256), its error against the parent — ``hemisphere_logcos_rmse``
@@ -69,6 +75,8 @@ class LadderSettings:
     abc_starts: int = 8
     cost_batches: tuple[int, int] = (2**18, 2**20)
     cost_rounds: int = 7
+    #: Held-out rms relative errors of the reduced spectrum → sRGB rule offered as RGB-variant rungs.
+    rgb_tolerances: tuple[float, ...] = (1e-2, 3e-2)
     seed: int = 0
 
 
@@ -172,7 +180,28 @@ def drjit_costs(protos: dict[str, onnx.ModelProto], spectral: bool, batches: tup
             for name in graphs}
 
 
-def parent_error(rung: Path, parent: OnnxEvaluator) -> float:
+class MemoisedEvaluator:
+    """An evaluator that remembers its last few results by the bytes of their inputs: the parent is
+    compared with every rung on the same hemisphere pairs, and evaluated on them once."""
+
+    def __init__(self, evaluator, size: int = 4) -> None:
+        self.evaluator, self.size = evaluator, size
+        self.is_spectral = evaluator.is_spectral
+        self.cache: dict[str, np.ndarray] = {}
+
+    def values(self, wi, wo, wavelength=None):
+        digest = hashlib.sha256()
+        for array in (wi, wo, wavelength):
+            digest.update(b"-" if array is None else np.ascontiguousarray(array).tobytes())
+        key = digest.hexdigest()
+        if key not in self.cache:
+            if len(self.cache) >= self.size:
+                del self.cache[next(iter(self.cache))]
+            self.cache[key] = self.evaluator.values(wi, wo, wavelength)
+        return self.cache[key]
+
+
+def parent_error(rung: Path, parent) -> float:
     """``hemisphere_logcos_rmse`` of the model file ``rung`` against the parent (module docstring)."""
     return float(hemisphere_scores(OnnxEvaluator(rung), parent)["hemisphere_logcos_rmse"])
 
@@ -194,6 +223,7 @@ def build_ladder(model_path: str | Path, out_dir: str | Path, settings: LadderSe
     (module docstring); returns the JSON document."""
     model_path, out_dir = Path(model_path).resolve(), Path(out_dir)
     parent = OnnxEvaluator(model_path)
+    reference = MemoisedEvaluator(parent)
     sha = file_sha256(model_path)
     rungs, failed, built = [], [], {}
     began = time.perf_counter()
@@ -211,7 +241,7 @@ def build_ladder(model_path: str | Path, out_dir: str | Path, settings: LadderSe
                 continue
             built[name] = (path, describes, time.perf_counter() - start)
             log(f"{name}: built in {built[name][2]:.1f} s")
-        errors = {name: parent_error(path, parent) for name, (path, _, _) in built.items()}
+        errors = {name: parent_error(path, reference) for name, (path, _, _) in built.items()}
         protos = {FULL_RUNG: parent.model.proto, **{name: load_model(path).proto for name, (path, _, _) in built.items()}}
         costs = drjit_costs(protos, parent.is_spectral, settings.cost_batches, settings.cost_rounds)
         rungs.append(_entry(FULL_RUNG, str(model_path), parent.model.kind, "the parent itself", 0.0,
@@ -225,6 +255,8 @@ def build_ladder(model_path: str | Path, out_dir: str | Path, settings: LadderSe
             })
             rungs.append(_entry(name, f"{name}.onnx", load_model(path).kind, describes, errors[name], costs[name],
                                 relative, seconds))
+        if parent.is_spectral:
+            rungs += _rgb_rule_rungs(parent, reference, model_path, costs[FULL_RUNG], settings.rgb_tolerances)
     from neuralbrdf.study.cost import machine
 
     document = {
@@ -250,10 +282,50 @@ def build_ladder(model_path: str | Path, out_dir: str | Path, settings: LadderSe
     return document
 
 
-def _entry(name, file, kind, approximates, error, cost_ns, relative, build_s) -> dict:
+def _entry(name, file, kind, approximates, error, cost_ns, relative, build_s, properties=None,
+           variants="rgb spectral") -> dict:
     return {"name": name, "file": file, "kind": kind, "approximates": approximates,
             "hemisphere_logcos_rmse": error, "drjit_ns_per_query": cost_ns, "relative_cost": relative,
-            "build_time_s": build_s}
+            "build_time_s": build_s, "bsdf_properties": properties or {}, "variants": variants}
+
+
+class ReducedRgbEvaluator:
+    """A spectral model's linear sRGB through a reduced rule (what the plugin returns in RGB variants)."""
+
+    is_spectral = False
+
+    def __init__(self, parent: OnnxEvaluator, rule) -> None:
+        self.parent, self.rule = parent, rule
+
+    def values(self, wi, wo, wavelength=None):
+        n, k = len(wi), self.rule.size
+        spectra = self.parent.values(np.tile(wi, (k, 1)), np.tile(wo, (k, 1)),
+                                     np.repeat(np.asarray(self.rule.wavelengths_nm), n)).reshape(k, n)
+        return np.clip(np.clip(spectra, 0.0, None).T @ self.rule.weights, 0.0, None)
+
+
+def _rgb_rule_rungs(parent: OnnxEvaluator, reference, model_path: Path, full_cost_ns: float, tolerances) -> list[dict]:
+    """``full_rgbT`` rungs (module docstring)."""
+    from neuralbrdf.render.mitsuba_bsdf import fit_rgb_rule
+    from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE
+
+    default = fit_rgb_rule(parent.model, parent.session, DEFAULT_RMS_TOLERANCE)
+    out = []
+    for tolerance in tolerances:
+        start = time.perf_counter()
+        rule = fit_rgb_rule(parent.model, parent.session, tolerance)
+        if rule.size >= default.size:
+            continue  # no fewer wavelengths than the default rule: not cheaper
+        error = float(hemisphere_scores(ReducedRgbEvaluator(parent, rule), reference)["hemisphere_logcos_rmse"])
+        relative = rule.size / default.size
+        out.append(_entry(
+            f"full_rgb{tolerance:g}", str(model_path), parent.model.kind,
+            f"{model_path.name} in RGB variants with its sRGB rule at held-out rms {tolerance:g} ({rule.size} "
+            f"wavelengths, {default.size} at the default {DEFAULT_RMS_TOLERANCE:g})",
+            error, full_cost_ns * relative, relative, time.perf_counter() - start,
+            properties={"rgb_tolerance": repr(float(tolerance))}, variants="rgb",
+        ))
+    return out
 
 
 def _settings_dict(settings: LadderSettings) -> dict:
@@ -267,13 +339,16 @@ def _settings_dict(settings: LadderSettings) -> dict:
 
 @dataclass(frozen=True)
 class Rung:
-    """One rung of a read ladder: its file (absolute), cost and error against the parent."""
+    """One rung of a read ladder: its file (absolute), cost and error against the parent, the
+    plugin properties it needs and whether it applies in RGB variants only."""
 
     name: str
     path: Path
     kind: str
     relative_cost: float
     hemisphere_logcos_rmse: float
+    properties: tuple[tuple[str, str], ...] = ()
+    rgb_only: bool = False
 
 
 @dataclass(frozen=True)
@@ -301,9 +376,14 @@ def read_ladder(folder: str | Path) -> Ladder:
         rungs = []
         for entry in document["rungs"]:
             file = Path(entry["file"])
+            properties = entry.get("bsdf_properties", {})
+            if not isinstance(properties, dict):
+                raise TypeError("bsdf_properties must be a mapping")
             rungs.append(Rung(str(entry["name"]), file if file.is_absolute() else folder.resolve() / file,
                               str(entry["kind"]), float(entry["relative_cost"]),
-                              float(entry["hemisphere_logcos_rmse"])))
+                              float(entry["hemisphere_logcos_rmse"]),
+                              tuple((str(k), str(v)) for k, v in properties.items()),
+                              str(entry.get("variants", "rgb spectral")).split() == ["rgb"]))
         ladder = Ladder(Path(parent["file"]), str(parent["sha256"]),
                         tuple(sorted(rungs, key=lambda r: (r.name != FULL_RUNG, -r.relative_cost))))
     except (KeyError, TypeError, ValueError) as error:

@@ -107,7 +107,7 @@ class _Renderer:
         scene = self.base.copy()
         for name, rung in choice.items():
             if rung.name != FULL_RUNG:
-                scene.set_model(name, rung.path)
+                scene.set_model(name, rung.path, dict(rung.properties))
         self.renders += 1
         image, seconds = render_scene_file(scene, spp, seed)
         if not np.all(np.isfinite(image)):
@@ -188,6 +188,7 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
     options: dict[str, list[dict]] = {}
     for material in materials:
         entry = {"rung": FULL_RUNG, "file": str(material.model), "kind": None, "relative_cost": 1.0,
+                 "bsdf_properties": {},
                  "hemisphere_logcos_rmse": 0.0, "error_contribution": 0.0, "time_s": reference_s,
                  "time_saving_s": 0.0}
         options[material.name] = [entry]
@@ -197,10 +198,13 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
             continue
         entry["kind"] = ladder.rungs[0].kind or None
         for rung in ladder.rungs[1:]:
+            if rung.rgb_only and "_rgb" not in settings.variant:
+                continue
             image, seconds = renderer.render({**full, material.name: rung}, spp, settings.seed)
             error = _mean_delta_e(image, reference)
             options[material.name].append({
                 "rung": rung.name, "file": str(rung.path), "kind": rung.kind, "relative_cost": rung.relative_cost,
+                "bsdf_properties": dict(rung.properties),
                 "hemisphere_logcos_rmse": rung.hemisphere_logcos_rmse, "error_contribution": error,
                 "time_s": seconds, "time_saving_s": reference_s - seconds,
             })
@@ -232,7 +236,8 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
         "tolerance_delta_e2000": settings.tolerance,
         "materials": [
             {"name": name, "model": str(full[name].path), "chosen_rung": option["rung"], "file": option["file"],
-             "kind": option["kind"], "error_contribution": option["error_contribution"],
+             "kind": option["kind"], "bsdf_properties": option["bsdf_properties"],
+             "error_contribution": option["error_contribution"],
              "cost": option["relative_cost"], "hemisphere_logcos_rmse": option["hemisphere_logcos_rmse"],
              "time_saving_s": option["time_saving_s"], "time_share_s": time_share(options[name]),
              "has_ladder": ladders[name] is not None}
@@ -256,7 +261,7 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
         log(f"warning: the noise ({noise:.3f}) stayed above {settings.noise_fraction} x T at {spp} spp")
     selected = scene.copy()
     for name, rung in rung_of.items():
-        selected.set_model(name, rung.path)
+        selected.set_model(name, rung.path, dict(rung.properties))
     _relocate_paths(selected, out_xml.resolve().parent)
     with atomic_paths(out_xml, out_json) as (xml_tmp, json_tmp):
         xml_tmp.write_text(selected.text() + "\n")
@@ -268,7 +273,7 @@ def _rung(option: dict, full: Rung) -> Rung:
     if option["rung"] == FULL_RUNG:
         return full
     return Rung(option["rung"], Path(option["file"]), option["kind"], option["relative_cost"],
-                option["hemisphere_logcos_rmse"])
+                option["hemisphere_logcos_rmse"], tuple(option["bsdf_properties"].items()))
 
 
 def _relocate_paths(scene: SceneFile, folder: Path) -> None:

@@ -326,7 +326,7 @@ def _numpy_spectra(session: onnxruntime.InferenceSession, wi: np.ndarray, wo: np
     return f.reshape(len(wavelengths), len(wi))
 
 
-def _rgb_rule(model: OnnxModel, session: onnxruntime.InferenceSession, rms_tolerance: float) -> ReducedQuadrature:
+def fit_rgb_rule(model: OnnxModel, session: onnxruntime.InferenceSession, rms_tolerance: float) -> ReducedQuadrature:
     """The reduced spectrum → linear sRGB rule of a spectral model (module docstring)."""
     low, high = model.wavelength_range_nm
     grid = np.clip(SPECTRAL_TO_RGB_GRID_NM, low, high)
@@ -493,7 +493,7 @@ def _load_time_work(path: Path, rgb_tolerance: float) -> tuple[OnnxModel, LobeMi
         session = _session(path)
         probe = _probe_function(model, session)
         mixture = fit_abc_mixture(probe, model.abc) if model.abc is not None else fit_neural_mixture(probe)
-        rgb_rule = _rgb_rule(model, session, rgb_tolerance) if model.is_spectral and spectral_to_rgb else None
+        rgb_rule = fit_rgb_rule(model, session, rgb_tolerance) if model.is_spectral and spectral_to_rgb else None
         _remember(key, (model, mixture, rgb_rule))
     return _LOAD_TIME_CACHE[key]
 
