@@ -1,29 +1,45 @@
 """Pick, per object, the cheapest model a scene can use (SPEC §11): ``neuralbrdf select``.
 
-For a Mitsuba scene whose ``neuralbrdf`` BSDFs have cost ladders (:mod:`neuralbrdf.lod.ladder`):
+For a Mitsuba scene whose ``neuralbrdf`` BSDFs have cost ladders (:mod:`neuralbrdf.lod.ladder`),
+at a low resolution (``resolution`` wide) and matched seeds:
 
-1. **Noise first.** The all-full scene is rendered at a low resolution with two seeds; the mean
-   CIEDE2000 between the two is the Monte Carlo noise of one render.  The sample count doubles
-   (up to ``max_spp``) until that noise is at most ``noise_fraction × T``; the JSON states it.
-2. **Each rung's effect.** For every material and every rung, the scene is rendered with that
-   material swapped for the rung and the others full, with the reference's seed (matched seeds:
-   where the paths are the same the noise cancels), and compared with the all-full render: its
-   whole-image mean ΔE2000 is the rung's *error contribution*, its render time beside the
-   all-full time the rung's *saving*.  A rung's contribution includes the noise of the pixels
-   whose paths it changes (another sampler decorrelates them), so it is an over-estimate.
+**Matched paths.**  A stand-in is rendered with its parent's sampling proposal (the plugin's
+``proposal`` property).  The proposal does not change what a render converges to, only its
+noise, so with the same seed the stand-in and the full scene trace the same paths (same
+directions, same wavelengths) and differ only by the BSDF values along them: their image
+difference is the stand-in's bias, and most of the Monte Carlo noise cancels.  (Rendered with
+its own proposal, a stand-in's image differs from the full one by about the seed-to-seed noise
+even where it is exact; at the sample counts a selection can afford that noise is far above a
+tolerance of 1 ΔE.)  The written scene uses each stand-in's own proposal.
+
+1. **Noise.** At ``spp`` (doubling up to ``max_spp``) the all-full scene and the all-cheapest scene
+   (every material on its cheapest rung) are rendered with two seeds.  The mean CIEDE2000 of the
+   two all-full renders is the *render noise* (stated, not used); the difference between the
+   all-cheapest scene's error at the one seed and at the other is the *estimate noise*, how far
+   a measured error contribution moves with the seed.  The sample count grows until the estimate
+   noise is at most ``noise_fraction × T``; the JSON states both and whether that was reached.
+2. **Each rung's effect.** Per material and rung: the scene with that material on the rung and
+   the others full, against the all-full render at the same seed: its whole-image mean ΔE2000
+   is the rung's *error contribution*, its render time beside the all-full one the *saving*.
 3. **Choice.** The combination (one rung per material, full included) with the smallest
    predicted render time whose summed contributions stay within ``T`` (contributions add when
    materials cover different pixels, the common case; the verification catches the rest).
    The prediction weighs each rung's relative cost (from its ladder) by the material's share of
    the render time, estimated from the measured savings (:func:`time_share`); exhaustive over
    the combinations (:func:`best_combination`).
-4. **Verification.** The chosen scene is rendered with the reference's seed and compared with
-   the all-full render; while its mean ΔE2000 exceeds ``T`` the material with the largest
-   contribution moves back to its next more expensive rung.  Then the all-full and the selected
-   scenes are timed in interleaved renders (median of ``timing_repeats``) for the speed-up.
+4. **Verification.** The chosen scene against the all-full one at both seeds; while the larger
+   mean ΔE2000 exceeds ``T`` the material with the largest contribution moves to its next more
+   expensive rung.  Then the all-full and the selected scene (own proposals) are timed in
+   interleaved renders (median of ``timing_repeats``, Dr.Jit's default symbolic mode, after one
+   compiling render each).
+
+The error renders run in Dr.Jit's wavefront mode: a scene with one material swapped then reuses
+the compiled kernels of the others (in symbolic mode every combination compiles its own kernel,
+~15 s each on 2 cores).
 
 Outputs (together or neither): ``SELECTED.xml``, the scene with each material pointing at its
-chosen rung file (file paths rewritten relative to the output's folder), and ``SELECTED.json``.
+chosen rung file and plugin properties (file paths rewritten relative to the output's folder),
+and ``SELECTED.json``.
 """
 
 from __future__ import annotations
@@ -94,24 +110,31 @@ def _film_aspect(scene: SceneFile) -> float:
 
 
 class _Renderer:
-    """Renders choices ``{material: Rung}`` of the scene at the selection settings."""
+    """Renders choices ``{material: Rung}`` of the scene at the selection resolution."""
 
     def __init__(self, scene: SceneFile, settings: SelectSettings) -> None:
         self.base = scene.copy()
         width = settings.resolution
         self.base.set_resolution(width, max(1, round(width * _film_aspect(scene))))
-        self.settings = settings
         self.renders = 0
 
-    def render(self, choice: dict[str, Rung], spp: int, seed: int) -> tuple[np.ndarray, float]:
+    def scene(self, choice: dict[str, Rung], parents: dict[str, Path] | None = None) -> SceneFile:
+        """The scene with ``choice``; with ``parents``, stand-ins sample with their parent's proposal."""
         scene = self.base.copy()
         for name, rung in choice.items():
             if rung.name != FULL_RUNG:
-                scene.set_model(name, rung.path, dict(rung.properties))
+                properties = dict(rung.properties)
+                if parents is not None and rung.path != parents[name]:
+                    properties["proposal"] = str(parents[name])
+                scene.set_model(name, rung.path, properties)
+        return scene
+
+    def render(self, choice: dict[str, Rung], spp: int, seed: int, parents: dict[str, Path] | None = None,
+               wavefront: bool = True) -> tuple[np.ndarray, float]:
         self.renders += 1
-        image, seconds = render_scene_file(scene, spp, seed)
+        image, seconds = render_scene_file(self.scene(choice, parents), spp, seed, wavefront=wavefront)
         if not np.all(np.isfinite(image)):
-            raise InputError("a render of the scene is not finite", path=scene.path)
+            raise InputError("a render of the scene is not finite", path=self.base.path)
         return image, seconds
 
 
@@ -169,66 +192,74 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
         raise InputError("the scene has no neuralbrdf material to select models for", path=scene.path)
     ladders = find_ladders(scene, list(ladder_dirs or []))
     full = {m.name: Rung(FULL_RUNG, m.model, "", 1.0, 0.0) for m in materials}
+    parents = {m.name: m.model for m in materials}
+    rgb_variant = "_rgb" in settings.variant
+    candidates = {
+        name: [] if ladder is None else [r for r in ladder.rungs[1:] if rgb_variant or not r.rgb_only]
+        for name, ladder in ladders.items()
+    }
+    cheapest = {name: min([full[name], *rungs], key=lambda r: r.relative_cost) for name, rungs in candidates.items()}
     set_variant(settings.variant)
     renderer = _Renderer(scene, settings)
+    seeds = (settings.seed, settings.seed + 1)
 
     # 1. noise
     spp = settings.spp
     while True:
-        reference, reference_s = renderer.render(full, spp, settings.seed)
-        other, _ = renderer.render(full, spp, settings.seed + 1)
-        noise = _mean_delta_e(reference, other)
-        log(f"noise: seed-to-seed mean dE2000 {noise:.3f} at {spp} spp")
-        if noise <= settings.noise_fraction * settings.tolerance or spp >= settings.max_spp:
+        fulls = [renderer.render(full, spp, seed) for seed in seeds]
+        cheaps = [renderer.render(cheapest, spp, seed, parents)[0] for seed in seeds]
+        render_noise = _mean_delta_e(fulls[0][0], fulls[1][0])
+        cheap_errors = [_mean_delta_e(c, f[0]) for c, f in zip(cheaps, fulls)]
+        estimate_noise = abs(cheap_errors[0] - cheap_errors[1])
+        log(f"{spp} spp: render noise dE2000 {render_noise:.3f}; all-cheapest error {cheap_errors[0]:.3f} / "
+            f"{cheap_errors[1]:.3f} at two seeds (estimate noise {estimate_noise:.3f})")
+        if estimate_noise <= settings.noise_fraction * settings.tolerance or spp >= settings.max_spp:
             break
         spp = min(settings.max_spp, 2 * spp)
-    noise_ok = noise <= settings.noise_fraction * settings.tolerance
+    noise_ok = estimate_noise <= settings.noise_fraction * settings.tolerance
+    reference, reference_s = fulls[0]
 
     # 2. each rung's effect
     options: dict[str, list[dict]] = {}
     for material in materials:
-        entry = {"rung": FULL_RUNG, "file": str(material.model), "kind": None, "relative_cost": 1.0,
-                 "bsdf_properties": {},
-                 "hemisphere_logcos_rmse": 0.0, "error_contribution": 0.0, "time_s": reference_s,
-                 "time_saving_s": 0.0}
-        options[material.name] = [entry]
-        ladder = ladders[material.name]
-        if ladder is None:
+        options[material.name] = [{
+            "rung": FULL_RUNG, "file": str(material.model), "kind": None, "relative_cost": 1.0,
+            "bsdf_properties": {}, "hemisphere_logcos_rmse": 0.0, "error_contribution": 0.0, "time_s": reference_s,
+            "time_saving_s": 0.0,
+        }]
+        if ladders[material.name] is None:
             log(f"{material.name}: no ladder for {material.model}; stays full")
             continue
-        entry["kind"] = ladder.rungs[0].kind or None
-        for rung in ladder.rungs[1:]:
-            if rung.rgb_only and "_rgb" not in settings.variant:
-                continue
-            image, seconds = renderer.render({**full, material.name: rung}, spp, settings.seed)
+        options[material.name][0]["kind"] = ladders[material.name].rungs[0].kind or None
+        for rung in candidates[material.name]:
+            image, seconds = renderer.render({**full, material.name: rung}, spp, settings.seed, parents)
             error = _mean_delta_e(image, reference)
             options[material.name].append({
                 "rung": rung.name, "file": str(rung.path), "kind": rung.kind, "relative_cost": rung.relative_cost,
-                "bsdf_properties": dict(rung.properties),
-                "hemisphere_logcos_rmse": rung.hemisphere_logcos_rmse, "error_contribution": error,
-                "time_s": seconds, "time_saving_s": reference_s - seconds,
+                "bsdf_properties": dict(rung.properties), "hemisphere_logcos_rmse": rung.hemisphere_logcos_rmse,
+                "error_contribution": error, "time_s": seconds, "time_saving_s": reference_s - seconds,
             })
             log(f"{material.name} -> {rung.name}: dE2000 {error:.3f}, {seconds:.2f} s (full {reference_s:.2f} s)")
 
     # 3. choice, 4. verification
     chosen = best_combination(options, settings.tolerance)
-    rung_of = {name: _rung(option, full[name]) for name, option in chosen.items()}
     while True:
-        image, _ = renderer.render(rung_of, spp, settings.seed)
-        verified = _mean_delta_e(image, reference)
+        rung_of = {name: _rung(option, full[name]) for name, option in chosen.items()}
+        verified = [_mean_delta_e(renderer.render(rung_of, spp, seed, parents)[0], f[0]) for seed, f in zip(seeds, fulls)]
         described = ", ".join(f"{name}={option['rung']}" for name, option in chosen.items())
-        log(f"selected {described}: dE2000 {verified:.3f}")
-        if verified <= settings.tolerance:
+        log(f"selected {described}: dE2000 {verified[0]:.3f} / {verified[1]:.3f} at two seeds")
+        if max(verified) <= settings.tolerance:
             break
         worst = max(chosen, key=lambda n: chosen[n]["error_contribution"])
         dearer = [o for o in options[worst] if o["relative_cost"] > chosen[worst]["relative_cost"]]
         chosen[worst] = min(dearer, key=lambda o: o["relative_cost"]) if dearer else options[worst][0]
-        rung_of[worst] = _rung(chosen[worst], full[worst])
 
-    times = {"full": [], "selected": []}
+    times: dict[str, list[float]] = {"full": [], "selected": []}
+    for name, choice in (("full", full), ("selected", rung_of)):
+        renderer.render(choice, spp, settings.seed + 2, wavefront=False)  # compiles the kernel
     for _ in range(settings.timing_repeats):
-        times["full"].append(renderer.render(full, spp, settings.seed + 2)[1])
-        times["selected"].append(renderer.render(rung_of, spp, settings.seed + 2)[1])
+        for name, choice in (("full", full), ("selected", rung_of)):
+            times[name].append(renderer.render(choice, spp, settings.seed + 2, wavefront=False)[1])
     reference_time, selected_time = statistics.median(times["full"]), statistics.median(times["selected"])
 
     result = {
@@ -237,31 +268,41 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
         "materials": [
             {"name": name, "model": str(full[name].path), "chosen_rung": option["rung"], "file": option["file"],
              "kind": option["kind"], "bsdf_properties": option["bsdf_properties"],
-             "error_contribution": option["error_contribution"],
-             "cost": option["relative_cost"], "hemisphere_logcos_rmse": option["hemisphere_logcos_rmse"],
-             "time_saving_s": option["time_saving_s"], "time_share_s": time_share(options[name]),
-             "has_ladder": ladders[name] is not None}
+             "error_contribution": option["error_contribution"], "cost": option["relative_cost"],
+             "hemisphere_logcos_rmse": option["hemisphere_logcos_rmse"], "time_saving_s": option["time_saving_s"],
+             "time_share_s": time_share(options[name]), "has_ladder": ladders[name] is not None}
             for name, option in chosen.items()
         ],
         "reference_time_s": reference_time,
         "selected_time_s": selected_time,
         "speedup": reference_time / selected_time,
-        "image_delta_e2000_mean": verified,
-        "noise": {"seed_to_seed_delta_e2000_mean": noise, "spp": spp, "below_fraction_of_tolerance": noise_ok,
-                  "required_fraction": settings.noise_fraction},
-        "render": {"variant": settings.variant, "width": settings.resolution,
-                   "aspect": _film_aspect(scene), "spp": spp, "seed": settings.seed,
-                   "timing_repeats": settings.timing_repeats, "times_s": times},
+        "image_delta_e2000_mean": max(verified),
+        "image_delta_e2000_mean_per_seed": verified,
+        "noise": {
+            "render_seed_to_seed_delta_e2000_mean": render_noise,
+            "estimate_seed_to_seed_delta_e2000": estimate_noise,
+            "all_cheapest_delta_e2000_per_seed": cheap_errors,
+            "spp": spp,
+            "estimate_noise_within_fraction_of_tolerance": noise_ok,
+            "required_fraction": settings.noise_fraction,
+            "method": "matched seeds and matched paths (stand-ins sample with their parent's proposal); render noise "
+                      "= mean dE2000 between two all-full renders with different seeds; estimate noise = change of "
+                      "the all-cheapest scene's error between the two seeds",
+        },
+        "render": {"variant": settings.variant, "width": settings.resolution, "aspect": _film_aspect(scene),
+                   "spp": spp, "seeds": list(seeds), "timing_repeats": settings.timing_repeats,
+                   "timing_mode": "symbolic", "times_s": times},
         "candidates": options,
         "renders": renderer.renders,
         "selection_time_s": time.perf_counter() - began,
         "settings": asdict(settings),
     }
     if not noise_ok:
-        log(f"warning: the noise ({noise:.3f}) stayed above {settings.noise_fraction} x T at {spp} spp")
-    selected = scene.copy()
+        log(f"warning: the estimate noise ({estimate_noise:.3f}) stayed above {settings.noise_fraction} x T at {spp} spp")
+    selected = scene.copy()  # the user's film and settings, not the selection's
     for name, rung in rung_of.items():
-        selected.set_model(name, rung.path, dict(rung.properties))
+        if rung.name != FULL_RUNG:
+            selected.set_model(name, rung.path, dict(rung.properties))
     _relocate_paths(selected, out_xml.resolve().parent)
     with atomic_paths(out_xml, out_json) as (xml_tmp, json_tmp):
         xml_tmp.write_text(selected.text() + "\n")

@@ -28,6 +28,13 @@ Properties
     spectrum → sRGB rule fitted at load (default 1e-3; ``0`` integrates all 31 wavelengths
     exactly, at 31 network evaluations per query).  See *Colour* below.
 
+``proposal``
+    Optional: another model file whose sampling proposal this BSDF uses instead of its own
+    (resolved like ``filename``).  Any valid proposal leaves the image's expectation unchanged;
+    ``neuralbrdf select`` renders a cheaper stand-in with its parent's proposal so that, at
+    matched seeds, both trace the same paths and their image difference is the stand-in's
+    bias, not Monte Carlo noise (:mod:`neuralbrdf.lod.select`).
+
 Any other property fails loading (Mitsuba reports unreferenced properties).
 
 Methods: ``eval`` returns ``f · cos θo``; ``sample`` draws from the fitted lobe mixture of
@@ -457,6 +464,16 @@ def _read_properties(props: mi.Properties) -> tuple[Path, str, float]:
     return Path(str(mi.file_resolver().resolve(filename))), backend, rgb_tolerance
 
 
+def _proposal_path(props: mi.Properties) -> Path | None:
+    """The ``proposal`` property (module docstring), resolved, or ``None``."""
+    if "proposal" not in props:
+        return None
+    path = Path(str(mi.file_resolver().resolve(str(props.get("proposal")))))
+    if not path.is_file():
+        raise InputError("no such model file for the 'proposal' property", path=path, column="proposal")
+    return path
+
+
 #: Load-time work per model file (:func:`_load_time_work`), keyed by the file's identity.
 _LOAD_TIME_CACHE: dict[tuple, tuple] = {}
 #: Entries kept; the oldest goes first.
@@ -510,6 +527,9 @@ def _bsdf_class(variant: str) -> type:
             mi.BSDF.__init__(self, props)
             path, backend, rgb_tolerance = _read_properties(props)
             self.model, self.mixture, self.rgb_rule = _load_time_work(path, rgb_tolerance)
+            proposal = _proposal_path(props)
+            if proposal is not None:
+                self.mixture = _load_time_work(proposal, rgb_tolerance)[1]
             if backend == "onnxruntime":
                 self.backend = _OnnxRuntimeBackend(_session(path))
             else:

@@ -196,15 +196,16 @@ def uses_wavefront(scene_file: SceneFile) -> bool:
 
 
 def render_scene_file(scene_file: SceneFile, spp: int, seed: int = 0, spp_per_pass: int | None = None,
-                      progress: bool = False) -> tuple[np.ndarray, float]:
+                      progress: bool = False, wavefront: bool = False) -> tuple[np.ndarray, float]:
     """``(linear RGB image [H, W, 3], seconds)`` of the edited scene in the current variant, rendered
     in passes like the preview (:func:`neuralbrdf.render.preview.render_passes`); the time counts the
-    passes only, not loading the scene (which fits the samplers)."""
+    passes only, not loading the scene (which fits the samplers).  Dr.Jit's wavefront mode when
+    ``wavefront`` or when a material uses the onnxruntime backend, else symbolic mode."""
     from neuralbrdf.render import preview
 
     if spp < 1:
         raise InputError(f"spp must be a positive integer, got {spp}")
-    wavefront = uses_wavefront(scene_file)
+    wavefront = wavefront or uses_wavefront(scene_file)
     scene = scene_file.load()
     width, height = scene.sensors()[0].film().size()
     per_pass = spp_per_pass or max(1, (preview.PASS_LANES_WAVEFRONT if wavefront else preview.PASS_LANES_SYMBOLIC)
