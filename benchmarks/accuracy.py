@@ -20,7 +20,6 @@ printed table.  ``--quick`` (2 epochs, tiny renders, gold and nylon only) is the
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import platform
 import sys
@@ -34,6 +33,7 @@ from neuralbrdf.atomic import atomic_write
 from neuralbrdf.data.nbrdf import REPORT_MATERIALS
 from neuralbrdf.evaluation.evaluate import RenderSettings, evaluate
 from neuralbrdf.evaluation.truth import export_truth
+from neuralbrdf.onnx_export import export_checkpoint
 from neuralbrdf.lightning.run import main as train
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -58,16 +58,6 @@ class Settings:
             return cls(epochs=2, spp=4, resolution=32, virtual=("gold",), merl=("nylon",))
         return cls(epochs=None, spp=256, resolution=128, virtual=VIRTUAL, merl=REPORT_MATERIALS)
 
-
-def _load_export_script():
-    spec = importlib.util.spec_from_file_location("neuralbrdf_export_to_onnx", ROOT / "export" / "to_onnx.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-to_onnx = _load_export_script()
 
 
 def _train(config: str, run_dir: Path, settings: Settings, *args: str) -> float:
@@ -108,9 +98,9 @@ def virtual_rows(work: Path, settings: Settings) -> list[dict]:
         truth = _cached(work / f"truth_{name}.onnx", lambda p, n=name: export_truth(f"virtual:{n}", p))
         for label, config in SPECTRAL_CONFIGS.items():
             run = work / f"{name}_{label}"
-            fit_time = _train(config, run, settings, "--data.virtual_material", name)
+            fit_time = _train(config, run, settings, "--data.virtual", name)
             model = _cached(work / f"{name}_{label}.onnx",
-                            lambda p, r=run: to_onnx.export(r / "checkpoints" / "best.ckpt", p))
+                            lambda p, r=run: export_checkpoint(r / "checkpoints" / "best.ckpt", p))
             result = _score(model, truth, work / f"eval_{name}_{label}", settings, "llvm_ad_spectral")
             rows.append(_row(name, f"spectral_mlp ({label} loss)", result, fit_time))
     return rows
@@ -135,7 +125,7 @@ def merl_rows(work: Path, settings: Settings) -> list[dict]:
         ):
             stem = label.split()[0]
             model = _cached(work / f"{name}_{stem}.onnx",
-                            lambda p, r=run, c=checkpoint, n=name: to_onnx.export(r / "checkpoints" / c, p, n))
+                            lambda p, r=run, c=checkpoint, n=name: export_checkpoint(r / "checkpoints" / c, p, n))
             result = _score(model, truth, work / f"eval_{name}_{stem}", settings, "llvm_ad_rgb")
             rows.append(_row(name, label, result, fit_time))
     return rows

@@ -52,7 +52,8 @@ from neuralbrdf.fitting.abc_fit import fit_abc  # noqa: E402
 from neuralbrdf.geometry import inplane_to_spherical, inplane_to_vectors, spherical_pair_to_vectors  # noqa: E402
 from neuralbrdf.lightning.run import main as train_main  # noqa: E402
 from neuralbrdf.metrics import hemisphere_logcos_rmse  # noqa: E402
-from neuralbrdf.models.abc import abc_brdf, load_low2012_parameters  # noqa: E402
+from neuralbrdf.data.low2012 import load_low2012_parameters  # noqa: E402
+from neuralbrdf.physics.abc import abc_brdf  # noqa: E402
 
 SHARED_DATA = REPO.parent / "shared" / "data"
 KNOWN_ABC = dict(kd=[0.05, 0.1, 0.2], A=[8.0, 6.0, 4.0], B=300.0, C=1.3, eta=1.6)
@@ -92,8 +93,8 @@ def spectral_mlp(work: Path, quick: bool) -> dict:
     for material in ("gold", "gonio"):
         run = work / f"spectral_mlp_{material}"
         extra = ["--trainer.max_epochs", "2"] if quick else []
-        fit = _train(run, "spectral_mlp.yaml", "--data.virtual_material", material, *extra)
-        test = _test(run, "spectral_mlp.yaml", run / "checkpoints" / "best.ckpt", "--data.virtual_material", material)
+        fit = _train(run, "spectral_mlp.yaml", "--data.virtual", material, *extra)
+        test = _test(run, "spectral_mlp.yaml", run / "checkpoints" / "best.ckpt", "--data.virtual", material)
         results[material] = {
             "test_rel_rmse_glossy_median": test["test/rel_rmse_glossy_median"],
             "fit_wall_time_s": fit["fit/wall_time_s"],

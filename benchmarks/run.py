@@ -4,7 +4,7 @@
 
 1. **Model.** Trains the spectral MLP on the shipped virtual gold measurement
    (``train.py fit --config configs/spectral_mlp.yaml``, fewer epochs with ``--quick``) and
-   exports it with ``export/to_onnx.py``; likewise a ReLU ablation of it
+   exports it (``neuralbrdf export``); likewise a ReLU ablation of it
    (``--model.activation relu``: the cheapest activation, less accurate) to show what the
    activation costs.
 2. **Renders.** For each variant (``llvm_ad_rgb``, ``llvm_ad_spectral``) the material-preview
@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import argparse
 import gc
-import importlib.util
 import json
 import math
 import resource
@@ -63,12 +62,14 @@ import numpy as np
 import onnx
 import torch
 
-from neuralbrdf import onnx_export
+from neuralbrdf import kinds, onnx_export
 from neuralbrdf.atomic import atomic_write
-from neuralbrdf.models.abc import ABCParameters
-from neuralbrdf.models.directional import AbcOnDirections, NlbWithLatent
-from neuralbrdf.models.nlb import NLBNetwork
-from neuralbrdf.render.onnx_contract import AbcMetadata, contract_metadata
+from neuralbrdf.kinds import abc as abc_kind
+from neuralbrdf.physics.abc import AbcParameters
+from neuralbrdf.models.directional import NlbWithLatent
+from neuralbrdf.models.nlb import NlbNetwork
+from neuralbrdf.render import preview
+from neuralbrdf.onnx_contract import contract_metadata
 from neuralbrdf.study.cost import bench_throughput, machine
 from neuralbrdf.study.cost import timed as _timed
 
@@ -97,7 +98,7 @@ TARGETS = {
     "fastest_backend_queries_per_s": ">= 150e6 on 2 cores",
 }
 #: Löw et al.-like parameters of the ABC throughput model (speed only).
-ABC_BENCH_PARAMETERS = ABCParameters(kd=[0.1, 0.08, 0.05], A=[1.0, 0.8, 0.6], B=200.0, C=1.1, eta=1.5)
+ABC_BENCH_PARAMETERS = AbcParameters(kd=[0.1, 0.08, 0.05], A=[1.0, 0.8, 0.6], B=200.0, C=1.1, eta=1.5)
 PRETRAINED_NLB = ROOT / "neuralbrdf" / "pretrained" / "nlb_compact.ckpt"
 
 
@@ -114,18 +115,6 @@ class Settings:
         if quick:
             return cls(epochs=2, resolution=48, spp=4, repeats=2, batch=2**16)
         return cls(epochs=30, resolution=256, spp=64, repeats=5, batch=10**6)
-
-
-def _load_by_path(name: str, path: Path):
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module  # dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
-
-
-to_onnx = _load_by_path("neuralbrdf_export_to_onnx", ROOT / "export" / "to_onnx.py")
-render_cmd = _load_by_path("neuralbrdf_export_render", ROOT / "export" / "render.py")
 
 
 # --------------------------------------------------------------------------- model
@@ -145,7 +134,7 @@ def train_and_export(settings: Settings, workdir: Path, activation: str = "tanh"
     model = workdir / f"gold_spectral_mlp_{activation}.onnx"
     checkpoint = run_dir / "checkpoints" / "best.ckpt"
     start = time.perf_counter()
-    report = to_onnx.export(checkpoint, model)
+    report = onnx_export.export_checkpoint(checkpoint, model)
     export_s = time.perf_counter() - start
     return {
         "activation": activation,
@@ -188,14 +177,14 @@ def bench_renders(models: dict[str, Path], variant: str, settings: Settings) -> 
     round-robin over the configurations (each scene reloaded, its kernels served from Dr.Jit's
     cache), so load from other processes hits every configuration alike.
     """
-    render_cmd.set_variant(variant)
+    preview.set_variant(variant)
     # Same pass split for every configuration: the wavefront budget (the smallest).
-    spp_per_pass = render_cmd.default_spp_per_pass(settings.resolution, wavefront=True)
+    spp_per_pass = preview.default_spp_per_pass(settings.resolution, wavefront=True)
     paths = settings.resolution * settings.resolution * settings.spp
     materials = {
-        name: render_cmd.Material(reference_bsdf="roughconductor")
+        name: preview.Material(reference_bsdf="roughconductor")
         if model is None
-        else render_cmd.Material(model=models[model], backend=backend)
+        else preview.Material(model=models[model], backend=backend)
         for name, model, backend, _ in RENDER_CONFIGS
     }
     results = {name: {"wavefront": wavefront, "times_s": []} for name, _, _, wavefront in RENDER_CONFIGS}
@@ -203,7 +192,7 @@ def bench_renders(models: dict[str, Path], variant: str, settings: Settings) -> 
     def load_and_render(name: str, seed: int) -> tuple[float, float]:
         """``(load_s, render_s)``; the scene is dropped before returning."""
         start = time.perf_counter()
-        scene = render_cmd.load_scene(materials[name], settings.resolution)
+        scene = preview.load_scene(materials[name], settings.resolution)
         load_s = time.perf_counter() - start
         rules = [rule for shape in scene.shapes() if (rule := getattr(shape.bsdf(), "rgb_rule", None))]
         if rules:  # a spectral model in an RGB variant: how many wavelengths it costs
@@ -213,7 +202,7 @@ def bench_renders(models: dict[str, Path], variant: str, settings: Settings) -> 
                 "max_relative_error": rules[0].max_relative_error,
             }
         start = time.perf_counter()
-        image = render_cmd.render_passes(scene, settings.spp, spp_per_pass, seed, results[name]["wavefront"])
+        image = preview.render_passes(scene, settings.spp, spp_per_pass, seed, results[name]["wavefront"])
         render_s = time.perf_counter() - start
         del scene
         gc.collect()
@@ -244,7 +233,7 @@ def nlb_module() -> tuple[torch.nn.Module, str]:
         pretrained = load_pretrained(PRETRAINED_NLB)
         return NlbWithLatent(pretrained.network, pretrained.latent_mean), "pretrained compact network"
     torch.manual_seed(SEED)
-    network = NLBNetwork()
+    network = NlbNetwork()
     with torch.no_grad():  # random everywhere: a zero layer would let Dr.Jit drop the network
         for parameter in network.parameters():
             parameter.copy_(torch.randn_like(parameter) * 0.2)
@@ -252,14 +241,10 @@ def nlb_module() -> tuple[torch.nn.Module, str]:
     return NlbWithLatent(network, latent), "random weights of the compact size (speed only)"
 
 
-def _exportable(module: torch.nn.Module, kind: str):
-    """An RGB model built here (not from a checkpoint) in the exporter's form."""
-    abc = None
-    if kind == "abc":
-        p = ABC_BENCH_PARAMETERS
-        abc = AbcMetadata(kd=tuple(p.kd.tolist()), A=tuple(p.A.tolist()), B=p.B, C=p.C, eta=p.eta)
-    metadata = contract_metadata(kind, "benchmark", "benchmarks/run.py", abc=abc)
-    return onnx_export.Exportable(module.eval(), kind, "benchmark", metadata, None)
+def _nlb_exportable(module: torch.nn.Module):
+    """The NLB built here (not from a checkpoint) in the exporter's form."""
+    metadata = contract_metadata("nlb", "benchmark", "benchmarks/run.py")
+    return onnx_export.Exportable(module.eval(), "nlb", "benchmark", metadata, None)
 
 
 # --------------------------------------------------------------------------- report
@@ -326,14 +311,15 @@ def run(quick: bool, out: Path) -> dict:
         }
         results["render"] = {variant: bench_renders(render_models, variant, settings) for variant in VARIANTS}
 
-        spectral = to_onnx.load_exportable(results["model"]["checkpoint"])
-        spectral_relu = to_onnx.load_exportable(results["relu_model"]["checkpoint"])
+        spectral = kinds.load_exportable(results["model"]["checkpoint"])
+        spectral_relu = kinds.load_exportable(results["relu_model"]["checkpoint"])
         nlb, nlb_note = nlb_module()
         models = {
             "spectral_mlp": (spectral, "trained above"),
             "spectral_mlp_relu": (spectral_relu, "ReLU ablation, trained above"),
-            "nlb_compact": (_exportable(nlb, "nlb"), nlb_note),
-            "abc": (_exportable(AbcOnDirections(ABC_BENCH_PARAMETERS), "abc"), "analytic, fixed parameters"),
+            "nlb_compact": (_nlb_exportable(nlb), nlb_note),
+            "abc": (abc_kind.exportable(ABC_BENCH_PARAMETERS, "benchmark", "benchmarks/run.py"),
+                    "analytic, fixed parameters"),
         }
         results["throughput"] = {}
         for name, (exportable, note) in models.items():

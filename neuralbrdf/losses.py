@@ -18,7 +18,8 @@
   On linear values Eq. 5.1 fits the glossy peak (many sr⁻¹) and leaves the off-specular
   region (~0.01 sr⁻¹) almost unconstrained; a relative or logarithmic residual scores every
   region by its *relative* error (the comparison is in the README, spectral MLP).
-* :func:`l1_loss` — mean absolute error (Fan et al. 2022, the NLB latent fits).
+* :func:`l1_loss` — mean absolute error (Fan et al. 2022, the NLB latent fits);
+* :func:`nlb_loss` — that L1 in the linear or the log-cosine domain (:func:`log_cosine`).
 
 Every function takes ``pred`` and ``target`` of the same shape, ``[N]`` or ``[N, C]`` (one
 column per channel or wavelength), and per-sample angles ``[N]`` in degrees that broadcast over
@@ -31,6 +32,8 @@ from __future__ import annotations
 import math
 
 from array_api_compat import array_namespace
+
+from neuralbrdf.errors import InputError
 
 DEG = math.pi / 180.0
 
@@ -154,3 +157,29 @@ def l1_loss(pred, target):
     _check_pair(pred, target)
     xp = array_namespace(pred, target)
     return xp.mean(xp.abs(pred - target))
+
+
+#: Domains of the NLB losses (:func:`nlb_loss`).
+LOSS_DOMAINS = ("log_cosine", "linear")
+
+
+def log_cosine(f, cos_theta_i):
+    """``ln(1 + f cos θi)`` of RGB values ``[N, 3]`` with per-sample cosines ``[N]`` (clamped at 0)."""
+    xp = array_namespace(f, cos_theta_i)
+    return xp.log1p(f * xp.clip(cos_theta_i, 0.0, None)[:, None])
+
+
+def check_loss_domain(domain: str, column: str = "loss_domain") -> str:
+    """``domain`` if it is one of :data:`LOSS_DOMAINS`, else :class:`InputError` naming ``column``."""
+    if domain not in LOSS_DOMAINS:
+        raise InputError(f"unknown loss domain {domain!r}; expected one of {', '.join(LOSS_DOMAINS)}", column=column)
+    return domain
+
+
+def nlb_loss(pred, target, wi, domain: str):
+    """L1 loss of RGB BRDF values ``[N, 3]`` in ``domain``: ``"log_cosine"`` (of ``ln(1 + f cos θi)``,
+    ``cos θi = wi_z``) or ``"linear"`` (Fan et al. 2022's raw L1)."""
+    if check_loss_domain(domain) == "linear":
+        return l1_loss(pred, target)
+    cos_i = wi[:, 2]
+    return l1_loss(log_cosine(pred, cos_i), log_cosine(target, cos_i))

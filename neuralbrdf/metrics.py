@@ -239,3 +239,41 @@ def hemisphere_logcos_rmse(pred, target, theta_i_deg) -> float:
         raise ValueError("f cos theta_i <= -1: the logarithm is undefined (negative BRDF values)")
     residual = np.log1p(cos_i * target) - np.log1p(cos_i * pred)
     return float(np.sqrt(np.mean(residual * residual)))
+
+
+def _float64(values) -> np.ndarray:
+    """A torch tensor (detached, on the CPU) or array-like as a float64 NumPy array."""
+    if hasattr(values, "detach"):
+        values = values.detach().cpu()
+    return np.asarray(values, dtype=np.float64)
+
+
+def glossy_relative_rmse_of_samples(samples, pred, floor: float = DEFAULT_FLOOR) -> dict[str, float]:
+    """``rel_rmse_glossy``, ``rel_rmse_glossy_median`` and ``rel_rmse_excluded`` of flat samples.
+
+    ``samples`` is a sequence whose first four entries are ``theta_i, theta_r`` (degrees),
+    ``wavelength`` (nm) and the measured BRDF (sr⁻¹), one value per sample ``[N]``, with a
+    ``pair_index`` attribute ``[N]`` (e.g. :class:`~neuralbrdf.lightning.measurement_data.SpectralSamples`);
+    ``pred`` ``[N]`` the model's values.  Torch tensors or arrays.
+
+    The samples (any order) are pivoted by ``pair_index`` and wavelength to a ``[direction
+    pairs, wavelengths]`` table, the layout :func:`relative_rmse` expects; every pair must
+    carry every wavelength.
+    """
+    theta_i, theta_r, wavelength, target = (_float64(column) for column in samples[:4])
+    pairs, first, row = np.unique(_float64(samples.pair_index), return_index=True, return_inverse=True)
+    wavelengths, column = np.unique(wavelength, return_inverse=True)
+    shape = (len(pairs), len(wavelengths))
+    if len(target) != shape[0] * shape[1]:
+        raise ValueError(f"{len(target)} samples do not fill {shape[0]} direction pairs × {shape[1]} wavelengths")
+    table_pred, table_target = np.full(shape, np.nan), np.full(shape, np.nan)
+    table_pred[row, column] = _float64(pred)
+    table_target[row, column] = target
+    arguments = (table_pred, table_target, theta_i[first], theta_r[first], floor)
+    overall = relative_rmse(*arguments)
+    by_angle = relative_rmse_by_channel(*arguments)
+    return {
+        "rel_rmse_glossy": overall.value,
+        "rel_rmse_glossy_median": float(np.nanmedian(by_angle.per_theta_i)),
+        "rel_rmse_excluded": float(overall.n_excluded),
+    }

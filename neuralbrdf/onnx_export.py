@@ -11,10 +11,11 @@ wrapped in an :class:`Exportable` with its contract metadata and written by :fun
    hemisphere pairs, mirror pairs, grazing pairs, pairs below the horizon, wavelengths inside and
    outside the model's range) and must agree within the float32 accuracy of the model itself
    (:func:`float32_error_allowance`);
-3. the file appears atomically, after :func:`neuralbrdf.render.onnx_contract.load_model` accepted
-   it, or not at all.
+3. the file appears atomically, after :func:`neuralbrdf.kinds.load_model` (the whole contract, its
+   kind's part included) accepted it, or not at all.
 
-Checkpoint loading per model kind lives with the export command (``export/to_onnx.py``).
+Checkpoints become an :class:`~neuralbrdf.kinds.Exportable` through their kind
+(:func:`neuralbrdf.kinds.load_exportable`); :func:`export_checkpoint` is ``neuralbrdf export``.
 """
 
 from __future__ import annotations
@@ -31,13 +32,13 @@ import onnx
 import onnxruntime
 import torch
 from onnx import helper
-from torch import nn
 from torch.onnx import symbolic_helper
 
 from neuralbrdf.atomic import atomic_path
 from neuralbrdf.errors import InputError
 from neuralbrdf.geometry import inplane_to_vectors, normalize, reflect, spherical_to_vector
-from neuralbrdf.render.onnx_contract import INPUT_WAVELENGTH, INPUT_WI, INPUT_WO, OUTPUT_F, load_model
+from neuralbrdf.kinds import Exportable, load_exportable, load_model
+from neuralbrdf.onnx_contract import INPUT_WAVELENGTH, INPUT_WI, INPUT_WO, OUTPUT_F
 
 #: ONNX opset of exported graphs.
 OPSET = 17
@@ -52,21 +53,6 @@ WAVELENGTH_OVERSHOOT_NM = 40.0
 
 class ExportValidationError(RuntimeError):
     """The traced graph does not reproduce the PyTorch model; nothing was written."""
-
-
-@dataclass(frozen=True)
-class Exportable:
-    """A model ready to trace: the module, its contract metadata and whether it is spectral."""
-
-    module: nn.Module
-    kind: str
-    material: str
-    metadata: dict[str, str]
-    wavelength_range_nm: tuple[float, float] | None
-
-    @property
-    def is_spectral(self) -> bool:
-        return self.wavelength_range_nm is not None
 
 
 @dataclass(frozen=True)
@@ -282,3 +268,8 @@ def write_model(exportable: Exportable, out: str | Path) -> ExportReport:
         except InputError as error:
             raise ExportValidationError(f"the graph fails the ONNX contract check: {error.reason}") from None
     return ExportReport(out, exportable.kind, exportable.material, n_probes, max_abs, max_rel)
+
+
+def export_checkpoint(ckpt: str | Path, out: str | Path, material: str | None = None) -> ExportReport:
+    """Export checkpoint ``ckpt`` to the ``.onnx`` file ``out``; nothing is written on failure."""
+    return write_model(load_exportable(ckpt, material), out)

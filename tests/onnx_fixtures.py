@@ -20,7 +20,8 @@ from onnx import TensorProto, helper, numpy_helper
 from torch import nn
 from torch.nn import functional as F
 
-from neuralbrdf.render.onnx_contract import AbcMetadata, contract_metadata
+from neuralbrdf.kinds.abc import AbcMetadata
+from neuralbrdf.onnx_contract import contract_metadata
 
 OPSET = 17
 
@@ -232,7 +233,7 @@ def write_ggx_glossy(path: Path, alpha: float = 0.15) -> Path:
 
 
 def write_abc_like(path: Path, params: AbcMetadata) -> Path:
-    metadata = contract_metadata("abc", "fixture-abc", "tests/onnx_fixtures.py", abc=params)
+    metadata = contract_metadata("abc", "fixture-abc", "tests/onnx_fixtures.py", kind_metadata=params.entries())
     return export_module(AbcLike(params), path, metadata, spectral=False)
 
 

@@ -1,4 +1,4 @@
-"""ABC model (SPEC §4.1): BRDF, parameters, Löw's fits, importance sampling, and the fit."""
+"""ABC model (SPEC §4.1): BRDF, parameters, Löw's fits and the fit (its sampler: test_mitsuba_bsdf)."""
 
 import json
 import math
@@ -6,8 +6,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import scipy.integrate
-import scipy.stats
 import torch
 
 from neuralbrdf.data.plans import in_plane_plan, plan_spherical
@@ -16,19 +14,8 @@ from neuralbrdf.errors import InputError
 from neuralbrdf.fitting import AbcBounds, fit_abc
 from neuralbrdf.geometry import inplane_to_vectors, spherical_pair_to_vectors, spherical_to_vector
 from neuralbrdf.metrics import hemisphere_logcos_rmse
-from neuralbrdf.models.abc import (
-    ABCModel,
-    ABCParameters,
-    abc_brdf,
-    abc_distribution_normalization,
-    abc_pdf,
-    abc_pdf_half_vector,
-    abc_pdf_reflected,
-    abc_sample,
-    abc_sample_half_vector,
-    load_low2012_parameters,
-    specular_sampling_probability,
-)
+from neuralbrdf.data.low2012 import load_low2012_parameters
+from neuralbrdf.physics.abc import AbcParameters, abc_brdf
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 LOW_CSV = DATA / "abc-low2012" / "low2012_abc_merl.csv"
@@ -36,8 +23,8 @@ needs_low = pytest.mark.skipif(not LOW_CSV.is_file(), reason=f"Löw et al. param
 REPORT_MATERIALS = ("tungsten-carbide", "nylon", "brass", "blue-acrylic", "specular-black-phenolic")
 
 # Löw et al.'s published fits of two report materials (copied, so the tests below run without the data).
-NYLON = ABCParameters(kd=[0.2327, 0.2325, 0.2074], A=[19.21563, 18.19409, 16.93832], B=3334.451788, C=0.886752, eta=1.38252)
-PHENOLIC = ABCParameters(
+NYLON = AbcParameters(kd=[0.2327, 0.2325, 0.2074], A=[19.21563, 18.19409, 16.93832], B=3334.451788, C=0.886752, eta=1.38252)
+PHENOLIC = AbcParameters(
     kd=[0.0014, 0.0017, 0.0019], A=[2866.69698, 2568.57011, 3042.95351], B=291094.225596, C=1.252478, eta=1.41541
 )
 
@@ -51,7 +38,7 @@ def reference_fresnel(c, eta):
     return (g - c) ** 2 / (2 * (g + c) ** 2) * (1 + (c * (g + c) - 1) ** 2 / (c * (g - c) + 1) ** 2)
 
 
-def reference_abc(wi, wo, p: ABCParameters):
+def reference_abc(wi, wo, p: AbcParameters):
     """SPEC §4.1 in plain Python for one direction pair."""
     ci, co = wi[2], wo[2]
     if ci <= 0 or co <= 0:
@@ -78,7 +65,7 @@ def random_upper_directions(rng, n, min_cos=1e-3):
 # --------------------------------------------------------------------------- the BRDF
 
 
-@pytest.mark.parametrize("params", [NYLON, PHENOLIC, ABCParameters([0.1, 0.2, 0.3], [2.0, 1.0, 0.5], 15.0, 2.0, 1.6)])
+@pytest.mark.parametrize("params", [NYLON, PHENOLIC, AbcParameters([0.1, 0.2, 0.3], [2.0, 1.0, 0.5], 15.0, 2.0, 1.6)])
 def test_abc_brdf_matches_an_independent_scalar_implementation(params):
     rng = np.random.default_rng(1)
     wi, wo = random_upper_directions(rng, 400), random_upper_directions(rng, 400)
@@ -112,7 +99,7 @@ def test_reciprocity_and_isotropy():
 
 @pytest.mark.parametrize(
     "params",
-    [NYLON, PHENOLIC, ABCParameters([0.0] * 3, [1e4] * 3, 1e8, 0.05, 100.0), ABCParameters([0.3] * 3, [1.0] * 3, 0.0, 0.0, 1.01)],
+    [NYLON, PHENOLIC, AbcParameters([0.0] * 3, [1e4] * 3, 1e8, 0.05, 100.0), AbcParameters([0.3] * 3, [1.0] * 3, 0.0, 0.0, 1.01)],
 )
 def test_finite_non_negative_on_a_dense_hemisphere_grid_including_grazing(params):
     theta = np.concatenate([np.linspace(0.0, 89.0, 90), [89.9, 89.99, 89.999, 90.0]])
@@ -131,34 +118,26 @@ def test_finite_non_negative_on_a_dense_hemisphere_grid_including_grazing(params
 
 
 def test_fresnel_factor_tends_to_one_at_grazing_and_gradients_stay_finite():
-    p = ABCParameters([0.1] * 3, [1.0] * 3, 100.0, 1.5, 1.5)
+    p = AbcParameters([0.1] * 3, [1.0] * 3, 100.0, 1.5, 1.5)
     angles = np.array([60.0, 80.0, 89.0, 89.9, 89.99])
     wi, wo = inplane_to_vectors(angles, angles)  # mirror pairs: n·h = 1, G = 1, D = 1
     cos = np.cos(np.radians(angles))
     fresnel = (p.evaluate(wi, wo)[:, 0] - 0.1 / math.pi) * math.pi * cos * cos / 1.0
     np.testing.assert_allclose(fresnel, [reference_fresnel(c, 1.5) for c in cos], rtol=1e-9)
     assert np.all(np.diff(fresnel) > 0) and fresnel[-1] > 0.995
-    model = ABCModel(p, dtype=torch.float64)
-    model(torch.tensor(wi), torch.tensor(wo)).sum().backward()
-    for name, param in model.named_parameters():
-        assert torch.all(torch.isfinite(param.grad)), name
+    leaves = {name: torch.tensor(np.atleast_1d(getattr(p, name)), dtype=torch.float64, requires_grad=True)
+              for name in ("kd", "A", "B", "C", "eta")}
+    f = abc_brdf(torch.tensor(wi), torch.tensor(wo), leaves["kd"], leaves["A"], leaves["B"][0], leaves["C"][0],
+                 leaves["eta"][0])
+    f.sum().backward()
+    for name, leaf in leaves.items():
+        assert torch.all(torch.isfinite(leaf.grad)), name
 
 
-def test_abc_model_module_and_parameter_round_trips():
-    model = ABCModel(NYLON, dtype=torch.float64)
-    rng = np.random.default_rng(3)
-    wi, wo = random_upper_directions(rng, 50), random_upper_directions(rng, 50)
-    out = model(torch.tensor(wi), torch.tensor(wo))
-    assert out.shape == (50, 3)
-    np.testing.assert_allclose(out.detach().numpy(), NYLON.evaluate(wi, wo), rtol=1e-12)
-    assert sorted(n for n, _ in model.named_parameters()) == ["A", "B", "C", "eta", "kd"]
-    back = model.abc_parameters()
-    np.testing.assert_array_equal(back.A, NYLON.A)
-    assert (back.B, back.C, back.eta) == (NYLON.B, NYLON.C, NYLON.eta)
-    spectral = ABCParameters(kd=[0.1] * 31, A=[1.0] * 31, B=10, C=1, eta=1.5, wavelengths=np.arange(400, 701, 10))
-    assert ABCModel(spectral)(torch.tensor(wi, dtype=torch.float32), torch.tensor(wo, dtype=torch.float32)).shape == (50, 31)
+def test_parameters_round_trip_through_json():
+    spectral = AbcParameters(kd=[0.1] * 31, A=[1.0] * 31, B=10, C=1, eta=1.5, wavelengths=np.arange(400, 701, 10))
     for params in (NYLON, spectral):
-        again = ABCParameters.from_dict(json.loads(json.dumps(params.to_dict())))
+        again = AbcParameters.from_dict(json.loads(json.dumps(params.to_dict())))
         assert again.to_dict() == params.to_dict()
 
 
@@ -177,12 +156,12 @@ def test_abc_model_module_and_parameter_round_trips():
 def test_parameters_from_dict_rejects_bad_values_naming_the_key(change, key):
     mapping = {**NYLON.to_dict(), **change}
     with pytest.raises(InputError) as info:
-        ABCParameters.from_dict(mapping, source="params.json")
+        AbcParameters.from_dict(mapping, source="params.json")
     assert info.value.column == key and info.value.path == "params.json"
     missing = NYLON.to_dict()
     del missing["eta"]
     with pytest.raises(InputError, match="missing"):
-        ABCParameters.from_dict(missing)
+        AbcParameters.from_dict(missing)
 
 
 # --------------------------------------------------------------------------- Löw et al. 2012
@@ -229,123 +208,15 @@ def test_low2012_loader_rejects_missing_and_empty_files(tmp_path):
         load_low2012_parameters(tmp_path / "empty.csv")
 
 
-# --------------------------------------------------------------------------- importance sampling
-
-SHAPES = [(0.0, 1.0), (1e-14, 2.0), (3.0, 1.0), (3.0, 1.0 + 1e-10), (3.0, 2.0), (50.0, 1.3), (3334.45, 0.886752),
-          (1e6, 0.1), (1e6, 5.0), (8e6, 0.08)]
-
-
-@pytest.mark.parametrize("B, C", SHAPES)
-def test_half_vector_normalisation_matches_quadrature(B, C):
-    # ∫_0^1 (1 + B x)^(-C) dx by adaptive quadrature in t = ln(1 + B x), which resolves the peak.
-    if B == 0.0:
-        integral = 1.0
-    else:
-        integral = scipy.integrate.quad(lambda t: math.exp((1.0 - C) * t) / B, 0.0, math.log1p(B), epsabs=0, epsrel=1e-12)[0]
-    assert abc_distribution_normalization(B, C) == pytest.approx(2 * math.pi * integral, rel=1e-9)
-
-
-def test_half_vector_pdf_integrates_to_one_by_monte_carlo():
-    rng = np.random.default_rng(6)
-    h = random_upper_directions(rng, 400_000, min_cos=0.0)
-    for B, C in [(20.0, 1.5), (5.0, 1.0), (0.0, 3.0)]:
-        estimate = abc_pdf_half_vector(h, B, C).mean() * 2 * math.pi  # uniform hemisphere density 1/2π
-        assert estimate == pytest.approx(1.0, rel=1e-2), (B, C)
-
-
-def chi_square_p_value(observed, expected):
-    keep = expected >= 5
-    assert keep.sum() >= 10
-    obs, exp = observed[keep], expected[keep] * observed[keep].sum() / expected[keep].sum()
-    stat = ((obs - exp) ** 2 / exp).sum()
-    return scipy.stats.chi2.sf(stat, keep.sum() - 1)
-
-
-@pytest.mark.parametrize("B, C", [(30.0, 1.3), (2000.0, 0.7), (50.0, 1.0)])
-def test_half_vector_sampler_follows_its_pdf(B, C):
-    n = 200_000
-    rng = np.random.default_rng(7)
-    h = abc_sample_half_vector(rng.random(n), rng.random(n), B, C)
-    np.testing.assert_allclose(np.linalg.norm(h, axis=1), 1.0, rtol=1e-12)
-    # Bins in x = 1 - cos θh, equal in log(1 + B x) so the peak is resolved, times 8 azimuth bins.
-    x_edges = np.expm1(np.linspace(0, math.log1p(B), 25)) / B
-    phi_edges = np.linspace(0, 2 * math.pi, 9)
-    x = 1.0 - h[:, 2]
-    phi = np.mod(np.arctan2(h[:, 1], h[:, 0]), 2 * math.pi)
-    observed, _, _ = np.histogram2d(x, phi, [x_edges, phi_edges])
-    # expected mass per bin by quadrature of the pdf (dω = dx dφ), independent of the inverse CDF
-    radial = np.array([
-        scipy.integrate.quad(lambda t: abc_pdf_half_vector(np.array([0.0, 0.0, 1.0 - t]), B, C), a, b, epsrel=1e-10)[0]
-        for a, b in zip(x_edges[:-1], x_edges[1:])
-    ])
-    assert radial.sum() * 2 * math.pi == pytest.approx(1.0, rel=1e-8)
-    expected = n * radial[:, None] * np.diff(phi_edges)[None, :]
-    assert chi_square_p_value(observed.ravel(), expected.ravel()) > 1e-3
-
-
-@pytest.mark.parametrize("B, C, theta_i", [(30.0, 1.3, 40.0), (400.0, 0.9, 75.0)])
-def test_outgoing_direction_sampler_follows_its_pdf(B, C, theta_i):
-    n, p_spec = 300_000, 0.6
-    wi = spherical_to_vector(np.array(theta_i), np.array(0.0))
-    rng = np.random.default_rng(8)
-    u = rng.random((3, n))
-    wo = abc_sample(np.broadcast_to(wi, (n, 3)), u[0], u[1], u[2], B, C, p_spec)
-    np.testing.assert_allclose(np.linalg.norm(wo, axis=1), 1.0, rtol=1e-12)
-    # Upper hemisphere binned in (cos θo, φo), expected mass by midpoint quadrature of the pdf; the
-    # directions below the horizon (reflections about half vectors facing away from wi, where the
-    # BRDF is zero and the density has an integrable 1/|wo·h| singularity at -wi) form one bin.
-    n_z, n_phi, sub = 12, 16, 32
-    z_edges, phi_edges = np.linspace(0, 1, n_z + 1), np.linspace(0, 2 * math.pi, n_phi + 1)
-    upper = wo[:, 2] > 0
-    observed, _, _ = np.histogram2d(
-        wo[upper, 2], np.mod(np.arctan2(wo[upper, 1], wo[upper, 0]), 2 * math.pi), [z_edges, phi_edges]
-    )
-    zs = (np.arange(n_z * sub) + 0.5) / (n_z * sub)
-    ps = (np.arange(n_phi * sub) + 0.5) * (2 * math.pi / (n_phi * sub))
-    Z, P = np.meshgrid(zs, ps, indexing="ij")
-    r = np.sqrt(1 - Z**2)
-    dirs = np.stack([r * np.cos(P), r * np.sin(P), Z], axis=-1).reshape(-1, 3)
-    pdf = abc_pdf(np.broadcast_to(wi, dirs.shape), dirs, B, C, p_spec).reshape(n_z * sub, n_phi * sub)
-    cell = (1.0 / (n_z * sub)) * (2 * math.pi / (n_phi * sub))  # dω = dz dφ
-    mass = (pdf * cell).reshape(n_z, sub, n_phi, sub).sum(axis=(1, 3))
-    assert 1.0 - p_spec < mass.sum() <= 1.0 + 1e-3
-    observed = np.append(observed.ravel(), n - upper.sum())
-    expected = n * np.append(mass.ravel(), 1.0 - mass.sum())
-    assert chi_square_p_value(observed, expected) > 1e-3
-
-
-def test_reflected_pdf_integrates_to_one_over_the_sphere():
-    rng = np.random.default_rng(9)
-    v = rng.normal(size=(1_000_000, 3))
-    wo = v / np.linalg.norm(v, axis=1, keepdims=True)
-    wi = np.broadcast_to(spherical_to_vector(np.array(70.0), np.array(30.0)), wo.shape)
-    estimate = abc_pdf_reflected(wi, wo, 10.0, 1.5).mean() * 4 * math.pi
-    assert estimate == pytest.approx(1.0, rel=1e-2)
-
-
-@pytest.mark.parametrize("params", [NYLON, PHENOLIC, ABCParameters([0.5] * 3, [0.3] * 3, 40.0, 2.0, 1.5)])
-def test_specular_sampling_probability_matches_the_albedo_by_quadrature(params):
-    # ρ_s = 2π ∫ f_spec(θo) cos θo sin θo dθo at normal incidence (isotropic in φo), brute force on a
-    # grid in log-spaced θo that resolves the peak.
-    theta = np.concatenate([[0.0], np.geomspace(1e-7, math.pi / 2, 400_001)])
-    wi = np.broadcast_to(np.array([0.0, 0.0, 1.0]), (theta.size, 3))
-    wo = np.stack([np.sin(theta), 0 * theta, np.cos(theta)], axis=1)
-    spec = (params.evaluate(wi, wo) - params.kd / math.pi).mean(axis=1)
-    integrand = 2 * math.pi * spec * np.cos(theta) * np.sin(theta)
-    rho_s = float(np.sum(0.5 * (integrand[1:] + integrand[:-1]) * np.diff(theta)))
-    expected = rho_s / (rho_s + params.kd.mean())
-    assert specular_sampling_probability(params, clip=0.0) == pytest.approx(expected, rel=2e-3)
-
-
 # --------------------------------------------------------------------------- fitting
 
 
-def table_from(params: ABCParameters, plan: str = "DS1") -> BrdfTable:
+def table_from(params: AbcParameters, plan: str = "DS1") -> BrdfTable:
     angles = plan_spherical(plan)
     return BrdfTable(*angles, params.evaluate(*spherical_pair_to_vectors(*angles)), params.wavelengths)
 
 
-def low_set_error(fitted: ABCParameters, truth: ABCParameters) -> float:
+def low_set_error(fitted: AbcParameters, truth: AbcParameters) -> float:
     angles = plan_spherical("low")
     wi, wo = spherical_pair_to_vectors(*angles)
     return hemisphere_logcos_rmse(fitted.evaluate(wi, wo), truth.evaluate(wi, wo), angles[0])
@@ -364,7 +235,7 @@ def test_fit_recovers_known_parameters_from_noise_free_ds1(truth):
 def test_fit_works_on_spectral_tables_with_a_per_wavelength_a():
     wavelengths = np.arange(400.0, 701.0, 10.0)
     ramp = (wavelengths - 400.0) / 300.0
-    truth = ABCParameters(kd=0.05 + 0.2 * ramp, A=40.0 * (1.2 - ramp), B=2000.0, C=1.1, eta=1.5, wavelengths=wavelengths)
+    truth = AbcParameters(kd=0.05 + 0.2 * ramp, A=40.0 * (1.2 - ramp), B=2000.0, C=1.1, eta=1.5, wavelengths=wavelengths)
     result = fit_abc(table_from(truth), n_starts=4)
     assert result.success, result.failure_reason
     assert result.parameters.n_channels == 31

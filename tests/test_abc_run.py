@@ -8,11 +8,11 @@ import pytest
 import torch
 
 from neuralbrdf.data.plans import in_plane_plan
-from neuralbrdf.data.sources import load_material
+from neuralbrdf.sources import load_material
 from neuralbrdf.data.table import BrdfTable, write_table
 from neuralbrdf.geometry import inplane_to_spherical, inplane_to_vectors
 from neuralbrdf.lightning.run import main
-from neuralbrdf.models.abc import ABCParameters, abc_brdf
+from neuralbrdf.physics.abc import AbcParameters, abc_brdf
 
 pytestmark = pytest.mark.filterwarnings("ignore:LightningCLI's args parameter is intended")
 
@@ -53,7 +53,7 @@ def test_fit_recovers_known_parameters_and_writes_the_run(tmp_path):
     # the shared metric names (SPEC §9), on the data it was given; a table has no truth
     assert metrics["fit/inplane_glossy_rel_rmse"] < 0.05 and metrics["fit/inplane_diffuse_rel_rmse"] < 0.05
     assert "fit/hemisphere_logcos_rmse" not in metrics
-    fitted = ABCParameters.from_dict(metrics["fit/abc/parameters"])
+    fitted = AbcParameters.from_dict(metrics["fit/abc/parameters"])
     np.testing.assert_allclose(fitted.kd, KNOWN["kd"], rtol=0.05)  # pi·min(f) includes a little specular
     np.testing.assert_allclose([fitted.B, fitted.C, fitted.eta], [KNOWN["B"], KNOWN["C"], KNOWN["eta"]], rtol=0.05)
     for name in ("config.yaml", "metrics.csv", "checkpoints/best.ckpt", "checkpoints/last.ckpt"):

@@ -26,7 +26,7 @@ from neuralbrdf.data.corpus import (
 )
 from neuralbrdf.errors import InputError
 from neuralbrdf.physics.microfacet import beckmann_smith_g1
-from neuralbrdf.models.abc import abc_brdf
+from neuralbrdf.physics.abc import abc_brdf
 from neuralbrdf.physics.microfacet import beckmann_distribution
 
 

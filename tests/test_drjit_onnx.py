@@ -11,7 +11,8 @@ from onnx import TensorProto, helper
 import onnx_fixtures as fx
 from neuralbrdf.errors import InputError
 from neuralbrdf.render.drjit_onnx import SUPPORTED_OPS, DrJitGraph, tanh
-from neuralbrdf.render.onnx_contract import AbcMetadata, load_model
+from neuralbrdf.kinds import load_model
+from neuralbrdf.kinds.abc import AbcMetadata
 
 N = 4096
 rng = np.random.default_rng(11)

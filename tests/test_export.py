@@ -20,17 +20,18 @@ from export_scripts import load_export_script
 
 from neuralbrdf.geometry import half_diff_angles, inplane_to_vectors
 from neuralbrdf.lightning.spectral_mlp_module import SpectralMlpModule
-from neuralbrdf.models.abc import ABCParameters, abc_brdf
+from neuralbrdf.physics.abc import AbcParameters, abc_brdf
 from neuralbrdf.models.directional import (
     AbcOnDirections,
     NlbWithLatent,
     SpectralMlpOnDirections,
     rusinkiewicz_theta_h_d,
 )
-from neuralbrdf.models.nlb import NLBConfig, NLBNetwork
-from neuralbrdf import onnx_export
+from neuralbrdf.models.nlb import NlbConfig, NlbNetwork
+from neuralbrdf import kinds, onnx_export
 from neuralbrdf.render.drjit_onnx import DrJitGraph
-from neuralbrdf.render.onnx_contract import contract_metadata, load_model
+from neuralbrdf.kinds import load_model
+from neuralbrdf.onnx_contract import contract_metadata
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -39,9 +40,9 @@ to_onnx = load_export_script("to_onnx")
 
 RTOL = onnx_export.RELATIVE_TOLERANCE
 ATOL = onnx_export.ABSOLUTE_FLOOR_SR
-NLB_CONFIG = NLBConfig(latent_dim=4, width=16, depth=2, residual=False, half_vector=True)
-ABC_RGB = ABCParameters(kd=[0.1, 0.2, 0.3], A=[0.5, 0.8, 1.0], B=20.0, C=1.5, eta=1.5)
-ABC_SPECTRAL = ABCParameters(
+NLB_CONFIG = NlbConfig(latent_dim=4, width=16, depth=2, residual=False, half_vector=True)
+ABC_RGB = AbcParameters(kd=[0.1, 0.2, 0.3], A=[0.5, 0.8, 1.0], B=20.0, C=1.5, eta=1.5)
+ABC_SPECTRAL = AbcParameters(
     kd=np.linspace(0.05, 0.4, 7),
     A=np.array([0.2, 0.9, 0.4, 1.2, 0.7, 0.3, 1.0]),
     B=40.0,
@@ -86,7 +87,7 @@ def spectral_mlp_checkpoint(path, module=None):
     checkpoint = {
         "state_dict": module.state_dict(),
         "hyper_parameters": {**dict(module.hparams), "_class_path": f"{module.__module__}.SpectralMlpModule"},
-        "datamodule_hyper_parameters": {"path": None, "virtual_material": "gold", "batch_size": 128},
+        "datamodule_hyper_parameters": {"path": None, "virtual": "gold", "batch_size": 128},
         "pytorch-lightning_version": pl.__version__,
         "epoch": 4,
         "global_step": 100,
@@ -99,7 +100,7 @@ def spectral_mlp_checkpoint(path, module=None):
 def random_nlb(seed=1):
     """A small NLB network with every weight random (its output layer starts at zero)."""
     torch.manual_seed(seed)
-    network = NLBNetwork(**asdict(NLB_CONFIG))
+    network = NlbNetwork(**asdict(NLB_CONFIG))
     with torch.no_grad():
         for parameter in network.parameters():
             parameter.copy_(torch.randn_like(parameter) * 0.5)
@@ -107,7 +108,7 @@ def random_nlb(seed=1):
 
 
 def nlb_checkpoint(path, names=("brass", "nylon"), seed=1):
-    """The layout of a LatentFitModule checkpoint (read by latent_fit_module.load_fitted)."""
+    """The layout of a LatentFitModule checkpoint (read by neuralbrdf.kinds.nlb)."""
     network = random_nlb(seed)
     state = {f"network.{key}": value for key, value in network.state_dict().items()}
     state["latents.latents"] = torch.randn(len(names), NLB_CONFIG.latent_dim) * 2
@@ -262,13 +263,13 @@ def test_exported_file_passes_load_model_with_the_contract_metadata(exported, ca
     assert model.is_spectral == (case in ("spectral_mlp", "abc_spectral"))
     if case == "spectral_mlp":
         assert model.wavelength_range_nm == (420.0, 680.0)
-        assert "epoch 4" in model.provenance and '"virtual_material":"gold"' in model.provenance
+        assert "epoch 4" in model.provenance and '"virtual":"gold"' in model.provenance
     if case == "nlb":
         assert '"plan":"DS2"' in model.provenance
     if case.startswith("abc"):
-        assert model.abc.B == pytest.approx({"abc": ABC_RGB, "abc_spectral": ABC_SPECTRAL}[case].B)
+        assert model.details.B == pytest.approx({"abc": ABC_RGB, "abc_spectral": ABC_SPECTRAL}[case].B)
     if case == "abc_spectral":
-        assert model.wavelength_range_nm == (400.0, 700.0) and len(model.abc.kd) == 7
+        assert model.wavelength_range_nm == (400.0, 700.0) and len(model.details.kd) == 7
     dims = model.proto.graph.input[0].type.tensor_type.shape.dim
     assert dims[0].dim_param and not dims[0].HasField("dim_value")  # dynamic batch
 
@@ -276,7 +277,7 @@ def test_exported_file_passes_load_model_with_the_contract_metadata(exported, ca
 @pytest.mark.parametrize("case", list(CASES))
 def test_pytorch_onnxruntime_and_drjit_agree_on_the_exported_file(exported, checkpoints, case):
     checkpoint, material = CASES[case]
-    module = to_onnx.load_exportable(checkpoints[checkpoint], material).module
+    module = kinds.load_exportable(checkpoints[checkpoint], material).module
     wi, wo, wavelength = random_pairs()
     spectral = load_model(exported[case]).is_spectral
     feeds = {"wi": wi, "wo": wo, **({"wavelength": wavelength} if spectral else {})}
@@ -304,7 +305,7 @@ def test_nlb_latents_select_the_material(exported, checkpoints, tmp_path):
     wi, wo, _ = random_pairs(64)
     run = lambda path: onnxruntime.InferenceSession(str(path)).run(["f"], {"wi": wi, "wo": wo})[0]  # noqa: E731
     assert not np.allclose(run(brass), run(exported["nlb"]), rtol=1e-3)
-    fitted = to_onnx.load_exportable(checkpoints["nlb"], "brass").module
+    fitted = kinds.load_exportable(checkpoints["nlb"], "brass").module
     with torch.no_grad():
         np.testing.assert_allclose(run(brass), fitted(torch.from_numpy(wi), torch.from_numpy(wo)).numpy(), rtol=1e-5)
 
@@ -366,7 +367,7 @@ def test_export_refuses_a_graph_that_does_not_reproduce_pytorch(checkpoints, tmp
     monkeypatch.setattr(onnx_export, "trace", corrupted_trace)
     out = tmp_path / "corrupt.onnx"
     with pytest.raises(onnx_export.ExportValidationError, match="differs from PyTorch"):
-        to_onnx.export(checkpoints["spectral_mlp"], out)
+        onnx_export.export_checkpoint(checkpoints["spectral_mlp"], out)
     assert to_onnx.main(["--ckpt", str(checkpoints["spectral_mlp"]), "--out", str(out)]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "not written" in err
@@ -384,14 +385,14 @@ def test_export_refuses_a_file_that_load_model_rejects(checkpoints, tmp_path, mo
     monkeypatch.setattr(onnx_export, "trace", without_metadata)
     out = tmp_path / "nometa.onnx"
     with pytest.raises(onnx_export.ExportValidationError, match="contract check: missing metadata"):
-        to_onnx.export(checkpoints["abc"], out)
+        onnx_export.export_checkpoint(checkpoints["abc"], out)
     assert _no_output_left(tmp_path, out.name)
 
 
 def test_sharp_abc_lobes_export(tmp_path):
     """Löw et al.'s sharp lobes (B ~ 1e5) need 1 - cos θh without cancellation in float32."""
-    sharp = ABCParameters(kd=[0.011, 0.035, 0.104], A=[1191.4, 1099.3, 1082.1], B=255869.0, C=1.0847, eta=1.475)
-    to_onnx.export(abc_checkpoint(tmp_path / "sharp.ckpt", sharp, "blue-acrylic"), tmp_path / "sharp.onnx")
+    sharp = AbcParameters(kd=[0.011, 0.035, 0.104], A=[1191.4, 1099.3, 1082.1], B=255869.0, C=1.0847, eta=1.475)
+    onnx_export.export_checkpoint(abc_checkpoint(tmp_path / "sharp.ckpt", sharp, "blue-acrylic"), tmp_path / "sharp.onnx")
 
 
 def _write_garbage(path):

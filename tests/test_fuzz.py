@@ -24,7 +24,7 @@ from neuralbrdf.data.gcms import read_gcms
 from neuralbrdf.data.loading import load_measurement
 from neuralbrdf.data.table import read_table
 from neuralbrdf.errors import InputError
-from neuralbrdf.render.onnx_contract import load_model
+from neuralbrdf.kinds import load_model
 
 import onnx_fixtures as fx
 

@@ -8,7 +8,7 @@ import pytest
 
 from neuralbrdf.data.calibration import CALIBRATED_WAVELENGTHS_NM, MUNSELL_N9_REFLECTANCE, calibrate
 from neuralbrdf.data.gcms import GCMS_HEADER, GCMS_WAVELENGTHS_NM, GcmsMeasurement, read_gcms, write_gcms
-from neuralbrdf.data.loading import is_gcms_raw, load_measurement
+from neuralbrdf.data.loading import load_measurement
 from neuralbrdf.data.plans import in_plane_plan
 from neuralbrdf.data.table import read_table, write_table
 from neuralbrdf.errors import InputError
@@ -208,18 +208,16 @@ def test_load_measurement_calibrates_gcms_and_reads_tables(tmp_path):
 def test_load_measurement_reference_rules(tmp_path):
     _, sample, reference = _session(plan="DS4")
     write_gcms(sample, tmp_path / "sample.csv")
-    assert is_gcms_raw(tmp_path / "sample.csv")
     with pytest.raises(InputError, match="sample.csv: is a GCMS raw file.*Munsell N9 reference"):
         load_measurement(tmp_path / "sample.csv")
     write_table(calibrate(sample, reference), tmp_path / "table.csv")
-    assert not is_gcms_raw(tmp_path / "table.csv")
     with pytest.raises(InputError, match="table.csv: is a BRDF sample table.*no Munsell reference"):
         load_measurement(tmp_path / "table.csv", reference=tmp_path / "sample.csv")
     with pytest.raises(InputError, match="absent.csv: file not found"):
         load_measurement(tmp_path / "absent.csv")
     (tmp_path / "empty.csv").write_text("")
     with pytest.raises(InputError, match="empty.csv, line 1: empty file"):
-        is_gcms_raw(tmp_path / "empty.csv")
+        load_measurement(tmp_path / "empty.csv")
     with pytest.raises(InputError, match="munsell_absent.csv: file not found"):
         load_measurement(tmp_path / "sample.csv", reference=tmp_path / "munsell_absent.csv")
 

@@ -32,7 +32,7 @@ from neuralbrdf.lod.ladder import (
     read_ladder,
 )
 from neuralbrdf.lod.select import SelectSettings, best_combination, select
-from neuralbrdf.render.onnx_contract import load_model
+from neuralbrdf.kinds import load_model
 from neuralbrdf.render.scene_file import SceneFile
 
 FAST = LadderSettings(
@@ -76,7 +76,7 @@ def test_rungs_obey_the_contract_and_record_parent_and_cost(ladder):
         assert float(model.metadata[ERROR_KEY]) == pytest.approx(rung["hemisphere_logcos_rmse"])
         assert float(model.metadata[COST_KEY]) == pytest.approx(rung["drjit_ns_per_query"])
         assert rung["drjit_ns_per_query"] > 0
-    assert load_model(folder / "abc.onnx").abc is not None  # the analytic sampler's parameters
+    assert load_model(folder / "abc.onnx").details is not None  # the analytic sampler's parameters
     read = read_ladder(folder)
     assert read.rungs[0].name == "full" and {r.name for r in read.rungs} == set(names)
 

@@ -17,7 +17,7 @@ from neuralbrdf.data.colorimetry import spectral_to_linear_srgb
 from neuralbrdf.render.drjit_onnx import DrJitGraph
 from neuralbrdf.physics.microfacet import microfacet_brdf
 from neuralbrdf.render import mitsuba_bsdf, register
-from neuralbrdf.render.onnx_contract import AbcMetadata
+from neuralbrdf.kinds.abc import AbcMetadata
 from neuralbrdf.render.sampling import (
     GLOSSY_WEIGHT_RANGE,
     AbcLobe,
@@ -375,6 +375,32 @@ def test_abc_normalisation_and_inverse_cdf(B, C):
     x = lobe._inverse_cdf(mi.Float(u)).numpy()
     cdf = [integrate.quad(density, 0.0, xi, epsabs=0, epsrel=1e-12)[0] / total for xi in x]
     np.testing.assert_allclose(cdf, u, rtol=2e-5, atol=1e-6)
+
+
+#: ABC shapes from uniform to very sharp (Löw's nylon: B 3334, C 0.89; phenolic-like B up to 8e6).
+ABC_SHAPES = [(0.0, 1.0), (1e-14, 2.0), (3.0, 1.0), (3.0, 1.0 + 1e-10), (3.0, 2.0), (50.0, 1.3), (3334.45, 0.886752),
+              (1e6, 0.1), (1e6, 5.0), (8e6, 0.08)]
+
+
+@pytest.mark.parametrize(("B", "C"), ABC_SHAPES)
+def test_abc_normalisation_matches_quadrature_for_extreme_shapes(B, C):
+    """``Z / 2π = ∫_0^1 (1 + B x)^(-C) dx``, by quadrature in ``t = ln(1 + B x)`` (resolves the peak)."""
+    mi.set_variant("llvm_ad_rgb")
+    if B == 0.0:
+        integral = 1.0
+    else:
+        integral = integrate.quad(lambda t: math.exp((1.0 - C) * t) / B, 0.0, math.log1p(B), epsabs=0, epsrel=1e-12)[0]
+    assert AbcLobe(B, C).normalization == pytest.approx(2 * math.pi * integral, rel=1e-9)
+
+
+@pytest.mark.parametrize(("B", "C"), [(20.0, 1.5), (5.0, 1.0), (0.0, 3.0)])
+def test_abc_half_vector_density_integrates_to_one_by_monte_carlo(B, C):
+    rng = np.random.default_rng(6)
+    v = rng.normal(size=(400_000, 3))
+    h = v / np.linalg.norm(v, axis=1, keepdims=True)
+    h[:, 2] = np.abs(h[:, 2])  # uniform on the upper hemisphere, density 1/2π
+    estimate = AbcLobe(B, C).density(h[:, 0], h[:, 1], h[:, 2], np).mean() * 2 * math.pi
+    assert estimate == pytest.approx(1.0, rel=1e-2)
 
 
 def test_numpy_ggx_pdf_of_the_fit_matches_mitsubas_sampler_pdf():

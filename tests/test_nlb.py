@@ -23,16 +23,13 @@ from neuralbrdf.data.plans import plan_spherical
 from neuralbrdf.data.table import BrdfTable, write_table
 from neuralbrdf.errors import InputError
 from neuralbrdf.geometry import normalize, spherical_pair_to_vectors
-from neuralbrdf.lightning.latent_fit_module import (
-    PRETRAINED_COMPACT,
-    LatentFitData,
-    LatentFitModule,
-    load_fitted,
-    start_candidates,
-)
-from neuralbrdf.lightning.nlb_module import NLBPretrainModule, load_pretrained, nlb_loss
+from neuralbrdf.lightning.latent_fit_data import LatentFitData
+from neuralbrdf.lightning.latent_fit_module import PRETRAINED_COMPACT, LatentFitModule, start_candidates
+from neuralbrdf.kinds.nlb import load_fitted
+from neuralbrdf.lightning.nlb_module import NlbPretrainModule, load_pretrained
+from neuralbrdf.losses import nlb_loss
 from neuralbrdf.lightning.run import main as train_main
-from neuralbrdf.models.nlb import COMPACT, LOG1P_F_MAX, PAPER, PRE_ACTIVATION_MIN, LatentTable, NLBNetwork
+from neuralbrdf.models.nlb import COMPACT, LOG1P_F_MAX, PAPER, PRE_ACTIVATION_MIN, LatentTable, NlbNetwork
 from neuralbrdf.virtual.instrument import default_data_path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -67,7 +64,7 @@ def randomised(network, std=0.5):
 def tiny_module(n_materials=6, **kwargs):
     """A small "pretrained" module: random weights and latents."""
     torch.manual_seed(0)
-    module = NLBPretrainModule(n_materials=n_materials, latent_dim=4, width=16, depth=2, **kwargs)
+    module = NlbPretrainModule(n_materials=n_materials, latent_dim=4, width=16, depth=2, **kwargs)
     randomised(module.network)
     with torch.no_grad():
         module.latents.latents.normal_(0.0, 0.5)
@@ -85,7 +82,7 @@ def save_checkpoint(module, path):
 @pytest.mark.parametrize("config, grid", [(COMPACT, (31, 8)), (PAPER, (11, 6))], ids=["compact", "paper"])
 def test_network_is_finite_and_non_negative_on_the_whole_hemisphere(config, grid):
     torch.manual_seed(1)
-    network = randomised(NLBNetwork(**config.__dict__), std=1.0)
+    network = randomised(NlbNetwork(**config.__dict__), std=1.0)
     wi, wo = all_pairs(hemisphere_directions(*grid), hemisphere_directions(*grid))
     for scale in (1.0, 30.0, 1e4):  # ordinary, large and absurd latents: still finite (capped)
         latent = scale * torch.randn(len(wi), config.latent_dim)
@@ -98,7 +95,7 @@ def test_network_is_finite_and_non_negative_on_the_whole_hemisphere(config, grid
 
 def test_network_is_zero_below_and_on_the_horizon():
     torch.manual_seed(2)
-    network = NLBNetwork()
+    network = NlbNetwork()
     up, down = hemisphere_directions(10, 6), hemisphere_directions(10, 6, upper=False)
     horizon = up.clone()
     horizon[:, 2] = 0.0
@@ -116,7 +113,7 @@ def test_output_stays_trainable_beyond_its_bounds():
     wi, wo = all_pairs(hemisphere_directions(5, 4)[:-4], hemisphere_directions(5, 4)[:-4])
     floor = math.expm1(math.log1p(math.exp(PRE_ACTIVATION_MIN)))
     for bias, value in ((-120.0, floor), (120.0, math.expm1(LOG1P_F_MAX))):
-        network = randomised(NLBNetwork(latent_dim=4, width=8, depth=2), std=0.1)
+        network = randomised(NlbNetwork(latent_dim=4, width=8, depth=2), std=0.1)
         with torch.no_grad():
             network.output_layer.bias.fill_(bias)
         latent = torch.zeros(4, requires_grad=True)
@@ -128,36 +125,36 @@ def test_output_stays_trainable_beyond_its_bounds():
 
 
 def test_initial_output_is_a_constant_diffuse_level():
-    network = NLBNetwork()
+    network = NlbNetwork()
     wi, wo = all_pairs(hemisphere_directions(6, 5)[:-5], hemisphere_directions(6, 5)[:-5])
     f = network(wi, wo, torch.randn(len(wi), COMPACT.latent_dim))
     torch.testing.assert_close(f, torch.full_like(f, 0.05))
 
 
 def test_half_vector_features_and_shared_latent():
-    network = randomised(NLBNetwork(latent_dim=3, width=8, depth=3, half_vector=True))
+    network = randomised(NlbNetwork(latent_dim=3, width=8, depth=3, half_vector=True))
     wi, wo = all_pairs(hemisphere_directions(6, 5), hemisphere_directions(6, 5))
     features = network.features(wi, wo)
     torch.testing.assert_close(features[:, 6:], normalize(wi + wo))
     torch.testing.assert_close(features[:, :6], torch.cat([wi, wo], 1))
     latent = torch.tensor([0.3, -1.0, 2.0])
     torch.testing.assert_close(network(wi, wo, latent), network(wi, wo, latent.expand(len(wi), 3)))
-    assert NLBNetwork(latent_dim=3, width=8, depth=3, half_vector=False).features(wi, wo).shape == (len(wi), 6)
+    assert NlbNetwork(latent_dim=3, width=8, depth=3, half_vector=False).features(wi, wo).shape == (len(wi), 6)
 
 
 def test_paper_network_size():
     # Fan et al.: 256 wide, an input layer then 16 residual 256x256 layers, ~1.07 M weights.
     expected = (6 + 32) * 256 + 256 + 16 * (256 * 256 + 256) + 256 * 3 + 3
-    assert NLBNetwork(**PAPER.__dict__).parameter_count() == expected
+    assert NlbNetwork(**PAPER.__dict__).parameter_count() == expected
     assert 1.0e6 < expected < 1.1e6
 
 
 def test_residual_layers_add_their_input():
-    network = randomised(NLBNetwork(latent_dim=2, width=8, depth=2, residual=True, half_vector=False))
+    network = randomised(NlbNetwork(latent_dim=2, width=8, depth=2, residual=True, half_vector=False))
     with torch.no_grad():
         network.hidden_layers[0].weight.zero_()
         network.hidden_layers[0].bias.fill_(-1.0)  # relu(...) = 0: the block is the identity
-    plain = NLBNetwork(latent_dim=2, width=8, depth=1, residual=False, half_vector=False)
+    plain = NlbNetwork(latent_dim=2, width=8, depth=1, residual=False, half_vector=False)
     plain.load_state_dict({k: v for k, v in network.state_dict().items() if not k.startswith("hidden")})
     wi, wo = all_pairs(hemisphere_directions(4, 3), hemisphere_directions(4, 3))
     latent = torch.tensor([0.5, -0.5])
@@ -167,11 +164,11 @@ def test_residual_layers_add_their_input():
 @pytest.mark.parametrize("kwargs", [{"width": 0}, {"depth": 0}, {"latent_dim": -1}, {"width": 2.5}])
 def test_bad_network_config_raises(kwargs):
     with pytest.raises(InputError):
-        NLBNetwork(**kwargs)
+        NlbNetwork(**kwargs)
 
 
 def test_bad_network_inputs_raise():
-    network = NLBNetwork(latent_dim=4)
+    network = NlbNetwork(latent_dim=4)
     with pytest.raises(InputError):
         network(torch.zeros(5, 3), torch.zeros(4, 3), torch.zeros(4))
     with pytest.raises(InputError):
@@ -223,14 +220,14 @@ def test_load_pretrained_round_trip(tmp_path):
 def test_warm_start_copies_the_network_and_the_latents_of_the_same_material(tmp_path):
     previous = tiny_module()
     checkpoint = save_checkpoint(previous, tmp_path / "tiny.ckpt")  # unnamed: analytic:0..5
-    module = NLBPretrainModule(n_materials=3, latent_dim=4, width=16, depth=2, warm_start=str(checkpoint))
+    module = NlbPretrainModule(n_materials=3, latent_dim=4, width=16, depth=2, warm_start=str(checkpoint))
     module._warm_start(["analytic:4", "merl:new", "analytic:1"])
     for key, value in previous.network.state_dict().items():
         assert torch.equal(module.network.state_dict()[key], value)
     old = previous.latents.latents.detach()
     expected = torch.stack([old[4], old.mean(0), old[1]])
     torch.testing.assert_close(module.latents.latents.detach(), expected, rtol=0, atol=1e-7)
-    wider = NLBPretrainModule(n_materials=3, latent_dim=4, width=8, depth=2, warm_start=str(checkpoint))
+    wider = NlbPretrainModule(n_materials=3, latent_dim=4, width=8, depth=2, warm_start=str(checkpoint))
     with pytest.raises(InputError, match="warm start"):
         wider._warm_start(["analytic:0"])
 
@@ -273,7 +270,7 @@ def network_table(module, material, plan, path):
 def test_latent_fit_leaves_every_network_weight_bit_identical(tmp_path):
     module = tiny_module()
     checkpoint = save_checkpoint(module, tmp_path / "tiny.ckpt")
-    sources = [{"table": str(network_table(module, k, "DS2", tmp_path / f"m{k}.csv"))} for k in (1, 4)]
+    sources = [{"path": str(network_table(module, k, "DS2", tmp_path / f"m{k}.csv"))} for k in (1, 4)]
     data = LatentFitData(sources, eval_plan=None, steps_per_epoch=40)
     fit = LatentFitModule(str(checkpoint), optimizer=lambda p: torch.optim.Adam(p, lr=0.05))
     trainer = pl.Trainer(accelerator="cpu", max_epochs=2, logger=False, enable_checkpointing=False,
@@ -308,7 +305,7 @@ def test_latent_fit_starts_each_material_at_its_best_pretrained_code(tmp_path):
     expected = torch.stack([pretrained.latent_mean, *pretrained.latents[[2, 4, 0, 5]]])
     torch.testing.assert_close(candidates, expected, rtol=0, atol=0)
     # Tables made from merl:b and analytic:5: each start is exactly that code (zero loss).
-    sources = [{"table": str(network_table(module, k, "DS2", tmp_path / f"m{k}.csv"))} for k in (4, 5)]
+    sources = [{"path": str(network_table(module, k, "DS2", tmp_path / f"m{k}.csv"))} for k in (4, 5)]
     data = LatentFitData(sources, eval_plan=None)
     data.setup()
     fit = LatentFitModule(str(checkpoint), init_candidates=2)
@@ -334,9 +331,9 @@ def test_latent_fit_detects_a_changed_weight(tmp_path):
     [
         [],
         [{"tabel": "x.csv"}],
-        [{"table": "a.csv", "gcms": "b.csv"}],
-        [{"gcms": "b.csv"}],
-        [{"table": "a.csv", "plan": "DS1"}],
+        [{"path": "a.csv", "gcms": "b.csv"}],
+        [{"virtual": "gold", "reference": "r.csv"}],
+        [{"path": "a.csv", "plan": "DS1"}],
         [{"nbrdf": "a.h5", "plan": "DS9"}],
         [{"virtual": "gold"}, {"virtual": "gold"}],
         ["gold"],
@@ -351,8 +348,8 @@ def test_bad_latent_sources_raise(sources):
 def test_latent_sources_of_the_same_measurement_agree(tmp_path):
     gcms, reference = default_data_path("gold"), default_data_path("munsell_n9")
     write_table(load_measurement(gcms, reference), tmp_path / "gold.csv")
-    sources = [{"virtual": "gold"}, {"gcms": str(gcms), "reference": str(reference), "name": "raw"},
-               {"table": str(tmp_path / "gold.csv"), "name": "table"}]
+    sources = [{"virtual": "gold"}, {"path": str(gcms), "reference": str(reference), "name": "raw"},
+               {"path": str(tmp_path / "gold.csv"), "name": "table"}]
     data = LatentFitData(sources, eval_plan=None)
     data.setup()
     assert data.material_names == ["gold", "raw", "table"]
@@ -394,7 +391,7 @@ DDP_SCRIPT = textwrap.dedent(
     import pytorch_lightning as pl
     import torch
     from neuralbrdf.lightning.corpus_data import CorpusDataModule
-    from neuralbrdf.lightning.nlb_module import NLBPretrainModule
+    from neuralbrdf.lightning.nlb_module import NlbPretrainModule
 
     class FirstBatch(pl.Callback):
         def on_train_batch_start(self, trainer, module, batch, batch_idx):
@@ -406,7 +403,7 @@ DDP_SCRIPT = textwrap.dedent(
         torch.set_num_threads(1)
         pl.seed_everything(0)
         data = CorpusDataModule(n_analytic=8, batch_size=64, batches_per_epoch=4, val_batches=2)
-        model = NLBPretrainModule(n_materials=8, latent_dim=4, width=8, depth=2)
+        model = NlbPretrainModule(n_materials=8, latent_dim=4, width=8, depth=2)
         first = FirstBatch()
         trainer = pl.Trainer(accelerator="cpu", devices=2, strategy="ddp", max_steps=2, logger=False,
                              enable_checkpointing=False, enable_progress_bar=False,
@@ -435,7 +432,7 @@ def test_pretraining_runs_under_two_process_ddp(tmp_path):
     assert ranks[0]["first"] != ranks[1]["first"]  # each process drew its own batches
     assert ranks[0]["state"] == ranks[1]["state"]  # ... and the gradients were all-reduced
     assert ranks[0]["val"] == ranks[1]["val"]
-    initial = NLBPretrainModule(n_materials=8, latent_dim=4, width=8, depth=2)
+    initial = NlbPretrainModule(n_materials=8, latent_dim=4, width=8, depth=2)
     assert ranks[0]["state"]["latents.latents"] != initial.latents.latents.tolist()  # training moved the latents
 
 
@@ -474,7 +471,8 @@ def test_compact_pretrain_config_runs(pretrained_run):
 
 
 def test_paper_pretrain_config_runs(tmp_path):
-    run_train("--config", str(CONFIGS / "nlb_pretrain_paper.yaml"), "--run_dir", str(tmp_path),
+    run_train("--config", str(CONFIGS / "nlb_pretrain.yaml"), "--config", str(CONFIGS / "nlb_pretrain_paper.yaml"),
+              "--run_dir", str(tmp_path),
               "--trainer.max_epochs", "1", "--trainer.log_every_n_steps", "1",
               "--data.batches_per_epoch", "2", "--data.val_batches", "1", "--data.num_workers", "0",
               "--data.batch_size", "64", "--data.n_analytic", "8", "--model.n_materials", "8",
@@ -513,7 +511,7 @@ def test_latent_fit_checkpoint_is_the_model_its_metrics_describe(pretrained_run,
     """Issue 13, class 4: fitted.ckpt always exists and holds the final latents, which the
     last-logged metrics describe (validation follows the last step whatever the epoch count)."""
     module = tiny_module()
-    sources = [{"table": str(network_table(module, k, "DS2", tmp_path / f"m{k}.csv"))} for k in (1, 4)]
+    sources = [{"path": str(network_table(module, k, "DS2", tmp_path / f"m{k}.csv"))} for k in (1, 4)]
     run_train("--config", str(CONFIGS / "nlb_latent.yaml"), "--run_dir", str(tmp_path / "run"),
               "--model.checkpoint", str(pretrained_run / "checkpoints" / "last.ckpt"),
               "--trainer.check_val_every_n_epoch", "10", "--data.steps_per_epoch", "3",

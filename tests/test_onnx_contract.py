@@ -11,18 +11,19 @@ from onnx import TensorProto
 
 import onnx_fixtures as fx
 from neuralbrdf.errors import InputError
-from neuralbrdf.render.onnx_contract import (
-    ABC_A_KEY,
-    ABC_B_KEY,
-    ABC_KD_KEY,
+from neuralbrdf import kinds
+from neuralbrdf.kinds import load_model
+from neuralbrdf.kinds.abc import A_KEY as ABC_A_KEY
+from neuralbrdf.kinds.abc import B_KEY as ABC_B_KEY
+from neuralbrdf.kinds.abc import KD_KEY as ABC_KD_KEY
+from neuralbrdf.kinds.abc import AbcMetadata
+from neuralbrdf.onnx_contract import (
     FORMAT_VERSION,
     FORMAT_VERSION_KEY,
     KIND_KEY,
     MATERIAL_KEY,
     WAVELENGTH_MAX_KEY,
-    AbcMetadata,
     contract_metadata,
-    load_model,
     probe_directions,
 )
 
@@ -47,7 +48,7 @@ def test_valid_rgb_model_loads_with_its_metadata(tmp_path):
     model = load_model(path)
     assert model.path == path
     assert (model.kind, model.material, model.is_spectral, model.n_channels) == ("nlb", "brass", False, 3)
-    assert model.wavelength_range_nm is None and model.abc is None
+    assert model.wavelength_range_nm is None and model.details is None
     assert model.provenance == "tests/onnx_fixtures.py"
     assert model.metadata[FORMAT_VERSION_KEY] == FORMAT_VERSION
     assert isinstance(model.proto, onnx.ModelProto)
@@ -65,7 +66,7 @@ def test_abc_parameters_round_trip_through_metadata(tmp_path):
     path = fx.write_abc_like(tmp_path / "abc.onnx", ABC)
     model = load_model(path)
     assert model.kind == "abc"
-    assert model.abc == ABC
+    assert model.details == ABC
 
 
 def test_torch_exports_with_symbolic_inner_dims_are_accepted(tmp_path):
@@ -162,7 +163,7 @@ def test_rgb_model_with_spectral_kind(tmp_path):
     ],
 )
 def test_bad_abc_metadata(tmp_path, key, value, fragment):
-    metadata = {**contract_metadata("abc", "m", "p", abc=ABC), key: value}
+    metadata = {**contract_metadata("abc", "m", "p", kind_metadata=ABC.entries()), key: value}
     path = fx.save(fx.tiny_rgb_model(metadata), tmp_path / "abc.onnx")
     message = expect_error(path, fragment)
     assert key in message
@@ -198,8 +199,10 @@ def test_graph_onnxruntime_cannot_run(tmp_path):
 
 
 def test_contract_metadata_refuses_what_load_model_refuses():
-    with pytest.raises(InputError, match="unknown model kind"):
-        contract_metadata("gan", "m", "p")
+    with pytest.raises(InputError, match="unknown model kind 'gan'"):
+        kinds.get("gan")  # the registry behind kinds.load_model and the exporter's final check
+    with pytest.raises(InputError, match="start with 'neuralbrdf.nlb.'"):
+        contract_metadata("nlb", "m", "p", kind_metadata=ABC.entries())
     with pytest.raises(InputError, match="wavelength range"):
         contract_metadata("spectral_mlp", "m", "p", wavelength_range_nm=(700.0, 400.0))
 
@@ -232,7 +235,7 @@ def test_the_old_80_direction_probe_misses_a_negative_mirror_spike_the_dense_pro
 
 
 def test_dense_probe_covers_mirror_and_grazing_directions():
-    from neuralbrdf.render.onnx_contract import dense_probe
+    from neuralbrdf.onnx_contract import dense_probe
 
     wi, wo, near_mirror = dense_probe()
     assert len(wi) > 10_000 and np.all(wi[:, 2] > 0) and np.all(wo[:, 2] > 0)
@@ -263,7 +266,7 @@ def test_external_weight_data_is_refused_before_it_is_read(tmp_path):
 
 
 def test_declared_sizes_and_file_size_are_bounded(tmp_path, monkeypatch):
-    from neuralbrdf.render import onnx_contract
+    from neuralbrdf import onnx_contract
 
     model = fx.tiny_rgb_model()
     path = tmp_path / "m.onnx"
@@ -280,7 +283,7 @@ def test_a_constant_shape_creating_a_huge_tensor_is_refused_before_onnxruntime(t
     """A 1e10-element ``ConstantOfShape`` would be folded (allocated) by onnxruntime at session start."""
     from onnx import helper, numpy_helper
 
-    from neuralbrdf.render import onnx_contract
+    from neuralbrdf import onnx_contract
 
     model = fx.tiny_rgb_model()
     model.graph.initializer.append(numpy_helper.from_array(np.array([100_000, 100_000], dtype=np.int64), "big"))

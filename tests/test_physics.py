@@ -18,7 +18,6 @@ from neuralbrdf.physics.microfacet import (
     beckmann_distribution,
     ggx_distribution,
     ggx_smith_g1,
-    ggx_smith_g2,
     microfacet_brdf,
 )
 from neuralbrdf.physics.optical_constants import complex_index, gold_complex_index, mitsuba_ior_dir
@@ -89,7 +88,6 @@ def test_ggx_g1_matches_lambda_form():
     lam = 0.5 * (-1.0 + np.sqrt(1.0 + alpha**2 * (1.0 - cos**2) / cos**2))
     np.testing.assert_allclose(ggx_smith_g1(cos, alpha), 1.0 / (1.0 + lam), rtol=1e-12)
     np.testing.assert_array_equal(ggx_smith_g1(np.array([0.0, -0.3]), alpha), 0.0)
-    np.testing.assert_allclose(ggx_smith_g2(cos, cos[::-1], alpha), (1 / (1 + lam)) * (1 / (1 + lam[::-1])))
 
 
 # --------------------------------------------------------------------------- the BRDF

@@ -183,7 +183,7 @@ def test_negative_model_values_are_clamped_and_counted(tmp_path, monkeypatch, ca
     """Issue 13 class 6: what the load-time probe misses never reaches the image as negative radiance."""
     import torch
     import onnx_fixtures as fx
-    from neuralbrdf.render import onnx_contract
+    from neuralbrdf import onnx_contract
 
     class HalfNegative(torch.nn.Module):
         def forward(self, wi, wo):

@@ -17,7 +17,8 @@ from neuralbrdf.lightning.measurement_data import (
     SpectralSamples,
     load_inplane_spectral,
 )
-from neuralbrdf.lightning.spectral_mlp_module import SpectralMlpModule, glossy_relative_rmse
+from neuralbrdf.lightning.spectral_mlp_module import SpectralMlpModule
+from neuralbrdf.metrics import glossy_relative_rmse_of_samples as glossy_relative_rmse
 from neuralbrdf.models.spectral_mlp import ACTIVATIONS, OUTPUTS, Activation, OutputActivation, SpectralMLP
 from neuralbrdf.virtual.instrument import VirtualGoniospectrophotometer
 

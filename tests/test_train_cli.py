@@ -142,7 +142,7 @@ def test_virtual_measurement_run_reports_the_hemisphere_against_its_truth(tmp_pa
     from neuralbrdf.models.directional import SpectralMlpOnDirections
 
     run_dir = tmp_path / "run"
-    assert main(["fit", "--config", str(CONFIG), "--data.virtual_material", "cyan", *quick("--run_dir", str(run_dir))]) == 0
+    assert main(["fit", "--config", str(CONFIG), "--data.virtual", "cyan", *quick("--run_dir", str(run_dir))]) == 0
     metrics = read_metrics(run_dir)
     module = SpectralMlpModule.load_from_checkpoint(run_dir / "checkpoints" / "best.ckpt")
     truth = load_truth("virtual:cyan")
@@ -195,7 +195,7 @@ def test_full_training_fits_glossy_and_diffuse_against_the_truth(tmp_path, mater
     shipped = instrument.default_data_path(material)
     if not shipped.is_file():
         pytest.skip(f"shipped measurement {shipped} not generated")
-    args = ["fit", "--config", str(CONFIG), "--data.virtual_material", material, "--run_dir", str(tmp_path)]
+    args = ["fit", "--config", str(CONFIG), "--data.virtual", material, "--run_dir", str(tmp_path)]
     assert main(args) == 0
     metrics = read_metrics(tmp_path)
     assert metrics["fit/epochs"] == 30

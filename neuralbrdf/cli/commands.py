@@ -15,7 +15,7 @@ from neuralbrdf.data.gcms import read_gcms, write_gcms
 from neuralbrdf.data.loading import load_measurement
 from neuralbrdf.data.merl_binary import MerlBrdf, sample_merl
 from neuralbrdf.data.nbrdf import NbrdfNetwork, sample_plan
-from neuralbrdf.data.sources import virtual_truth
+from neuralbrdf.sources import virtual_truth
 from neuralbrdf.data.table import read_table, write_table
 from neuralbrdf.errors import InputError
 from neuralbrdf.plotting import DEFAULT_THETA_I_DEG, plot_inplane

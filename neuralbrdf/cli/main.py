@@ -1,4 +1,4 @@
-"""The ``neuralbrdf`` command line: measurement pipeline from plan to calibrated, plotted BRDF.
+"""The ``neuralbrdf`` command line: measure, calibrate, train, export, evaluate and study BRDF models.
 
 Conventions (SPEC §1): angles in degrees; in-plane files use *signed* angles ``theta_i,
 theta_r`` in [-90, 90] with the mirror direction at ``theta_r = theta_i``; BRDF sample tables
@@ -30,6 +30,13 @@ EPILOG = (
 )
 
 
+#: Commands with their own argument parsers, handed the rest of the command line.
+DELEGATED = {
+    "train": "train, validate or test a model from a YAML config (neuralbrdf train --help; same as train.py)",
+    "export": "export a trained checkpoint to one validated ONNX file (same as export/to_onnx.py)",
+}
+
+
 def _formatter(prog):
     return argparse.RawDescriptionHelpFormatter(prog, max_help_position=32)
 
@@ -42,6 +49,8 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=_formatter,
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, help_text in DELEGATED.items():  # parsed by their own commands (main)
+        sub.add_parser(name, help=help_text, add_help=False)
 
     def add(name, func, help_text, description):
         p = sub.add_parser(name, help=help_text, description=description, epilog=EPILOG, formatter_class=_formatter)
@@ -213,7 +222,21 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _delegated(name: str):
+    """The ``main(argv)`` of a command with its own parser (train: LightningCLI; export)."""
+    if name == "train":
+        from neuralbrdf.lightning.run import main as train
+
+        return train
+    from neuralbrdf.cli import export_command
+
+    return lambda argv: export_command.main(argv, prog="neuralbrdf export")
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] in DELEGATED:
+        return _delegated(argv[0])(argv[1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

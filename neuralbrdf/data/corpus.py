@@ -51,7 +51,7 @@ import numpy as np
 
 from neuralbrdf.errors import InputError
 from neuralbrdf.geometry import dot, normalize
-from neuralbrdf.models.abc import abc_brdf
+from neuralbrdf.physics.abc import abc_brdf
 from neuralbrdf.physics.fresnel import fresnel_conductor, fresnel_dielectric
 from neuralbrdf.physics.microfacet import microfacet_brdf
 
@@ -116,7 +116,7 @@ def abc_specular(wi, wo, a_rgb, b, c, eta):
 
         A · F(η, wi·h) · G / (π cos θi cos θo (1 + B (1 - n·h))^C)
 
-    with per-sample ``A`` ``[N, 3]`` and ``B, C, η`` ``[N]``: :func:`neuralbrdf.models.abc.abc_brdf`
+    with per-sample ``A`` ``[N, 3]`` and ``B, C, η`` ``[N]``: :func:`neuralbrdf.physics.abc.abc_brdf`
     evaluated for a unit one-channel ``A`` (its scalars broadcast against the samples), then
     scaled per sample.  0 below the horizon.
     """

@@ -12,14 +12,9 @@ import os
 
 from neuralbrdf.data.calibration import calibrate
 from neuralbrdf.data.gcms import GCMS_ANGLE_COLUMNS, gcms_from_csv, read_gcms
-from neuralbrdf.data.csvio import read_csv_header, read_numeric_csv
+from neuralbrdf.data.csvio import read_numeric_csv
 from neuralbrdf.data.table import BrdfTable, table_from_csv
 from neuralbrdf.errors import InputError
-
-
-def is_gcms_raw(path: str | os.PathLike[str]) -> bool:
-    """Whether the file's header starts ``theta_i, theta_r`` (GCMS raw) rather than a table's."""
-    return read_csv_header(path)[:2] == GCMS_ANGLE_COLUMNS
 
 
 def load_measurement(

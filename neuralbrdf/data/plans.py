@@ -10,7 +10,7 @@ definition (§5.1.2); the report does not state the window used to build its pla
 
 The Löw et al. (2012) "full gamut" set has 8 incident polar angles (5°, 15°, …, 75°, all at
 ``phi_i = 0``) times 28 800 outgoing directions on a 90 × 320 grid of cell centres in
-``theta_o`` (1° steps) and ``phi_o`` (1.125° steps): 230 400 pairs, 256× DS1's 900.
+``theta_o`` (1° steps) and ``phi_o`` (1.125° steps): 230 400 pairs.
 
 The spectral MLP split (Table 5.1) puts whole incident angles in the test set; for plans
 without Table 5.1's angles, :func:`every_third_theta_i_split` generalises it (on DS1's 5° grid

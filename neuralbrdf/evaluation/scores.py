@@ -70,7 +70,7 @@ class OnnxEvaluator:
     def __init__(self, path: str | Path) -> None:
         import onnxruntime
 
-        from neuralbrdf.render.onnx_contract import load_model
+        from neuralbrdf.kinds import load_model
 
         self.model = load_model(path)
         self.is_spectral = self.model.is_spectral

@@ -9,13 +9,13 @@ Following the report (after Löw et al. 2012):
    start wins.
 
 **Optimiser.**  SciPy's truncated-Newton method with box bounds (TNC) on a loss and gradient
-computed by torch (float64, autograd through :func:`neuralbrdf.models.abc.abc_brdf`,
+computed by torch (float64, autograd through :func:`neuralbrdf.physics.abc.abc_brdf`,
 vectorised over the samples).  A box-bounded optimiser was chosen over torch's LBFGS with a
 squashing reparametrisation because a parameter that wants to leave the box then ends *on* the
 bound, where it is detected and reported, instead of creeping towards it with a vanishing
 gradient.  TNC rather than L-BFGS-B: both find the same minima here, but L-BFGS-B's small
-BLAS/LAPACK calls go through SciPy's multithreaded OpenBLAS, whose thread wake-ups took three
-quarters of the fit time on a loaded 2-core machine; TNC is self-contained C.  ``A``, ``B`` and
+BLAS/LAPACK calls go through SciPy's multithreaded OpenBLAS, whose thread wake-ups dominate the
+fit time on a loaded machine; TNC is self-contained C (``benchmarks/README.md``, design measurements).  ``A``, ``B`` and
 ``η`` are optimised as logarithms (they span decades: Löw's ``B`` runs from 12 to 8·10⁶), ``C``
 as is.  The loss is divided by that of the diffuse-only model (``kd/π`` everywhere) so that
 the optimiser's tolerances see a quantity of order one.
@@ -26,8 +26,7 @@ first start at the sub-box centre; given those, each channel's ``A`` starts at t
 log-spaced grid (the loss separates over channels for fixed ``B, C, η``).
 
 **Threads.**  The tensors are small (a DS1 RGB table is 1001 × 3), so torch's intra-op
-threads only add synchronisation; on a loaded 2-core machine they made the fit ten times
-slower.  :func:`fit_abc` therefore runs torch single-threaded and restores the previous thread
+threads only add synchronisation (``benchmarks/README.md``, design measurements).  :func:`fit_abc` therefore runs torch single-threaded and restores the previous thread
 count when it returns (``torch.set_num_threads`` is process-wide).
 
 **Failure.**  A result has ``success = False`` and a ``failure_reason`` when the best start's
@@ -51,7 +50,7 @@ import torch
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
 from neuralbrdf.losses import log_cosine_loss, log_cosine_terms
-from neuralbrdf.models.abc import ABCParameters, abc_brdf
+from neuralbrdf.physics.abc import AbcParameters, abc_brdf
 
 #: A parameter within this fraction of its box width from a bound counts as pinned.
 PINNED_FRACTION = 1e-3
@@ -115,7 +114,7 @@ class AbcFitResult:
         Wall-clock time of the fit in seconds.
     """
 
-    parameters: ABCParameters
+    parameters: AbcParameters
     loss: float
     baseline_loss: float
     success: bool
@@ -266,7 +265,7 @@ def _fit(table: BrdfTable, n_starts: int, seed: int, bounds: AbcBounds, max_eval
     A, B, C, eta = (t.numpy() for t in problem.unpack(torch.from_numpy(run.x)))
     loss = problem.loss_of(problem.predict(torch.from_numpy(run.x)))
     # TNC keeps x inside the (finite) box, so the parameters are finite and valid.
-    parameters = ABCParameters(problem.kd.numpy(), A, float(B), float(C), float(eta), table.wavelengths)
+    parameters = AbcParameters(problem.kd.numpy(), A, float(B), float(C), float(eta), table.wavelengths)
 
     reasons = []
     if not (math.isfinite(loss) and np.all(np.isfinite(run.x))):

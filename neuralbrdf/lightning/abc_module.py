@@ -2,15 +2,15 @@
 
 The fit itself is :func:`neuralbrdf.fitting.abc_fit.fit_abc` (bounded multi-start
 minimisation of ``L_cus``, Eq. 4.2); this module runs it once on the material of
-:class:`SingleMaterialData`, logs its outcome and, where the source has a dense ground truth
+:class:`~neuralbrdf.lightning.material_data.SingleMaterialData`, logs its outcome and, where the source has a dense ground truth
 (NBRDF proxies, virtual stand-ins), the hemisphere log-cosine RMSE on ``eval_plan``.
 
 ``metrics.json`` gets the shared names of :func:`~neuralbrdf.evaluation.scores.fit_scores`
 (``fit/inplane_glossy_rel_rmse``, ``fit/inplane_diffuse_rel_rmse``, and
 ``fit/hemisphere_logcos_rmse`` with a truth), ``fit/abc/parameters`` (kd, A per channel; B, C, eta), ``fit/abc/success``
 and ``fit/abc/failure_reason``: a failed fit is reported as failed (and warned about), never
-passed off as a result.  Checkpoints carry ``neuralbrdf_kind = "abc"``, ``abc_parameters`` and
-``material`` for ``export/to_onnx.py``.
+passed off as a result.  Checkpoints carry ``neuralbrdf_kind = "abc"`` (:class:`~neuralbrdf.lightning.common.WritesKind`), ``abc_parameters`` and
+``material`` for the exporter (:mod:`neuralbrdf.kinds.abc`).
 """
 
 from __future__ import annotations
@@ -20,63 +20,16 @@ import os
 import numpy as np
 import pytorch_lightning as pl
 from pytorch_lightning.utilities import rank_zero_warn
-from torch.utils.data import DataLoader
 
-from neuralbrdf.data.sources import MaterialData, load_material
 from neuralbrdf.evaluation.scores import fit_scores
 from neuralbrdf.fitting.abc_fit import AbcBounds, AbcFitResult, fit_abc
+from neuralbrdf.lightning.common import WritesKind
 from neuralbrdf.metrics import hemisphere_logcos_rmse
-from neuralbrdf.models.abc import ABCParameters
+from neuralbrdf.physics.abc import AbcParameters
+from neuralbrdf.sources import MaterialData
 
 
-def _identity(item):
-    return item
-
-
-class SingleMaterialData(pl.LightningDataModule):
-    """One material from any source (:func:`neuralbrdf.data.sources.load_material`).
-
-    With no ``path``, ``nbrdf`` or ``virtual`` given, the shipped virtual ``gold`` DS1
-    measurement is used.  Every stage sees the same single item: the whole material.
-    """
-
-    def __init__(
-        self,
-        path: str | None = None,
-        reference: str | None = None,
-        nbrdf: str | None = None,
-        virtual: str | None = None,
-        plan: str = "DS1",
-        eval_plan: str | None = "low",
-        name: str | None = None,
-    ) -> None:
-        super().__init__()
-        self.save_hyperparameters()
-        if path is None and nbrdf is None and virtual is None:
-            virtual = "gold"
-        self._kwargs = dict(
-            path=path, reference=reference, nbrdf=nbrdf, virtual=virtual, plan=plan, eval_plan=eval_plan, name=name
-        )
-        self.material: MaterialData | None = None
-
-    def prepare_data(self) -> None:
-        # before the trainer writes anything: bad input fails with no output
-        self.setup()
-
-    def setup(self, stage: str | None = None) -> None:
-        if self.material is None:
-            self.material = load_material(**self._kwargs)
-
-    def transfer_batch_to_device(self, batch, device, dataloader_idx):
-        return batch  # a MaterialData of NumPy tables, used on the CPU as it is
-
-    def _loader(self) -> DataLoader:
-        return DataLoader([self.material], batch_size=None, collate_fn=_identity)
-
-    train_dataloader = val_dataloader = test_dataloader = _loader
-
-
-class AbcFitModule(pl.LightningModule):
+class AbcFitModule(WritesKind, pl.LightningModule):
     """Fits ABC parameters once (first training step); evaluates them in val/test.
 
     Parameters mirror :func:`~neuralbrdf.fitting.abc_fit.fit_abc`; ``bounds`` overrides fields
@@ -91,7 +44,7 @@ class AbcFitModule(pl.LightningModule):
         self.automatic_optimization = False
         self.bounds = AbcBounds(**{k: tuple(v) for k, v in (bounds or {}).items()})
         self.result: AbcFitResult | None = None
-        self.parameters_: ABCParameters | None = None
+        self.parameters_: AbcParameters | None = None
         self.material_name: str | None = None
         #: :func:`~neuralbrdf.evaluation.scores.fit_scores` of the last evaluation.
         self.scores: dict[str, float | None] = {}
@@ -164,8 +117,10 @@ class AbcFitModule(pl.LightningModule):
             "abc/start_losses": [None if not np.isfinite(x) else float(x) for x in self.result.start_losses],
         }
 
+    KIND = "abc"
+
     def on_save_checkpoint(self, checkpoint: dict) -> None:
-        checkpoint["neuralbrdf_kind"] = "abc"
+        super().on_save_checkpoint(checkpoint)
         if self.parameters_ is not None:
             checkpoint["abc_parameters"] = self.parameters_.to_dict()
             checkpoint["material"] = self.material_name
@@ -173,5 +128,5 @@ class AbcFitModule(pl.LightningModule):
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
         if "abc_parameters" in checkpoint:
-            self.parameters_ = ABCParameters.from_dict(checkpoint["abc_parameters"], source="checkpoint")
+            self.parameters_ = AbcParameters.from_dict(checkpoint["abc_parameters"], source="checkpoint")
             self.material_name = checkpoint.get("material")

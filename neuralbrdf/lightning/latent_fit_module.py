@@ -8,9 +8,8 @@ one latent table, every material's samples in one full batch per step (or, for v
 plans, a random subset of ``data.batch_size`` samples per step).
 
 The L1 is taken on ``ln(1 + f cos θi)`` by default (``loss_domain``, as in pretraining,
-:mod:`~neuralbrdf.lightning.nlb_module`): on a short-run checkpoint, latents fitted to eight
-MERL proxies on DS1 reached a mean hemisphere log-cosine RMSE of 0.022 that way and 0.028 with
-the raw L1.  The report's recipe is ``loss_domain: linear``, ``init_candidates: 0``,
+:mod:`~neuralbrdf.lightning.nlb_module`; it fitted better than the raw L1, (``benchmarks/README.md``, design measurements)).
+The report's recipe is ``loss_domain: linear``, ``init_candidates: 0``,
 ``early_stop_patience: null`` (``configs/nlb_latent_report.yaml``).
 
 **Start** (``init_candidates``).  With 0, every latent starts at the centroid of the
@@ -27,17 +26,8 @@ the final step (the last epoch, or an early stop) whatever ``check_val_every_n_e
 the metrics logged last — and ``checkpoints/fitted.ckpt``, saved at the end of validation —
 describe the latents the fit ends with.
 
-**Sources** (:class:`LatentFitData`, ``sources`` entries, one per material):
-
-* ``{table: FILE}`` — a BRDF sample table (SPEC §2.1), RGB or spectral (converted to linear
-  sRGB, SPEC §2.3);
-* ``{gcms: FILE, reference: MUNSELL}`` — a GCMS raw file and its Munsell N9 reference (SPEC §2.2);
-* ``{virtual: NAME}`` — a shipped virtual-instrument measurement (``cyan``, ``magenta``,
-  ``gold``, ``gonio``) with the shipped reference;
-* ``{nbrdf: FILE.h5}`` — an NBRDF proxy (SPEC §2.4) sampled on ``plan`` (the entry's own
-  ``plan`` key, else the data module's).
-
-Each may carry ``name`` (default: the file stem or virtual material).
+**Sources**: :class:`~neuralbrdf.lightning.latent_fit_data.LatentFitData` (the vocabulary of
+:mod:`neuralbrdf.sources`).
 
 **Metrics** (logged at every validation, so ``metrics.json`` holds the final values under
 ``fit/``):
@@ -52,264 +42,46 @@ Each may carry ``name`` (default: the file stem or virtual material).
 
 The frozen weights are checked bit for bit against the checkpoint at the end of every fit
 (:meth:`LatentFitModule.on_fit_end`).  A checkpoint of this module is a self-contained fitted
-material set — the network, the latents and their names — read back by :func:`load_fitted`
+material set — the network, the latents and their names — read back by :func:`neuralbrdf.kinds.nlb.load_fitted`
 (e.g. for export).
 """
 
 from __future__ import annotations
 
 import math
-import os
-import warnings
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 import pytorch_lightning as pl
 import torch
 from pytorch_lightning.cli import LRSchedulerCallable, OptimizerCallable
-from torch.utils.data import DataLoader, Dataset
 
 from neuralbrdf import metrics
-from neuralbrdf.data.plans import PLAN_NAMES
-from neuralbrdf.data.sources import load_material
-from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
-from neuralbrdf.lightning.checkpoint_io import check_weights_match, read_checkpoint
-from neuralbrdf.lightning.nlb_module import (
-    PretrainedNLB,
-    check_loss_domain,
-    load_pretrained,
-    log_cosine,
-    nlb_loss,
-    scheduled_optimizer,
-)
-from neuralbrdf.models.abc import load_low2012_parameters
-from neuralbrdf.models.nlb import LatentTable, NLBNetwork
+from neuralbrdf.lightning.common import WritesKind, scheduled_optimizer
+from neuralbrdf.lightning.latent_fit_data import EvalSet, FitSamples
+from neuralbrdf.lightning.nlb_module import PretrainedNlb, load_pretrained
+from neuralbrdf.losses import check_loss_domain, log_cosine, nlb_loss
+from neuralbrdf.models.nlb import LatentTable
 
 #: The shipped pretrained compact network (SPEC §4.2), the default ``checkpoint``.
 PRETRAINED_COMPACT = Path(__file__).resolve().parents[1] / "pretrained" / "nlb_compact.ckpt"
 #: How the shipped checkpoint is made (for the error message when it is missing).
 PRETRAIN_COMMAND = "python train.py fit --config configs/nlb_pretrain.yaml"
 
-SOURCE_KINDS = ("table", "gcms", "virtual", "nbrdf")
-SOURCE_KEYS = (*SOURCE_KINDS, "name", "reference", "plan")
-
-
-class FitSamples(NamedTuple):
-    """Samples of one or more materials: ``material`` ``[N]`` int64, ``wi, wo, f`` ``[N, 3]`` float32."""
-
-    material: torch.Tensor
-    wi: torch.Tensor
-    wo: torch.Tensor
-    f: torch.Tensor
-
-
-class EvalSet(NamedTuple):
-    """One material's evaluation: its fitting samples, and (NBRDF) the proxy on the eval plan."""
-
-    name: str
-    fit: FitSamples
-    truth: FitSamples | None
-    abc: torch.Tensor | None  # Löw et al.'s ABC on truth's directions, [N, 3]
-
-
-def _tensors(index: int, wi, wo, f) -> FitSamples:
-    n = len(f)
-    return FitSamples(
-        torch.full((n,), index, dtype=torch.long),
-        *(torch.as_tensor(np.asarray(a), dtype=torch.float32) for a in (wi, wo, f)),
-    )
-
-
-def _table_samples(index: int, table: BrdfTable) -> FitSamples:
-    table = table.to_rgb()
-    return _tensors(index, *table.vectors(), table.values)
-
-
-class _Steps(Dataset):
-    """One batch per step: all ``samples``, or ``batch_size`` of them, a fresh random subset per
-    request from a stream seeded by ``seed`` (reproducible in a single data-loading process)."""
-
-    def __init__(self, samples: FitSamples, steps: int, batch_size: int | None, seed: int) -> None:
-        self.samples, self.steps, self.batch_size = samples, steps, batch_size
-        self.rng = np.random.default_rng(seed)
-
-    def __len__(self) -> int:
-        return self.steps
-
-    def __getitem__(self, index: int) -> FitSamples:
-        if not 0 <= index < self.steps:
-            raise IndexError(index)
-        n = len(self.samples.f)
-        if self.batch_size is None or self.batch_size >= n:
-            return self.samples
-        rows = torch.from_numpy(self.rng.choice(n, self.batch_size, replace=False))
-        return FitSamples(*(column[rows] for column in self.samples))
-
-
-class _Items(Dataset):
-    def __init__(self, items: Sequence) -> None:
-        self.items = list(items)
-
-    def __len__(self) -> int:
-        return len(self.items)
-
-    def __getitem__(self, index):
-        return self.items[index]
-
-
-class LatentFitData(pl.LightningDataModule):
-    """Materials to fit, all in one batch (module docstring for ``sources``).
-
-    Parameters
-    ----------
-    sources:
-        One mapping per material.
-    path, reference:
-        A single measurement to fit instead of ``sources`` (``--data.path FILE`` drops a user's
-        BRDF table, or GCMS raw file with its Munsell N9 ``reference``, into any config).
-    plan:
-        Sampling plan (SPEC §3) of NBRDF sources without their own ``plan``.
-    eval_plan:
-        Plan on which NBRDF sources are compared with the fit; ``None``: no such evaluation.
-    low2012_abc:
-        Löw et al.'s published ABC fits (``abc-low2012/low2012_abc_merl.csv``) for the
-        comparison; ``None``: no comparison; a missing file: a warning and no comparison.
-    steps_per_epoch:
-        Optimisation steps per epoch.
-    batch_size:
-        ``None`` (default): every step sees every sample of every material (one full batch).
-        Else each step sees this many samples drawn at random from all of them: for plans too
-        large for full-batch steps, such as five materials on the Löw et al. set (1.15 M pairs).
-    seed:
-        Seed of those draws.
-    """
-
-    def __init__(
-        self,
-        sources: list[dict[str, str]] | None = None,
-        path: str | None = None,
-        reference: str | None = None,
-        plan: str = "DS1",
-        eval_plan: str | None = "low",
-        low2012_abc: str | None = None,
-        steps_per_epoch: int = 100,
-        batch_size: int | None = None,
-        seed: int = 0,
-    ) -> None:
-        super().__init__()
-        if path is not None:
-            sources = [{"gcms": path, "reference": reference} if reference is not None else {"table": path}]
-        elif reference is not None:
-            raise InputError("data.reference goes with a GCMS raw data.path", column="data.reference")
-        if not sources:
-            raise InputError("at least one source is needed", column="data.sources")
-        for plan_name, key in ((plan, "data.plan"), (eval_plan, "data.eval_plan")):
-            if plan_name is not None and plan_name not in PLAN_NAMES:
-                raise InputError(f"unknown plan {plan_name!r}; expected one of {', '.join(PLAN_NAMES)}", column=key)
-        if not isinstance(steps_per_epoch, int) or steps_per_epoch < 1:
-            raise InputError(f"must be a positive integer, got {steps_per_epoch!r}", column="data.steps_per_epoch")
-        self.sources = [self._check_source(i, s) for i, s in enumerate(sources)]
-        self.material_names = [self._name(s) for s in self.sources]
-        duplicates = sorted({n for n in self.material_names if self.material_names.count(n) > 1})
-        if duplicates:
-            raise InputError(
-                f"material names must be unique, {duplicates} repeat (set 'name')", column="data.sources"
-            )
-        self.plan, self.eval_plan, self.low2012_abc = plan, eval_plan, low2012_abc
-        if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
-            raise InputError(f"must be a positive integer or null, got {batch_size!r}", column="data.batch_size")
-        self.steps_per_epoch, self.batch_size, self.seed = steps_per_epoch, batch_size, seed
-        self._steps: _Steps | None = None
-        self.train_samples: FitSamples | None = None
-        self.eval_sets: list[EvalSet] = []
-
-    @staticmethod
-    def _check_source(i: int, source) -> dict[str, str]:
-        where = f"data.sources[{i}]"
-        if not isinstance(source, dict):
-            raise InputError(f"expected a mapping such as {{nbrdf: FILE.h5}}, got {source!r}", column=where)
-        for key in source:
-            if key not in SOURCE_KEYS:
-                raise InputError(f"unknown key {key!r}; expected {', '.join(SOURCE_KEYS)}", column=where)
-        kinds = [k for k in SOURCE_KINDS if k in source]
-        if len(kinds) != 1:
-            raise InputError(f"needs exactly one of {', '.join(SOURCE_KINDS)}, got {kinds or 'none'}", column=where)
-        kind = kinds[0]
-        if ("reference" in source) != (kind == "gcms"):
-            raise InputError("'reference' goes with 'gcms' (and a gcms source needs it)", column=where)
-        if "plan" in source and (kind != "nbrdf" or source["plan"] not in PLAN_NAMES):
-            raise InputError(
-                f"'plan' is for nbrdf sources, one of {', '.join(PLAN_NAMES)}; got {source['plan']!r}", column=where
-            )
-        return {k: str(v) for k, v in source.items()}
-
-    @staticmethod
-    def _name(source: dict[str, str]) -> str:
-        if "name" in source:
-            return source["name"]
-        kind = next(k for k in SOURCE_KINDS if k in source)
-        return source[kind] if kind == "virtual" else Path(source[kind]).stem
-
-    def _load(self, index: int, source: dict[str, str], abc_fits) -> EvalSet:
-        name = self.material_names[index]
-        material = load_material(
-            path=source.get("table") or source.get("gcms"),
-            reference=source.get("reference"),
-            nbrdf=source.get("nbrdf"),
-            virtual=source.get("virtual"),
-            plan=source.get("plan", self.plan),
-            eval_plan=self.eval_plan if "nbrdf" in source else None,
-            name=name,
-        )
-        fit = _table_samples(index, material.fit)
-        if material.truth is None:
-            return EvalSet(name, fit, None, None)
-        abc_params = abc_fits.get(Path(source["nbrdf"]).stem)
-        abc = None
-        if abc_params is not None:
-            abc = torch.as_tensor(abc_params.evaluate(*material.truth.vectors()), dtype=torch.float32)
-        return EvalSet(name, fit, _table_samples(index, material.truth), abc)
-
-    def setup(self, stage: str | None = None) -> None:
-        if self.train_samples is not None:
-            return
-        abc_fits = {}
-        if self.low2012_abc is not None:
-            if os.path.isfile(self.low2012_abc):
-                abc_fits = load_low2012_parameters(self.low2012_abc)
-            else:
-                warnings.warn(f"{self.low2012_abc}: Löw et al. ABC fits not found; no ABC comparison", stacklevel=2)
-        self.eval_sets = [self._load(i, s, abc_fits) for i, s in enumerate(self.sources)]
-        self.train_samples = FitSamples(*(torch.cat(c) for c in zip(*(e.fit for e in self.eval_sets))))
-
-    def train_dataloader(self) -> DataLoader:
-        if self._steps is None:  # one stream of random subsets for the whole fit
-            self._steps = _Steps(self.train_samples, self.steps_per_epoch, self.batch_size, self.seed)
-        return DataLoader(self._steps, batch_size=None)
-
-    def val_dataloader(self) -> DataLoader:
-        return DataLoader(_Items(self.eval_sets), batch_size=None, collate_fn=_identity)
-
-
-def _identity(item):
-    return item
-
-
 def _theta_i_deg(wi: torch.Tensor) -> torch.Tensor:
     return torch.rad2deg(torch.acos(wi[:, 2].clamp(-1.0, 1.0)))
 
 
-class LatentFitModule(pl.LightningModule):
+class LatentFitModule(WritesKind, pl.LightningModule):
     """Optimises one latent per material on a frozen pretrained NLB network (module docstring).
 
     Parameters
     ----------
     checkpoint:
-        :class:`~neuralbrdf.lightning.nlb_module.NLBPretrainModule` checkpoint; ``None``: the
+        :class:`~neuralbrdf.lightning.nlb_module.NlbPretrainModule` checkpoint; ``None``: the
         shipped ``neuralbrdf/pretrained/nlb_compact.ckpt``.
     latent_init:
         Constant every latent starts from; ``None``: the centroid of the pretrained corpus
@@ -401,7 +173,10 @@ class LatentFitModule(pl.LightningModule):
     def configure_callbacks(self):
         return [ValidateFinalStep()]
 
+    KIND = "nlb"
+
     def on_save_checkpoint(self, checkpoint: dict) -> None:
+        super().on_save_checkpoint(checkpoint)
         checkpoint["material_names"] = self.material_names
         checkpoint["nlb_config"] = asdict(self.network.config)
 
@@ -485,7 +260,7 @@ class LatentFitModule(pl.LightningModule):
         return scheduled_optimizer(groups, self.optimizer_factory, self.lr_scheduler_factory, "step")
 
 
-def start_candidates(pretrained: PretrainedNLB, n_analytic: int) -> torch.Tensor:
+def start_candidates(pretrained: PretrainedNlb, n_analytic: int) -> torch.Tensor:
     """Candidate starting codes ``[K, latent_dim]``: the centroid, every MERL proxy code and
     ``n_analytic`` analytic codes evenly spaced in the table (module docstring)."""
     merl = [i for i, name in enumerate(pretrained.names) if name.startswith("merl:")]
@@ -510,34 +285,3 @@ class ValidateFinalStep(pl.Callback):
         if trainer.should_stop or (last_batch and last_epoch):
             trainer.check_val_every_n_epoch = 1
 
-
-@dataclass(frozen=True)
-class FittedNLB:
-    """Fitted materials: the frozen ``network`` and one latent ``[latent_dim]`` per material name."""
-
-    network: NLBNetwork
-    latents: dict[str, torch.Tensor]
-    source: str
-
-
-def load_fitted(path: str | os.PathLike[str]) -> FittedNLB:
-    """The network and named latents of a :class:`LatentFitModule` checkpoint.
-
-    Raises :class:`InputError` when the file is missing or is not such a checkpoint.
-    """
-    path = Path(path)
-    checkpoint = read_checkpoint(path, "fitted NLB checkpoint")
-    missing = [key for key in ("nlb_config", "material_names", "state_dict") if key not in checkpoint]
-    if missing:  # e.g. a pretraining checkpoint: it names its materials but has no nlb_config
-        raise InputError(f"not a latent-fit checkpoint (LatentFitModule): missing {missing[0]!r}", path=path)
-    try:
-        names, state = checkpoint["material_names"], checkpoint["state_dict"]
-        check_weights_match(lambda: NLBNetwork(**checkpoint["nlb_config"]), state, path, "network.")
-        network = NLBNetwork(**checkpoint["nlb_config"])
-        latents = state["latents.latents"].float()
-    except (KeyError, TypeError) as exc:
-        raise InputError(f"not a latent-fit checkpoint (LatentFitModule): missing {exc}", path=path) from None
-    prefix = "network."
-    network.load_state_dict({k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)})
-    network.requires_grad_(False).eval()
-    return FittedNLB(network, dict(zip(names, latents)), str(path))

@@ -148,13 +148,15 @@ class MeasurementDataModule(pl.LightningDataModule):
     ----------
     path:
         Spectral BRDF table or GCMS raw file.  ``None``: the shipped virtual DS1 measurement of
-        ``virtual_material`` with the shipped Munsell N9 reference.
+        ``virtual`` with the shipped Munsell N9 reference (the vocabulary of :mod:`neuralbrdf.sources`).
     reference:
         Munsell N9 GCMS raw file for a GCMS raw ``path``; must be ``None`` for a table.
-    virtual_material:
+    virtual:
         Shipped stand-in used when ``path`` is ``None``: cyan, magenta, gold or gonio.
     test_split:
-        Which incident angles are held out, one of :data:`TEST_SPLITS` (module docstring).
+        Which incident angles are held out: ``auto`` (default: Table 5.1 on DS1, every third
+        measured angle on DS2/DS3, none on DS4), ``table_5_1``, ``every_third_theta_i`` or
+        ``none`` (:data:`TEST_SPLITS`, module docstring).
     batch_size:
         Training samples per step (drawn without replacement, reshuffled every epoch).
     eval_batch_size:
@@ -169,7 +171,7 @@ class MeasurementDataModule(pl.LightningDataModule):
         self,
         path: str | None = None,
         reference: str | None = None,
-        virtual_material: str = "gold",
+        virtual: str = "gold",
         test_split: Literal[TEST_SPLITS] = "auto",
         batch_size: int = 512,
         eval_batch_size: int | None = None,
@@ -182,7 +184,7 @@ class MeasurementDataModule(pl.LightningDataModule):
         if test_split not in TEST_SPLITS:
             raise InputError(f"test_split must be one of {', '.join(TEST_SPLITS)}, got {test_split!r}")
         if path is None:
-            path = str(default_data_path(virtual_material))
+            path = str(default_data_path(virtual))
             reference = str(default_data_path(REFERENCE_MATERIAL)) if reference is None else reference
         self.path = os.fspath(path)
         self.reference = None if reference is None else os.fspath(reference)

@@ -1,6 +1,6 @@
 """Auto-decoder pretraining of the NLB representation network (SPEC §4.2; Fan et al. 2022).
 
-The network weights (:class:`~neuralbrdf.models.nlb.NLBNetwork`) and one latent per corpus
+The network weights (:class:`~neuralbrdf.models.nlb.NlbNetwork`) and one latent per corpus
 material (:class:`~neuralbrdf.models.nlb.LatentTable`, all initialised to ``latent_init``) are
 optimised jointly on batches of :mod:`neuralbrdf.lightning.corpus_data`, as in Fan et al.: L1
 loss, Adam, learning rate ×0.9 per epoch (the optimiser and the scheduler come from the config).
@@ -11,10 +11,8 @@ the quantity of the hemisphere log-cosine RMSE (SPEC §5) and of Löw et al.'s f
 (report Eq. 4.2), so training and evaluation agree.  Over this corpus, whose values span
 10⁻⁴ to 10⁷ sr⁻¹ (sharp peaks, grazing ABC tails), the raw L1 does not train: its per-sample
 gradient through the output scales with the predicted value, so the few bright samples drive
-every update.  Measured with the compact network, learning rate 1e-2, 2400 steps of 8192
-samples: ``"log_cosine"`` reached ``val/logcos_rmse`` 0.065, ``"linear"`` stalled within the
-first epoch at 1.23, and latents fitted on it to eight MERL proxies (DS1, log-cosine fit)
-had a mean hemisphere log-cosine RMSE on the Löw et al. set of 0.056 against 0.026.  Both L1s are
+every update; the comparison that decided it is in ``benchmarks/README.md`` (design
+measurements).  Both L1s are
 logged on the validation batches (``val/l1_logcos``, ``val/l1_linear``) whichever is trained,
 with ``val/logcos_rmse`` (the SPEC §5 metric over the validation samples; under DDP the
 per-process mean squares are averaged, weighted by count).
@@ -36,49 +34,13 @@ from pytorch_lightning.cli import LRSchedulerCallable, OptimizerCallable
 
 from neuralbrdf import metrics
 from neuralbrdf.errors import InputError
-from neuralbrdf.lightning.checkpoint_io import check_weights_match, read_checkpoint
+from neuralbrdf.checkpoints import check_weights_match, read_checkpoint
 from neuralbrdf.lightning.corpus_data import CorpusSamples
-from neuralbrdf.losses import l1_loss
-from neuralbrdf.models.nlb import COMPACT, LatentTable, NLBConfig, NLBNetwork
+from neuralbrdf.lightning.common import scheduled_optimizer
+from neuralbrdf.losses import check_loss_domain, nlb_loss
+from neuralbrdf.models.nlb import COMPACT, LatentTable, NlbConfig, NlbNetwork
 
-LOSS_DOMAINS = ("log_cosine", "linear")
-
-
-def log_cosine(f: torch.Tensor, cos_theta_i: torch.Tensor) -> torch.Tensor:
-    """``ln(1 + f cos θi)`` of RGB values ``[N, 3]`` with per-sample cosines ``[N]``."""
-    return torch.log1p(f * cos_theta_i.clamp(min=0.0)[:, None])
-
-
-def check_loss_domain(domain: str, column: str = "loss_domain") -> str:
-    """``domain`` if it is one of :data:`LOSS_DOMAINS`, else :class:`InputError` naming ``column``."""
-    if domain not in LOSS_DOMAINS:
-        raise InputError(f"unknown loss domain {domain!r}; expected one of {', '.join(LOSS_DOMAINS)}", column=column)
-    return domain
-
-
-def nlb_loss(pred: torch.Tensor, target: torch.Tensor, wi: torch.Tensor, domain: str) -> torch.Tensor:
-    """L1 loss of RGB BRDF values in ``domain``: ``"log_cosine"`` or ``"linear"`` (module docstring)."""
-    if check_loss_domain(domain) == "linear":
-        return l1_loss(pred, target)
-    cos_i = wi[:, 2]
-    return l1_loss(log_cosine(pred, cos_i), log_cosine(target, cos_i))
-
-
-def scheduled_optimizer(groups, optimizer, lr_scheduler, interval: str):
-    """Optimiser over parameter ``groups`` ``[(parameters, lr_scale), ...]`` and its scheduler.
-
-    ``optimizer`` and ``lr_scheduler`` are the config's factories; each group's learning rate is
-    the configured one times its ``lr_scale``.  The scheduler steps every ``interval``.
-    """
-    opt = optimizer([{"params": list(params)} for params, _ in groups])
-    for group, (_, scale) in zip(opt.param_groups, groups):
-        group["lr"] *= scale
-    if lr_scheduler is None:
-        return opt
-    return {"optimizer": opt, "lr_scheduler": {"scheduler": lr_scheduler(opt), "interval": interval}}
-
-
-class NLBPretrainModule(pl.LightningModule):
+class NlbPretrainModule(pl.LightningModule):
     """Joint training of the NLB network and the corpus latents (module docstring).
 
     Parameters
@@ -86,7 +48,7 @@ class NLBPretrainModule(pl.LightningModule):
     n_materials:
         Rows of the latent table; must equal the data module's corpus size.
     latent_dim, width, depth, residual, half_vector:
-        The network's architecture (:class:`~neuralbrdf.models.nlb.NLBConfig`).
+        The network's architecture (:class:`~neuralbrdf.models.nlb.NlbConfig`).
     latent_init:
         Constant every latent starts from (Fan et al.).
     latent_lr_scale:
@@ -121,7 +83,7 @@ class NLBPretrainModule(pl.LightningModule):
         if not latent_lr_scale > 0:
             raise InputError(f"must be positive, got {latent_lr_scale}", column="latent_lr_scale")
         self.save_hyperparameters(ignore=["optimizer", "lr_scheduler"])
-        self.network = NLBNetwork(latent_dim, width, depth, residual, half_vector)
+        self.network = NlbNetwork(latent_dim, width, depth, residual, half_vector)
         self.latents = LatentTable(n_materials, latent_dim, latent_init)
         self.optimizer_factory = optimizer
         self.lr_scheduler_factory = lr_scheduler
@@ -193,14 +155,14 @@ class NLBPretrainModule(pl.LightningModule):
 
 
 @dataclass(frozen=True)
-class PretrainedNLB:
+class PretrainedNlb:
     """A pretrained NLB: the ``network`` (eval mode) and its corpus ``latents`` ``[M, latent_dim]``.
 
     ``names`` label the latents (``analytic:<i>``, ``merl:<name>``); empty for checkpoints
     written before the names were stored.
     """
 
-    network: NLBNetwork
+    network: NlbNetwork
     latents: torch.Tensor
     source: str
     names: tuple[str, ...] = ()
@@ -211,8 +173,8 @@ class PretrainedNLB:
         return self.latents.mean(0)
 
 
-def load_pretrained(path: str | os.PathLike[str]) -> PretrainedNLB:
-    """Network and latents of an :class:`NLBPretrainModule` checkpoint (``.ckpt``).
+def load_pretrained(path: str | os.PathLike[str]) -> PretrainedNlb:
+    """Network and latents of an :class:`NlbPretrainModule` checkpoint (``.ckpt``).
 
     Raises :class:`InputError` when the file is missing or is not such a checkpoint.
     """
@@ -223,13 +185,13 @@ def load_pretrained(path: str | os.PathLike[str]) -> PretrainedNLB:
     hparams = checkpoint["hyper_parameters"]
     state = checkpoint["state_dict"]
     try:
-        config = NLBConfig(*(hparams[k] for k in ("latent_dim", "width", "depth", "residual", "half_vector")))
+        config = NlbConfig(*(hparams[k] for k in ("latent_dim", "width", "depth", "residual", "half_vector")))
         latents = state["latents.latents"].float()
     except KeyError as exc:
         raise InputError(f"not an NLB pretraining checkpoint: missing {exc.args[0]!r}", path=path) from None
     prefix = "network."
-    check_weights_match(lambda: NLBNetwork(**asdict(config)), state, path, prefix)
-    network = NLBNetwork(**asdict(config))
+    check_weights_match(lambda: NlbNetwork(**asdict(config)), state, path, prefix)
+    network = NlbNetwork(**asdict(config))
     try:
         network.load_state_dict({k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)})
     except RuntimeError as exc:
@@ -238,4 +200,4 @@ def load_pretrained(path: str | os.PathLike[str]) -> PretrainedNLB:
     names = tuple(str(n) for n in checkpoint.get("material_names", ()))
     if names and len(names) != len(latents):
         raise InputError(f"{len(names)} material names for {len(latents)} latents", path=path)
-    return PretrainedNLB(network, latents, str(path), names)
+    return PretrainedNlb(network, latents, str(path), names)

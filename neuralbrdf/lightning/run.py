@@ -1,6 +1,7 @@
 """Training runs: the ``train.py`` command line, its run directory and ``metrics.json``.
 
-``python train.py fit|validate|test --config configs/X.yaml [--key value ...]`` is a
+``neuralbrdf train fit|validate|test --config X [--key value ...]`` (or ``python train.py …``;
+``X`` a shipped config's name or any YAML file, :mod:`neuralbrdf.configs_dir`) is a
 :class:`~pytorch_lightning.cli.LightningCLI` in subclass mode: the model and the data module are
 named by ``class_path`` in the YAML, so every model kind (spectral MLP, ABC, NLB) trains through
 the same entry point; any option can be overridden on the command line (``--data.path FILE``,
@@ -49,6 +50,7 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 import math
 import os
 import shutil
@@ -70,7 +72,9 @@ from pytorch_lightning.plugins.io import TorchCheckpointIO
 from neuralbrdf.atomic import TEMP_MARKER, atomic_path, atomic_write, command_inputs
 from neuralbrdf.errors import InputError
 from neuralbrdf.errors import one_line
-from neuralbrdf.lightning.checkpoint_io import read_checkpoint
+from neuralbrdf.checkpoints import read_checkpoint
+from neuralbrdf.configs_dir import resolve_config
+from neuralbrdf.lightning.train_help import help_text
 
 METRICS_FILE = "metrics.json"
 RUNS_ROOT = Path("runs")
@@ -500,14 +504,17 @@ def _input_error(exc: BaseException) -> InputError | None:
     return None
 
 
-def _check_config_files(args: list[str]) -> None:
-    """Every ``--config FILE`` must be a readable UTF-8 text file (jsonargparse shows a traceback
-    for a binary one)."""
+def _resolve_config_files(args: list[str]) -> list[str]:
+    """``args`` with each ``--config NAME`` of a shipped config replaced by its file
+    (:func:`~neuralbrdf.configs_dir.resolve_config`); every config must be a readable UTF-8 text
+    file (jsonargparse shows a traceback for a binary one)."""
+    args = list(args)
     for k, arg in enumerate(args):
         if arg == "--config" and k + 1 < len(args):
-            path = args[k + 1]
+            args[k + 1] = path = str(resolve_config(args[k + 1]))
         elif arg.startswith("--config="):
-            path = arg.split("=", 1)[1]
+            path = str(resolve_config(arg.split("=", 1)[1]))
+            args[k] = f"--config={path}"
         else:
             continue
         try:
@@ -518,6 +525,34 @@ def _check_config_files(args: list[str]) -> None:
             raise InputError(f"not a YAML configuration: not UTF-8 text ({error.reason} at byte {error.start})", path=path) from None
         except OSError as error:
             raise InputError(f"cannot read the configuration ({error.strerror or error})", path=path) from None
+    return args
+
+
+def _quiet() -> None:
+    """Lightning's start-up lines (GPU/TPU/HPU available, tips) and library deprecation notices off."""
+    for name in ("pytorch_lightning", "lightning", "lightning_fabric", "lightning.pytorch"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+    warnings.filterwarnings("ignore", category=DeprecationWarning)
+    warnings.filterwarnings("ignore", category=FutureWarning)
+    warnings.filterwarnings("ignore", message=r".*(smaller than the logging interval|LeafSpec).*")
+
+
+def _summary(cli: NeuralBrdfCLI) -> str:
+    """Where a finished run is, its fit metrics and how to export it."""
+    lines = [f"run: {cli.run_dir}"]
+    path = cli.run_dir / METRICS_FILE
+    metrics = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {}
+    shown = [(k, v) for k, v in sorted(metrics.items()) if isinstance(v, float) and k.startswith(
+        ("fit/inplane", "fit/hemisphere", "fit/val/", "test/", "validate/", "fit/materials/"))]
+    if shown:
+        lines.append("metrics: " + ", ".join(f"{k} {v:.4g}" for k, v in shown[:12])
+                     + (f" (+{len(shown) - 12} more in {path})" if len(shown) > 12 else ""))
+    checkpoints = sorted((cli.run_dir / "checkpoints").glob("*.ckpt")) if cli.subcommand == "fit" else []
+    best = next((c for c in checkpoints if c.stem in ("best", "fitted")), None)
+    if best is not None:
+        lines.append(f"checkpoint: {best}")
+        lines.append(f"export: neuralbrdf export --ckpt {best} --out MODEL.onnx")
+    return "\n".join(lines)
 
 
 def main(args: list[str] | None = None) -> int:
@@ -529,12 +564,23 @@ def main(args: list[str] | None = None) -> int:
     # validate/test restore a checkpoint whose ModelCheckpoint state names the fit's folder; the
     # evaluation stages write no checkpoints, so the "dirpath has changed" notice is noise.
     warnings.filterwarnings("ignore", message=r"The dirpath has changed from")
+    # ``args`` is always given (config names resolved), also when run from train.py's command line.
+    warnings.filterwarnings("ignore", message=r"LightningCLI's args parameter is intended")
     # The ABC fit runs its own bounded optimiser (SciPy), not a torch one.
     warnings.filterwarnings("ignore", message=r".*configure_optimizers` returned `None`")
+    args = sys.argv[1:] if args is None else list(args)
+    if not args or args[0] in ("-h", "--help"):
+        print(help_text())
+        return 0
+    verbose = "--verbose" in args
+    args = [arg for arg in args if arg != "--verbose"]
     try:
-        _check_config_files(sys.argv[1:] if args is None else args)
-        with command_inputs():
-            NeuralBrdfCLI(args=args)
+        with warnings.catch_warnings():
+            if not verbose:
+                _quiet()
+            args = _resolve_config_files(args)
+            with command_inputs():
+                cli = NeuralBrdfCLI(args=args)
     except FitFailed as failure:
         print(f"error: fit failed: {failure}", file=sys.stderr)
         return 1
@@ -548,4 +594,6 @@ def main(args: list[str] | None = None) -> int:
             raise
         print(f"error: {error}", file=sys.stderr)
         return 2
+    if cli.subcommand is not None and cli.run_dir is not None:
+        print(_summary(cli), file=sys.stderr)
     return 0

@@ -44,6 +44,7 @@ from pytorch_lightning.cli import LRSchedulerCallable, OptimizerCallable
 
 from neuralbrdf import metrics
 from neuralbrdf.errors import InputError
+from neuralbrdf.lightning.common import WritesKind, scheduled_optimizer
 from neuralbrdf.lightning.measurement_data import SpectralSamples, flatten_samples
 from neuralbrdf.losses import ANGLE_UNITS, RESIDUALS, exp_weighted_loss
 from neuralbrdf.models.spectral_mlp import Activation, OutputActivation, SpectralMLP
@@ -52,33 +53,7 @@ from neuralbrdf.models.spectral_mlp import Activation, OutputActivation, Spectra
 TRAINING_HEMISPHERE_STRATA = (8, 10)
 
 
-def glossy_relative_rmse(samples: SpectralSamples, pred: torch.Tensor, floor: float) -> dict[str, float]:
-    """``rel_rmse_glossy``, ``rel_rmse_glossy_median`` and ``rel_rmse_excluded`` of flat samples.
-
-    The samples (any order) are pivoted by ``pair_index`` and wavelength to a ``[direction
-    pairs, wavelengths]`` table, the layout :mod:`neuralbrdf.metrics` expects; every pair must
-    carry every wavelength.
-    """
-    theta_i, theta_r, wavelength, target = (column.detach().cpu().double().numpy() for column in samples[:4])
-    pairs, first, row = np.unique(samples.pair_index.cpu().numpy(), return_index=True, return_inverse=True)
-    wavelengths, column = np.unique(wavelength, return_inverse=True)
-    shape = (len(pairs), len(wavelengths))
-    if len(target) != shape[0] * shape[1]:
-        raise ValueError(f"{len(target)} samples do not fill {shape[0]} direction pairs × {shape[1]} wavelengths")
-    table_pred, table_target = np.full(shape, np.nan), np.full(shape, np.nan)
-    table_pred[row, column] = pred.detach().cpu().double().numpy()
-    table_target[row, column] = target
-    arguments = (table_pred, table_target, theta_i[first], theta_r[first], floor)
-    overall = metrics.relative_rmse(*arguments)
-    by_angle = metrics.relative_rmse_by_channel(*arguments)
-    return {
-        "rel_rmse_glossy": overall.value,
-        "rel_rmse_glossy_median": float(np.nanmedian(by_angle.per_theta_i)),
-        "rel_rmse_excluded": float(overall.n_excluded),
-    }
-
-
-class SpectralMlpModule(pl.LightningModule):
+class SpectralMlpModule(WritesKind, pl.LightningModule):
     """Fits a :class:`~neuralbrdf.models.spectral_mlp.SpectralMLP` with an Eq. 5.1-weighted loss.
 
     Parameters
@@ -99,6 +74,8 @@ class SpectralMlpModule(pl.LightningModule):
         Factories called with the parameters and the optimiser (config ``class_path`` entries);
         the scheduler steps once per epoch.
     """
+
+    KIND = "spectral_mlp"
 
     def __init__(
         self,
@@ -139,10 +116,6 @@ class SpectralMlpModule(pl.LightningModule):
     def forward(self, theta_i_deg, theta_r_deg, wavelength_nm):
         return self.network(theta_i_deg, theta_r_deg, wavelength_nm)
 
-    def on_save_checkpoint(self, checkpoint: dict) -> None:
-        # Read by export/to_onnx.py to pick the exporter (SPEC §6 kinds).
-        checkpoint["neuralbrdf_kind"] = "spectral_mlp"
-
     def _loss(self, batch: SpectralSamples) -> tuple[torch.Tensor, torch.Tensor]:
         pred = self.network(batch.theta_i_deg, batch.theta_r_deg, batch.wavelength_nm)
         h = self.hparams
@@ -166,7 +139,7 @@ class SpectralMlpModule(pl.LightningModule):
         samples = SpectralSamples(*(torch.cat(c) for c in zip(*(batch for batch, _ in self._evaluated))))
         pred = torch.cat([p for _, p in self._evaluated])
         self._evaluated.clear()
-        for name, value in glossy_relative_rmse(samples, pred, self.hparams.rel_rmse_floor).items():
+        for name, value in metrics.glossy_relative_rmse_of_samples(samples, pred, self.hparams.rel_rmse_floor).items():
             self.log(f"{split}/{name}", value)
 
     def validation_step(self, batch: SpectralSamples, batch_idx: int) -> None:
@@ -205,15 +178,11 @@ class SpectralMlpModule(pl.LightningModule):
             pred = network(samples.theta_i_deg, samples.theta_r_deg, samples.wavelength_nm).numpy().reshape(len(theta_i), -1)
         scores = fit_scores(pred.astype(np.float64), table.values, theta_i, theta_r)
         if datamodule.hparams.path is None:
-            truth = load_truth(f"virtual:{datamodule.hparams.virtual_material}")
+            truth = load_truth(f"virtual:{datamodule.hparams.virtual}")
             hemisphere = hemisphere_scores(TorchEvaluator(SpectralMlpOnDirections(network), True),
                                            TorchEvaluator(truth.module, True), strata=TRAINING_HEMISPHERE_STRATA)
             scores["hemisphere_logcos_rmse"] = hemisphere["hemisphere_logcos_rmse"]
         return scores
 
     def configure_optimizers(self):
-        optimizer = self.optimizer_factory(self.parameters())
-        if self.lr_scheduler_factory is None:
-            return optimizer
-        scheduler = self.lr_scheduler_factory(optimizer)
-        return {"optimizer": optimizer, "lr_scheduler": {"scheduler": scheduler, "interval": "epoch"}}
+        return scheduled_optimizer([(self.parameters(), 1.0)], self.optimizer_factory, self.lr_scheduler_factory, "epoch")

@@ -47,10 +47,11 @@ from neuralbrdf.atomic import atomic_paths
 from neuralbrdf.errors import InputError
 from neuralbrdf.evaluation.scores import OnnxEvaluator, hemisphere_scores
 from neuralbrdf.fitting.abc_fit import fit_abc
+from neuralbrdf.kinds import Exportable, load_model
+from neuralbrdf.kinds import abc as abc_kind
 from neuralbrdf.lod.distill import ABC_WAVELENGTHS_NM, DistillSettings, abc_table, distill_spectral_mlp, teacher_samples
-from neuralbrdf.models.directional import AbcOnDirections
-from neuralbrdf.onnx_export import Exportable, write_model
-from neuralbrdf.render.onnx_contract import AbcMetadata, contract_metadata, load_model
+from neuralbrdf.onnx_contract import contract_metadata
+from neuralbrdf.onnx_export import write_model
 
 LADDER_FILE = "ladder.json"
 LADDER_FORMAT = "neuralbrdf.ladder/1"
@@ -93,13 +94,7 @@ def _abc_rung(parent: OnnxEvaluator, settings: LadderSettings, provenance: str) 
     result = fit_abc(table, n_starts=settings.abc_starts, seed=settings.seed)
     if not result.success:
         raise ValueError(f"ABC fit failed: {result.failure_reason}")
-    parameters = result.parameters
-    module = AbcOnDirections(parameters)
-    wavelength_range = module.wavelength_range_nm if module.is_spectral else None
-    abc = AbcMetadata(kd=tuple(parameters.kd.tolist()), A=tuple(parameters.A.tolist()),
-                      B=parameters.B, C=parameters.C, eta=parameters.eta)
-    metadata = contract_metadata("abc", model.material, provenance, wavelength_range_nm=wavelength_range, abc=abc)
-    return Exportable(module, "abc", model.material, metadata, wavelength_range)
+    return abc_kind.exportable(result.parameters, model.material, provenance)
 
 
 def _student_rung(samples, layers: int, hidden: int, parent: OnnxEvaluator, settings: LadderSettings,

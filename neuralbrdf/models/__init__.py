@@ -1,5 +1,3 @@
-"""BRDF models (SPEC §4): the ABC microfacet model (:mod:`neuralbrdf.models.abc`)."""
-
-from neuralbrdf.models.abc import ABCModel, ABCParameters, abc_brdf, load_low2012_parameters
-
-__all__ = ["ABCModel", "ABCParameters", "abc_brdf", "load_low2012_parameters"]
+"""BRDF models as plain ``nn.Module``\\ s (SPEC §4): the spectral MLP (:mod:`~neuralbrdf.models.spectral_mlp`),
+the NLB network (:mod:`~neuralbrdf.models.nlb`) and every model on directions
+(:mod:`~neuralbrdf.models.directional`); the ABC formula is :mod:`neuralbrdf.physics.abc`."""

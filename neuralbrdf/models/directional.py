@@ -29,8 +29,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from neuralbrdf.models.abc import ABCParameters, abc_brdf
-from neuralbrdf.models.nlb import NLBNetwork, above_horizon
+from neuralbrdf.physics.abc import AbcParameters, abc_brdf
+from neuralbrdf.models.nlb import NlbNetwork, above_horizon
 from neuralbrdf.models.spectral_mlp import SpectralMLP
 
 #: Range (degrees) the in-plane equivalent angles are clamped to before the spectral MLP sees
@@ -96,15 +96,15 @@ class SpectralMlpOnDirections(nn.Module):
 
 
 class NlbWithLatent(nn.Module):
-    """``f(wi, wo)`` ``[N, 3]`` (linear sRGB) of an :class:`NLBNetwork` with a fixed latent.
+    """``f(wi, wo)`` ``[N, 3]`` (linear sRGB) of an :class:`NlbNetwork` with a fixed latent.
 
     ``latent`` (``[latent_dim]``) is copied into a buffer.  It is folded into the input layer's
-    bias (:meth:`NLBNetwork.split_input_layer`), so the traced graph spends no multiply-adds on
+    bias (:meth:`NlbNetwork.split_input_layer`), so the traced graph spends no multiply-adds on
     it (``latent_dim × width`` fewer per query); the rest of the network is used as it is (its
     own horizon mask and output activation).
     """
 
-    def __init__(self, network: NLBNetwork, latent: torch.Tensor) -> None:
+    def __init__(self, network: NlbNetwork, latent: torch.Tensor) -> None:
         super().__init__()
         latent = torch.as_tensor(latent, dtype=torch.float32).detach().reshape(-1)
         if latent.numel() != network.latent_dim:
@@ -157,7 +157,7 @@ class AbcOnDirections(nn.Module):
     linearly between the parameter wavelengths (clamped to their range, :class:`LinearInWavelength`).
     """
 
-    def __init__(self, parameters: ABCParameters) -> None:
+    def __init__(self, parameters: AbcParameters) -> None:
         super().__init__()
         self.B, self.C, self.eta = parameters.B, parameters.C, parameters.eta
         self.register_buffer("kd", torch.as_tensor(parameters.kd, dtype=torch.float32))

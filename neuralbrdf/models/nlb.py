@@ -62,8 +62,8 @@ _HALF_EPS = 1e-12
 
 
 @dataclass(frozen=True)
-class NLBConfig:
-    """Architecture of an :class:`NLBNetwork`.
+class NlbConfig:
+    """Architecture of an :class:`NlbNetwork`.
 
     Attributes
     ----------
@@ -99,12 +99,12 @@ class NLBConfig:
 
 #: Default for CPU rendering (SPEC §4.2: the paper size is far too slow on CPU): 48 wide, 3
 #: layers, ~6 k weights; 5184 multiply-adds per query with the latent folded into the input bias
-#: (:meth:`NLBNetwork.split_input_layer`).  Chosen by held-out error against evaluation cost
+#: (:meth:`NlbNetwork.split_input_layer`).  Chosen by held-out error against evaluation cost
 #: among 32×4, 32×5, 48×3 and 64×4 (README, "NLB network size").
-COMPACT = NLBConfig(latent_dim=16, width=48, depth=3, residual=False, half_vector=True)
+COMPACT = NlbConfig(latent_dim=16, width=48, depth=3, residual=False, half_vector=True)
 #: Fan et al. (2022): 256 wide, an input layer then 16 residual layers (~1.06 M weights),
 #: Cartesian directions only.
-PAPER = NLBConfig(latent_dim=32, width=256, depth=17, residual=True, half_vector=False)
+PAPER = NlbConfig(latent_dim=32, width=256, depth=17, residual=True, half_vector=False)
 
 
 def above_horizon(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
@@ -112,11 +112,11 @@ def above_horizon(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
     return (wi[..., 2] > 0) & (wo[..., 2] > 0)
 
 
-class NLBNetwork(nn.Module):
+class NlbNetwork(nn.Module):
     """``g1(wi, wo, V) -> f``: RGB BRDF in sr⁻¹ from directions and a material latent.
 
-    Parameters mirror :class:`NLBConfig` (keyword arguments, so a YAML ``init_args`` block or
-    ``NLBNetwork(**dataclasses.asdict(config))`` both work).
+    Parameters mirror :class:`NlbConfig` (keyword arguments, so a YAML ``init_args`` block or
+    ``NlbNetwork(**dataclasses.asdict(config))`` both work).
     """
 
     def __init__(
@@ -128,7 +128,7 @@ class NLBNetwork(nn.Module):
         half_vector: bool = COMPACT.half_vector,
     ) -> None:
         super().__init__()
-        self.config = NLBConfig(latent_dim, width, depth, residual, half_vector)
+        self.config = NlbConfig(latent_dim, width, depth, residual, half_vector)
         self.input_layer = nn.Linear(self.config.direction_features + latent_dim, width)
         self.hidden_layers = nn.ModuleList(nn.Linear(width, width) for _ in range(depth - 1))
         self.output_layer = nn.Linear(width, 3)

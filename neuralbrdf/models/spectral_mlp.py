@@ -12,15 +12,12 @@ Choices the report leaves open (SPEC §4.4), each a constructor argument:
   (:data:`neuralbrdf.data.calibration.CALIBRATED_WAVELENGTHS_NM`).  The constants are buffers,
   so they travel in ``state_dict``, checkpoints and an exported graph; they do not depend on
   the training data, so a model is usable without it.
-* **Hidden activation** ``tanh`` by default.  Compared on the shipped virtual gold and gonio
-  measurements (DS1, Table 5.1 split, Eq. 5.1 loss, ``configs/spectral_mlp_paper.yaml``, 30 epochs,
-  seeds 0–4), the best-checkpoint median glossy relative RMSE was, tanh: gold 0.018–0.020,
-  gonio 0.040–0.062; SiLU: gold 0.017–0.018, gonio 0.029–0.131 (one seed failed); ReLU (seeds
-  0–2): gold 0.05–0.13, gonio ≈ 0.20 — a 3×10 ReLU net has too few linear pieces for the
-  specular peak across wavelengths.  Tanh is the most reliable across seeds.
+* **Hidden activation** ``tanh`` by default: the most reliable across seeds in the comparison
+  of ``benchmarks/README.md`` (design measurements); a 3×10 ReLU net has too few linear pieces
+  for the specular peak across wavelengths.
 * **Output activation** ``softplus`` by default (``exp`` available): both keep the BRDF
-  non-negative; with ``exp`` the same comparison gave gonio 0.073–0.094 (tanh, seeds 0–2),
-  since the MSE gradient is multiplied by the (large) prediction near the peak.
+  non-negative; ``exp`` fitted worse in the same comparison, since the MSE gradient is
+  multiplied by the (large) prediction near the peak.
 """
 
 from __future__ import annotations
@@ -113,7 +110,7 @@ class SpectralMLP(nn.Module):
     def normalise(self, theta_i_deg: torch.Tensor, theta_r_deg: torch.Tensor, wavelength_nm: torch.Tensor):
         """Network input ``[N, 3]``: each of the ``[N]`` inputs mapped linearly onto [-1, 1]."""
         # Column by column, so that an exported graph does scalar arithmetic on [N] tensors
-        # (onnxruntime's broadcast of [N, 3] against [3] is ten times slower; same values).
+        # (onnxruntime broadcasts [N, 3] against [3] far slower; same values).
         columns = (theta_i_deg, theta_r_deg, wavelength_nm)
         return torch.stack(
             [(x - self.input_center[k]) / self.input_half_width[k] for k, x in enumerate(columns)], dim=-1
@@ -123,5 +120,5 @@ class SpectralMLP(nn.Module):
         """BRDF ``[N]`` in sr⁻¹ (>= 0) at signed in-plane angles (degrees) and wavelengths (nm)."""
         features = self.normalise(theta_i_deg, theta_r_deg, wavelength_nm)
         # Squeezed before the output activation: its ops then run on [N], not [N, 1] (same values;
-        # onnxruntime broadcasts scalars against [N, 1] ten times slower).
+        # onnxruntime broadcasts scalars against [N, 1] far slower).
         return OUTPUTS[self.output_activation](self.layers(features).squeeze(-1))

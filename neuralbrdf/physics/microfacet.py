@@ -71,11 +71,6 @@ def ggx_smith_g1(cos_theta, alpha):
     return xp.where(positive, g1, xp.zeros_like(g1))
 
 
-def ggx_smith_g2(cos_theta_i, cos_theta_o, alpha):
-    """Separable Smith shadowing–masking ``G2 = G1(wi) G1(wo)`` for GGX."""
-    return ggx_smith_g1(cos_theta_i, alpha) * ggx_smith_g1(cos_theta_o, alpha)
-
-
 def beckmann_smith_g1(cos_theta, alpha):
     """Exact Smith masking of the Beckmann distribution (Walter et al. 2007 Eq. 24).
 

@@ -1,19 +1,18 @@
-"""Rendering of exported models: the ONNX contract (SPEC §6) and the Mitsuba 3 BSDF (SPEC §7).
+"""Rendering of exported models in Mitsuba 3 (SPEC §7); the file contract is :mod:`neuralbrdf.onnx_contract`.
 
-* :mod:`~neuralbrdf.render.onnx_contract` — what an exported ``.onnx`` file must hold, checked
-  by :func:`load_model` at scene load;
 * :mod:`~neuralbrdf.render.drjit_onnx` — the graph evaluated as Dr.Jit arithmetic (``drjit``
   backend);
-* :mod:`~neuralbrdf.render.sampling` — the cosine + glossy-lobe proposal and its fit;
+* :mod:`~neuralbrdf.render.sampling` — the cosine + glossy-lobe proposals and their fit;
 * :mod:`~neuralbrdf.render.mitsuba_bsdf` — the ``neuralbrdf`` BSDF plugin; call
-  :func:`register` after ``mi.set_variant``.
+  :func:`register` after ``mi.set_variant``;
+* :mod:`~neuralbrdf.render.preview` — scenes, variants and renders (``neuralbrdf render``).
 """
 
 import importlib
 
-#: Public names -> the submodule defining them, imported on first use: checking or exporting a
-#: file must not load Mitsuba and Dr.Jit (seconds), which only the BSDF plugin needs.
-_LAZY = {"OnnxModel": "onnx_contract", "load_model": "onnx_contract", "register": "mitsuba_bsdf"}
+#: Public names -> the submodule defining them, imported on first use: importing this package
+#: must not load Mitsuba and Dr.Jit (seconds), which only the BSDF plugin needs.
+_LAZY = {"register": "mitsuba_bsdf"}
 
 __all__ = sorted(_LAZY)
 

@@ -39,8 +39,8 @@ operator and the node; so are shape errors, found by a trial evaluation on one s
 Elementwise semantics follow onnxruntime's CPU kernels where they differ from the textbook
 formula (``Softplus`` and ``Sigmoid`` in their overflow-safe forms).  ``Tanh`` is the 13/6-degree
 rational interpolant on [-9, 9] that onnxruntime's MLAS library (``MlasComputeTanh``) and Eigen
-(``generic_fast_tanh_float``) evaluate — a few float32 ulp from tanh and 1.7× cheaper inside a
-kernel than Dr.Jit's ``dr.tanh``, which matters because the spectral MLP's 30 activations are
+(``generic_fast_tanh_float``) evaluate — a few float32 ulp from tanh and cheaper inside a
+kernel than Dr.Jit's ``dr.tanh`` (``benchmarks/README.md``, design measurements), which matters because the spectral MLP's 30 activations are
 most of its cost.
 """
 
@@ -58,7 +58,7 @@ import onnx
 from onnx import helper, numpy_helper
 
 from neuralbrdf.errors import InputError
-from neuralbrdf.render.onnx_contract import (
+from neuralbrdf.onnx_contract import (
     INPUT_WAVELENGTH,
     INPUT_WI,
     INPUT_WO,
@@ -865,7 +865,7 @@ class DrJitGraph:
     ----------
     proto:
         The model; the contract of SPEC §6 is assumed
-        (:func:`~neuralbrdf.render.onnx_contract.load_model` checks it).
+        (:func:`~neuralbrdf.onnx_contract.load_model` checks it).
     source:
         File name used in error messages.
 

@@ -12,7 +12,7 @@ Properties
 ----------
 ``filename``
     The ``.onnx`` model (resolved through Mitsuba's file resolver, so relative to the scene file).
-    It is validated (:func:`~neuralbrdf.render.onnx_contract.load_model`) when the scene loads.
+    It is validated (:func:`neuralbrdf.kinds.load_model`) when the scene loads.
 ``backend``
     ``drjit`` (default): the graph is interpreted as Dr.Jit arithmetic
     (:mod:`~neuralbrdf.render.drjit_onnx`) and fuses into the render kernel; works in Mitsuba's
@@ -68,9 +68,10 @@ own spectra (:mod:`~neuralbrdf.render.spectral_quadrature`, held-out rms relativ
 ``to_string`` reports the rule and its error), evaluated unrolled in the drjit backend and as
 one stacked run in onnxruntime.
 
-The sampling proposal is fitted when the scene loads, by probing the model with onnxruntime
-(:func:`~neuralbrdf.render.sampling.fit_neural_mixture`; ABC models keep their analytic lobe,
-:func:`~neuralbrdf.render.sampling.fit_abc_mixture`).
+The sampling proposal named by the model's kind (:attr:`neuralbrdf.kinds.Kind.proposal`) is
+fitted when the scene loads, probing the model with onnxruntime: a GGX mixture
+fitted to it for the neural kinds (:func:`~neuralbrdf.render.sampling.fit_neural_mixture`), the
+analytic lobe for ABC (:func:`~neuralbrdf.render.sampling.fit_abc_mixture`).
 """
 
 from __future__ import annotations
@@ -84,24 +85,19 @@ import numpy as np
 import onnxruntime
 
 from neuralbrdf.data.colorimetry import XYZ_TO_LINEAR_SRGB, xyz_weights
+from neuralbrdf import kinds
 from neuralbrdf.errors import InputError
 from neuralbrdf.limits import DRJIT_MAX_MULTIPLY_ADDS
 from neuralbrdf.render.drjit_onnx import DrJitGraph
-from neuralbrdf.render.onnx_contract import (
+from neuralbrdf.onnx_contract import (
     INPUT_WAVELENGTH,
     INPUT_WI,
     INPUT_WO,
     OUTPUT_F,
     OnnxModel,
-    load_model,
     matrix_multiply_adds,
 )
-from neuralbrdf.render.sampling import (
-    LobeMixture,
-    fit_abc_mixture,
-    fit_neural_mixture,
-    probe_direction_pairs,
-)
+from neuralbrdf.render.sampling import LobeMixture, fit_proposal, probe_direction_pairs
 from neuralbrdf.render.spectral_quadrature import (
     DEFAULT_RMS_TOLERANCE,
     ReducedQuadrature,
@@ -171,7 +167,7 @@ def reset_clamped_values() -> None:
 def _nonnegative(columns: list) -> list:
     """``columns`` with negative and non-finite values set to 0; lanes with any such value are
     counted (:func:`clamped_values`).  The load-time probe of
-    :func:`~neuralbrdf.render.onnx_contract.load_model` refuses models it finds negative; this
+    :func:`~neuralbrdf.onnx_contract.load_model` refuses models it finds negative; this
     guarantees that no negative radiance reaches an image where the probe did not look."""
     out, bad = [], None
     for column in columns:
@@ -219,7 +215,7 @@ def _lane_count(*arrays) -> int:
 
 def _rows(vector: mi.Vector3f, n: int, copies: int = 1) -> np.ndarray:
     """``[copies · n, 3]`` float32 rows of a Dr.Jit 3-vector, the ``n`` lanes repeated ``copies``
-    times (a width-1 vector broadcast); interleaved and tiled by Dr.Jit in one kernel, 3× faster
+    times (a width-1 vector broadcast); interleaved and tiled by Dr.Jit in one kernel, faster
     than transposing and tiling in NumPy."""
     if dr.width(vector) != n:
         vector = vector + dr.zeros(mi.Vector3f, n)
@@ -315,7 +311,7 @@ class _DrJitBackend:
 def _session(path: Path) -> onnxruntime.InferenceSession:
     """A CPU session whose threads sleep between runs instead of spinning: in wavefront mode
     Dr.Jit's kernels run between the calls, and spinning threads would compete with them
-    (a spectral preview rendered 19 % slower with onnxruntime's default)."""
+    (``benchmarks/README.md``, design measurements)."""
     options = onnxruntime.SessionOptions()
     options.add_session_config_entry("session.intra_op.allow_spinning", "0")
     return onnxruntime.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
@@ -486,10 +482,11 @@ def _file_identity(path: Path) -> tuple:
 
 
 def validated_model(path: Path) -> OnnxModel:
-    """:func:`load_model` of ``path``, reused while the file is unchanged (same size, time, inode)."""
+    """:func:`neuralbrdf.kinds.load_model` of ``path``, reused while the file is unchanged (same size,
+    time, inode)."""
     key = ("model", _file_identity(path))
     if key not in _LOAD_TIME_CACHE:
-        _remember(key, load_model(path))
+        _remember(key, kinds.load_model(path))
     return _LOAD_TIME_CACHE[key]
 
 
@@ -509,7 +506,7 @@ def _load_time_work(path: Path, rgb_tolerance: float) -> tuple[OnnxModel, LobeMi
         model = validated_model(path)
         session = _session(path)
         probe = _probe_function(model, session)
-        mixture = fit_abc_mixture(probe, model.abc) if model.abc is not None else fit_neural_mixture(probe)
+        mixture = fit_proposal(kinds.get(model.kind).proposal, probe, model.details)
         rgb_rule = fit_rgb_rule(model, session, rgb_tolerance) if model.is_spectral and spectral_to_rgb else None
         _remember(key, (model, mixture, rgb_rule))
     return _LOAD_TIME_CACHE[key]

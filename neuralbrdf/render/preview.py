@@ -164,7 +164,7 @@ class Material:
 def load_scene(material: Material, resolution: int, max_depth: int = DEFAULT_MAX_DEPTH) -> mi.Scene:
     """The material-preview scene with ``material``, for the current variant."""
     if material.model is not None:
-        from neuralbrdf.render import load_model
+        from neuralbrdf.kinds import load_model
 
         load_model(material.model)  # one clear InputError before Mitsuba wraps it
     try:
@@ -263,7 +263,8 @@ def within_drjit_budget(material: Material) -> Material:
     is too large for the drjit backend (:data:`~neuralbrdf.limits.DRJIT_MAX_MULTIPLY_ADDS`)."""
     if material.model is None or material.backend != "drjit":
         return material
-    from neuralbrdf.render.onnx_contract import load_model, matrix_multiply_adds
+    from neuralbrdf.kinds import load_model
+    from neuralbrdf.onnx_contract import matrix_multiply_adds
 
     count = matrix_multiply_adds(load_model(material.model).proto)
     if count <= DRJIT_MAX_MULTIPLY_ADDS:

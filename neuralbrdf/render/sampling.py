@@ -23,7 +23,8 @@ lobes reflect a half vector ``h`` about ``wi`` (``wo = 2 (wi·h) h - wi``, Jacob
   The inverse CDF runs in double precision (it cancels badly in float32 near ``C = 1``), the
   ``C = 1`` form is used for ``|(1 - C) ln(1 + B)| < 1e-8``, and ``B < 1e-9`` is uniform in ``x``.
 
-**Fitting the proposal** (load time, :func:`fit_neural_mixture`, :func:`fit_abc_mixture`).
+**Fitting the proposal** (load time, :func:`fit_proposal` with the name the model's kind gives:
+``fitted_ggx`` is :func:`fit_neural_mixture`, ``abc_lobe`` is :func:`fit_abc_mixture`).
 The model is probed with onnxruntime at incident angles ``θi`` of :data:`PROBE_THETA_I_DEG`
 (``φi = 0``; isotropy assumed) on a deterministic quadrature over half vectors (log-spaced
 ``θh`` from 0.06° to 90°, so that sharp lobes are resolved; uniform ``φh``), reflected into
@@ -50,13 +51,16 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
 from neuralbrdf.physics.microfacet import ggx_distribution, ggx_smith_g1
-from neuralbrdf.render.onnx_contract import AbcMetadata
+
+if TYPE_CHECKING:
+    from neuralbrdf.kinds.abc import AbcMetadata
 
 #: Incident polar angles (degrees) at which the model is probed to fit the proposal.
 PROBE_THETA_I_DEG = (0.0, 30.0, 50.0, 65.0, 80.0)
@@ -163,13 +167,15 @@ class AbcLobe:
 
     def half_vector_pdf(self, h: mi.Vector3f) -> mi.Float:
         """``p_h(h)`` over the solid angle of ``h``; 0 for ``h`` below the horizon."""
-        # 1 - cos θh without cancellation: (hx² + hy²) / (1 + hz) for a unit h.
-        x = (dr.square(h.x) + dr.square(h.y)) / (1.0 + h.z)
-        if self.B < ABC_B_UNIFORM:
-            density = dr.full(mi.Float, 1.0 / self.normalization, dr.width(x))
-        else:
-            density = dr.exp(-self.C * dr.log(1.0 + self.B * x)) / self.normalization
-        return dr.select(h.z > 0, density, 0.0)
+        return dr.select(h.z > 0, self.density(h.x, h.y, h.z, dr), 0.0)
+
+    def density(self, hx, hy, hz, xp):
+        """``p_h`` of unit half vectors above the horizon, in the array module ``xp`` (Dr.Jit or NumPy).
+
+        ``x = 1 - cos θh`` is taken as ``(hx² + hy²) / (1 + hz)``, without cancellation.
+        """
+        x = (hx * hx + hy * hy) / (1.0 + hz)
+        return xp.exp(-self.C * xp.log(1.0 + self.B * x)) / self.normalization
 
     def pdf(self, wi: mi.Vector3f, wo: mi.Vector3f) -> mi.Float:
         """Density of :meth:`sample` over the solid angle of ``wo`` (0 below the horizon)."""
@@ -322,8 +328,7 @@ def abc_reflection_pdf(wi: np.ndarray, wo: np.ndarray, lobe: AbcLobe) -> np.ndar
     h = h / np.linalg.norm(h, axis=-1, keepdims=True)
     cos_oh = np.sum(wo * h, axis=-1)
     above = (wi[..., 2] > 0) & (wo[..., 2] > 0) & (cos_oh > 0)
-    x = (h[..., 0] ** 2 + h[..., 1] ** 2) / (1.0 + h[..., 2])
-    density = (1.0 + lobe.B * x) ** (-lobe.C) / lobe.normalization
+    density = lobe.density(h[..., 0], h[..., 1], h[..., 2], np)
     return np.where(above, density / (4.0 * np.where(above, cos_oh, 1.0)), 0.0)
 
 
@@ -362,3 +367,18 @@ def fit_neural_mixture(brdf: ProbeFunction) -> LobeMixture:
 def fit_abc_mixture(brdf: ProbeFunction, abc: AbcMetadata) -> LobeMixture:
     """The analytic ABC lobe of ``abc`` with glossy weights fitted to the model through ``brdf``."""
     return _fit(brdf, [AbcLobe(abc.B, abc.C)], abc_reflection_pdf)
+
+
+#: Proposals by name, as kinds declare them (:attr:`neuralbrdf.kinds.Kind.proposal`):
+#: ``(probe, details) -> LobeMixture`` with the file's kind details (:func:`fit_proposal`).
+PROPOSALS: dict[str, Callable[[ProbeFunction, object], LobeMixture]] = {
+    "fitted_ggx": lambda brdf, details: fit_neural_mixture(brdf),
+    "abc_lobe": fit_abc_mixture,
+}
+
+
+def fit_proposal(name: str, brdf: ProbeFunction, details: object = None) -> LobeMixture:
+    """The proposal ``name`` of :data:`PROPOSALS` fitted to the model probed through ``brdf``."""
+    if name not in PROPOSALS:
+        raise ValueError(f"unknown sampling proposal {name!r}; expected one of {sorted(PROPOSALS)}")
+    return PROPOSALS[name](brdf, details)

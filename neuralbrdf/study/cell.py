@@ -15,8 +15,8 @@ scratch.  Steps:
    a user's table is used as it is.
 2. **Fit** with ``train.py``'s entry (:func:`neuralbrdf.lightning.run.main`): the variant's config
    and overrides, the data, ``--seed_everything SEED``; wall time measured.
-3. **Export** with ``export/to_onnx.py`` in a child process (the package never imports
-   ``export/``; its exit status 1 is "export refused").
+3. **Export** through the checkpoint's kind (:func:`neuralbrdf.onnx_export.export_checkpoint`, what
+   ``neuralbrdf export`` runs); a graph that fails its validation is "export refused".
 4. **Evaluate** with :func:`neuralbrdf.evaluation.evaluate.evaluate` (direction metrics; for the
    main cell also the renders) and the glossy relative RMSE per incident angle and per channel
    (:func:`neuralbrdf.metrics.relative_rmse_by_theta_i`, report Figs. 4.6/4.7 and 5.3).
@@ -40,7 +40,6 @@ import dataclasses
 import json
 import math
 import os
-import subprocess
 import sys
 import time
 import traceback
@@ -50,8 +49,6 @@ import numpy as np
 
 from neuralbrdf.atomic import atomic_write
 
-REPO_ROOT = Path(__file__).resolve().parents[2]
-EXPORT_SCRIPT = REPO_ROOT / "export" / "to_onnx.py"
 #: Reference seed offset: the Munsell N9 is measured with its own noise stream.
 REFERENCE_SEED_OFFSET = 1
 CHECKPOINTS = {"spectral_mlp": "best.ckpt", "abc": "best.ckpt", "nlb": "fitted.ckpt"}
@@ -133,7 +130,7 @@ def fit(spec: dict, table: Path, run_dir: Path) -> tuple[float, dict]:
 
     variant, cell = spec["variant"], spec["cell"]
     args = ["fit", "--config", variant["config"], *variant["args"], *_data_args(variant["method"], table),
-            "--run_dir", str(run_dir), "--seed_everything", str(cell["seed"])]
+            "--run_dir", str(run_dir), "--seed_everything", str(cell["seed"]), "--trainer.enable_progress_bar", "false"]
     started = time.perf_counter()
     captured = io.StringIO()
     try:
@@ -165,15 +162,15 @@ def fit(spec: dict, table: Path, run_dir: Path) -> tuple[float, dict]:
 
 
 def export(spec: dict, run_dir: Path, out: Path) -> Path:
-    """Export the fitted checkpoint (step 3) with ``export/to_onnx.py`` in a child process."""
-    if not EXPORT_SCRIPT.is_file():
-        raise CellFailure("export_refused", f"{EXPORT_SCRIPT} not found: the study needs a source checkout")
+    """Export the fitted checkpoint (step 3) through its kind; :class:`CellFailure` when refused."""
+    from neuralbrdf.errors import InputError
+    from neuralbrdf.onnx_export import ExportValidationError, export_checkpoint
+
     checkpoint = run_dir / "checkpoints" / CHECKPOINTS[spec["variant"]["method"]]
-    result = subprocess.run([sys.executable, str(EXPORT_SCRIPT), "--ckpt", str(checkpoint), "--out", str(out)],
-                            capture_output=True, text=True, cwd=REPO_ROOT)
-    if result.returncode != 0:
-        last = (result.stderr.strip().splitlines() or ["(no message)"])[-1]
-        raise CellFailure("export_refused", f"export/to_onnx.py exit {result.returncode}: {last[:300]}")
+    try:
+        export_checkpoint(checkpoint, out)
+    except (InputError, ExportValidationError) as error:
+        raise CellFailure("export_refused", f"{type(error).__name__}: {error}"[:300]) from None
     return out
 
 
@@ -202,7 +199,7 @@ def per_angle(model: Path, truth: Path) -> dict:
 
 
 def render_variant(spec: dict, truth: Path) -> str:
-    from neuralbrdf.render.onnx_contract import load_model
+    from neuralbrdf.kinds import load_model
 
     chosen = spec["variant"]["render_variant"]
     if chosen:
@@ -213,7 +210,7 @@ def render_variant(spec: dict, truth: Path) -> str:
 def cost(spec: dict, model: Path, variant: str) -> dict:
     import onnx
 
-    from neuralbrdf.render.onnx_contract import load_model
+    from neuralbrdf.kinds import load_model
     from neuralbrdf.study import cost as costs
 
     settings = spec["cost"]

@@ -19,8 +19,8 @@ A profile is a YAML file (``configs/study/quick.yaml``, ``full.yaml``, or a user
       noise: [0.0, 0.01, 0.03, 0.1]            # relative, the virtual instrument's --noise
       seeds: [0, 1, 2, 3, 4]
 
-Paths are relative to the repository root when they start with ``configs/`` or ``../shared``,
-otherwise relative to the profile file.  ``method`` is ``spectral_mlp``, ``abc`` or ``nlb`` (how
+Paths starting with ``configs/`` name the shipped configs (:mod:`neuralbrdf.configs_dir`), those
+starting with ``../shared`` are relative to the repository root, others to the profile file.  ``method`` is ``spectral_mlp``, ``abc`` or ``nlb`` (how
 data are passed and which checkpoint is exported); ``render_variant`` renders a model in another
 Mitsuba variant (a spectral model in ``llvm_ad_rgb`` uses the reduced-wavelength rule).  Variants
 with a ``group`` are also run at every stability seed (DS1, no noise) and box-plotted by ``label``.
@@ -34,12 +34,13 @@ from pathlib import Path
 
 import yaml
 
+from neuralbrdf.configs_dir import CONFIGS_DIR, resolve_config
 from neuralbrdf.data.plans import PLAN_NAMES
 from neuralbrdf.errors import InputError
 from neuralbrdf.evaluation.scores import HEMISPHERE_STRATA
 
 METHODS = ("spectral_mlp", "abc", "nlb")
-BUILTIN_DIR = Path(__file__).resolve().parents[2] / "configs" / "study"
+BUILTIN_DIR = CONFIGS_DIR / "study"
 REPO_ROOT = Path(__file__).resolve().parents[2]
 MAX_NOISE = 1.0
 
@@ -160,7 +161,12 @@ class _Reader:
             return text
         path = Path(text)
         if not path.is_absolute():
-            anchored = REPO_ROOT / path if text.startswith(("configs/", "../shared")) else self.path.parent / path
+            if text.startswith("configs/"):
+                anchored = resolve_config(text)
+            elif text.startswith("../shared"):
+                anchored = REPO_ROOT / path
+            else:
+                anchored = self.path.parent / path
             path = anchored.resolve()
         if not path.is_file():
             self.fail(key, f"no such file {path}")

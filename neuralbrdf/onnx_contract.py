@@ -19,26 +19,24 @@ Metadata (``ModelProto.metadata_props``, all values strings)
 =================================  ===========================================================
 key                                value
 =================================  ===========================================================
-``neuralbrdf.kind``                ``spectral_mlp``, ``nlb``, ``abc`` or ``reference`` (a truth)
+``neuralbrdf.kind``                a registered kind (:mod:`neuralbrdf.kinds`): ``spectral_mlp``,
+                                   ``nlb``, ``abc``, ``reference`` (a truth), ...
 ``neuralbrdf.format_version``      ``1`` (:data:`FORMAT_VERSION`)
 ``neuralbrdf.material``            material name, non-empty
 ``neuralbrdf.provenance``          short free text: config, data plan, training run
 ``neuralbrdf.wavelength_min``      spectral models only: lowest valid wavelength, nm
 ``neuralbrdf.wavelength_max``      spectral models only: highest valid wavelength, nm (> min)
-``neuralbrdf.abc.kd``              ABC only: JSON list, diffuse albedo per channel (>= 0)
-``neuralbrdf.abc.A``               ABC only: JSON list, specular scale per channel (>= 0)
-``neuralbrdf.abc.B``               ABC only: distribution width B (>= 0)
-``neuralbrdf.abc.C``               ABC only: fall-off exponent C (>= 0)
-``neuralbrdf.abc.eta``             ABC only: index of refraction (> 0)
+``neuralbrdf.<kind>.*``            keys of one kind, read and checked by that kind's module
+                                   (e.g. the ABC parameters of :mod:`neuralbrdf.kinds.abc`)
 =================================  ===========================================================
 
-The ABC keys are the parameters of SPEC §4.1 that the graph itself implements; the renderer
-reads them to build the analytic importance sampler (:mod:`neuralbrdf.render.sampling`).
-``kd`` and ``A`` have one entry per RGB channel (3) for an RGB model, or one per wavelength of
-the fit's grid for a spectral one (the sampler only uses their means).  Spectral models are
-those with a ``wavelength`` input; the kind ``spectral_mlp`` must be spectral, the others may
-be either.  Exporters should build the metadata with :func:`contract_metadata`,
-which writes exactly what :func:`load_model` reads.
+Spectral models are those with a ``wavelength`` input.  Exporters build the metadata with
+:func:`contract_metadata`, which writes exactly what :func:`load_model` reads.
+
+This module checks the part of the contract every kind shares and never imports Mitsuba,
+Dr.Jit or PyTorch.  :func:`neuralbrdf.kinds.load_model` adds the checks of the file's kind (its
+name registered, its own keys, spectral where the kind requires it); renderers and evaluators
+open models through that.
 """
 
 from __future__ import annotations
@@ -68,31 +66,19 @@ MATERIAL_KEY = "neuralbrdf.material"
 PROVENANCE_KEY = "neuralbrdf.provenance"
 WAVELENGTH_MIN_KEY = "neuralbrdf.wavelength_min"
 WAVELENGTH_MAX_KEY = "neuralbrdf.wavelength_max"
-ABC_KD_KEY = "neuralbrdf.abc.kd"
-ABC_A_KEY = "neuralbrdf.abc.A"
-ABC_B_KEY = "neuralbrdf.abc.B"
-ABC_C_KEY = "neuralbrdf.abc.C"
-ABC_ETA_KEY = "neuralbrdf.abc.eta"
-
-#: Model kinds: the three fitted ones (SPEC §4) and ``reference``, a ground-truth material (SPEC §9).
-KINDS = ("spectral_mlp", "nlb", "abc", "reference")
 REQUIRED_KEYS = (KIND_KEY, FORMAT_VERSION_KEY, MATERIAL_KEY, PROVENANCE_KEY)
+
+
+
+def kind_key(kind: str, name: str) -> str:
+    """The metadata key ``neuralbrdf.<kind>.<name>`` of a kind's own entry."""
+    return f"neuralbrdf.{kind}.{name}"
+
 
 INPUT_WI = "wi"
 INPUT_WO = "wo"
 INPUT_WAVELENGTH = "wavelength"
 OUTPUT_F = "f"
-
-
-@dataclass(frozen=True)
-class AbcMetadata:
-    """ABC parameters stored beside an ABC graph (SPEC §4.1), used by its analytic sampler."""
-
-    kd: tuple[float, ...]
-    A: tuple[float, ...]
-    B: float
-    C: float
-    eta: float
 
 
 @dataclass(frozen=True)
@@ -104,7 +90,8 @@ class OnnxModel:
     path:
         The ``.onnx`` file.
     kind:
-        ``spectral_mlp``, ``nlb`` or ``abc``.
+        The ``neuralbrdf.kind`` metadata value (checked against the registry by
+        :func:`neuralbrdf.kinds.load_model`).
     is_spectral:
         ``True`` when the graph takes ``wavelength`` and returns ``f`` of shape ``[N]``.
     wavelength_range_nm:
@@ -115,8 +102,9 @@ class OnnxModel:
         Every ``metadata_props`` entry.
     proto:
         The loaded ``onnx.ModelProto``.
-    abc:
-        The ABC parameters for ``kind == "abc"``, else ``None``.
+    details:
+        What the kind's module read from its own metadata keys (e.g. the ABC parameters), set
+        by :func:`neuralbrdf.kinds.load_model`; ``None`` here.
     """
 
     path: Path
@@ -127,7 +115,7 @@ class OnnxModel:
     provenance: str
     metadata: dict[str, str]
     proto: onnx.ModelProto
-    abc: AbcMetadata | None = None
+    details: object | None = None
 
     @property
     def n_channels(self) -> int:
@@ -141,9 +129,13 @@ def contract_metadata(
     provenance: str,
     *,
     wavelength_range_nm: tuple[float, float] | None = None,
-    abc: AbcMetadata | None = None,
+    kind_metadata: Mapping[str, str] | None = None,
 ) -> dict[str, str]:
-    """The ``metadata_props`` entries of the contract, validated like :func:`load_model` does."""
+    """The ``metadata_props`` entries of the contract, validated like :func:`load_model` does.
+
+    ``kind_metadata`` holds the kind's own entries; their keys must start with
+    ``neuralbrdf.<kind>.`` (:func:`kind_key`).
+    """
     metadata = {
         KIND_KEY: kind,
         FORMAT_VERSION_KEY: FORMAT_VERSION,
@@ -153,12 +145,10 @@ def contract_metadata(
     if wavelength_range_nm is not None:
         metadata[WAVELENGTH_MIN_KEY] = repr(float(wavelength_range_nm[0]))
         metadata[WAVELENGTH_MAX_KEY] = repr(float(wavelength_range_nm[1]))
-    if abc is not None:
-        metadata[ABC_KD_KEY] = json.dumps([float(v) for v in abc.kd])
-        metadata[ABC_A_KEY] = json.dumps([float(v) for v in abc.A])
-        metadata[ABC_B_KEY] = repr(float(abc.B))
-        metadata[ABC_C_KEY] = repr(float(abc.C))
-        metadata[ABC_ETA_KEY] = repr(float(abc.eta))
+    for key, value in (kind_metadata or {}).items():
+        if not key.startswith(kind_key(kind, "")):
+            raise InputError(f"a {kind} model's own metadata keys start with {kind_key(kind, '')!r}", column=key)
+        metadata[key] = str(value)
     _check_metadata(metadata, "<metadata>", is_spectral=wavelength_range_nm is not None)
     return metadata
 
@@ -195,7 +185,7 @@ def load_model(path: str | os.PathLike[str]) -> OnnxModel:
 
     is_spectral = _check_interface(proto.graph, path)
     metadata = {entry.key: entry.value for entry in proto.metadata_props}
-    kind, wavelength_range, abc = _check_metadata(metadata, path, is_spectral)
+    kind, wavelength_range = _check_metadata(metadata, path, is_spectral)
     _check_finite_constants(proto.graph, path)
     _check_constant_shapes(proto.graph, path)
     _check_trial_evaluation(proto, path, wavelength_range)
@@ -208,7 +198,6 @@ def load_model(path: str | os.PathLike[str]) -> OnnxModel:
         provenance=metadata[PROVENANCE_KEY],
         metadata=metadata,
         proto=proto,
-        abc=abc,
     )
 
 
@@ -282,7 +271,8 @@ def _check_interface(graph: onnx.GraphProto, path) -> bool:
 # --------------------------------------------------------------------------- metadata
 
 
-def _finite_float(metadata: Mapping[str, str], key: str, path) -> float:
+def metadata_float(metadata: Mapping[str, str], key: str, path) -> float:
+    """The finite number stored under ``key``, else :class:`InputError` naming the file and key."""
     text = metadata[key]
     try:
         value = float(text)
@@ -293,7 +283,8 @@ def _finite_float(metadata: Mapping[str, str], key: str, path) -> float:
     return value
 
 
-def _float_list(metadata: Mapping[str, str], key: str, path) -> tuple[float, ...]:
+def metadata_float_list(metadata: Mapping[str, str], key: str, path) -> tuple[float, ...]:
+    """The non-empty JSON list of finite numbers >= 0 under ``key``, else :class:`InputError`."""
     text = metadata[key]
     try:
         values = json.loads(text)
@@ -313,46 +304,14 @@ def _float_list(metadata: Mapping[str, str], key: str, path) -> tuple[float, ...
     return values
 
 
-def _check_abc(metadata: Mapping[str, str], path, is_spectral: bool) -> AbcMetadata:
-    keys = (ABC_KD_KEY, ABC_A_KEY, ABC_B_KEY, ABC_C_KEY, ABC_ETA_KEY)
-    missing = [key for key in keys if key not in metadata]
-    if missing:
-        raise InputError(f"ABC model lacks metadata keys {missing}", path=path)
-    kd = _float_list(metadata, ABC_KD_KEY, path)
-    A = _float_list(metadata, ABC_A_KEY, path)
-    if not is_spectral:
-        for key, values in ((ABC_KD_KEY, kd), (ABC_A_KEY, A)):
-            if len(values) != 3:
-                raise InputError(
-                    f"an RGB ABC model needs 3 values, found {len(values)}", path=path, column=key
-                )
-    if len(kd) != len(A):
-        raise InputError(
-            f"ABC kd has {len(kd)} channels but A has {len(A)}", path=path, column=ABC_A_KEY
-        )
-    B = _finite_float(metadata, ABC_B_KEY, path)
-    C = _finite_float(metadata, ABC_C_KEY, path)
-    eta = _finite_float(metadata, ABC_ETA_KEY, path)
-    for key, value, ok, rule in (
-        (ABC_B_KEY, B, B >= 0.0, ">= 0"),
-        (ABC_C_KEY, C, C >= 0.0, ">= 0"),
-        (ABC_ETA_KEY, eta, eta > 0.0, "> 0"),
-    ):
-        if not ok:
-            raise InputError(f"metadata value {value!r} must be {rule}", path=path, column=key)
-    return AbcMetadata(kd=kd, A=A, B=B, C=C, eta=eta)
-
-
 def _check_metadata(metadata: Mapping[str, str], path, is_spectral: bool):
-    """Return ``(kind, wavelength_range_nm, abc)`` or raise :class:`InputError`."""
+    """Return ``(kind, wavelength_range_nm)`` or raise :class:`InputError`."""
     missing = [key for key in REQUIRED_KEYS if key not in metadata]
     if missing:
         raise InputError(f"missing metadata keys {missing} (SPEC §6)", path=path)
     kind = metadata[KIND_KEY]
-    if kind not in KINDS:
-        raise InputError(
-            f"unknown model kind {kind!r}; expected one of {list(KINDS)}", path=path, column=KIND_KEY
-        )
+    if not kind.isidentifier():
+        raise InputError(f"model kind {kind!r} is not a name (letters, digits, '_')", path=path, column=KIND_KEY)
     version = metadata[FORMAT_VERSION_KEY]
     if version != FORMAT_VERSION:
         raise InputError(
@@ -362,17 +321,14 @@ def _check_metadata(metadata: Mapping[str, str], path, is_spectral: bool):
         )
     if not metadata[MATERIAL_KEY].strip():
         raise InputError("material name is empty", path=path, column=MATERIAL_KEY)
-    if kind == "spectral_mlp" and not is_spectral:
-        raise InputError("a spectral_mlp model must take a 'wavelength' input", path=path)
-
     wavelength_keys = [k for k in (WAVELENGTH_MIN_KEY, WAVELENGTH_MAX_KEY) if k in metadata]
     wavelength_range = None
     if is_spectral:
         missing = [k for k in (WAVELENGTH_MIN_KEY, WAVELENGTH_MAX_KEY) if k not in metadata]
         if missing:
             raise InputError(f"spectral model lacks metadata keys {missing}", path=path)
-        low = _finite_float(metadata, WAVELENGTH_MIN_KEY, path)
-        high = _finite_float(metadata, WAVELENGTH_MAX_KEY, path)
+        low = metadata_float(metadata, WAVELENGTH_MIN_KEY, path)
+        high = metadata_float(metadata, WAVELENGTH_MAX_KEY, path)
         if not 0.0 < low < high:
             raise InputError(
                 f"wavelength range {low:g}..{high:g} nm is empty or not positive",
@@ -385,8 +341,7 @@ def _check_metadata(metadata: Mapping[str, str], path, is_spectral: bool):
             f"RGB model (no 'wavelength' input) carries spectral metadata {wavelength_keys}",
             path=path,
         )
-    abc = _check_abc(metadata, path, is_spectral) if kind == "abc" else None
-    return kind, wavelength_range, abc
+    return kind, wavelength_range
 
 
 # --------------------------------------------------------------------------- weights

@@ -1,6 +1,7 @@
 """A material to fit, from any source a user has (SPEC §4.3: "any plan, any source").
 
-One material comes from exactly one of:
+The one vocabulary of every data module and config (``data.*`` keys, and the entries of a
+latent fit's ``data.sources``).  One material comes from exactly one of:
 
 * ``path`` — the user's measurement: a BRDF sample table (SPEC §2.1) or a GCMS raw file with
   its Munsell N9 ``reference`` (SPEC §2.2);
@@ -8,7 +9,8 @@ One material comes from exactly one of:
 * ``virtual`` — a stand-in of the virtual goniospectrophotometer (SPEC §2.5): its shipped DS1
   measurement, calibrated against the shipped Munsell N9 reference.
 
-Proxies and virtual materials are continuous, so they also give a dense ``truth`` on
+with optional ``name`` (default: the file stem or the virtual material) and, for ``nbrdf``,
+``plan``.  Proxies and virtual materials are continuous, so they also give a dense ``truth`` on
 ``eval_plan`` (default the Löw et al. set) for the hemisphere log-cosine RMSE (SPEC §5); a
 user's measurement has none.
 """
@@ -26,6 +28,12 @@ from neuralbrdf.errors import InputError
 from neuralbrdf.geometry import spherical_pair_to_vectors
 from neuralbrdf.virtual.instrument import GROUND_TRUTH_WAVELENGTHS_NM, default_data_path
 from neuralbrdf.virtual.materials import REFERENCE_MATERIAL, get_material
+
+
+#: Keys naming where a material comes from: exactly one per material.
+SOURCE_KEYS = ("path", "nbrdf", "virtual")
+#: Every key a material source may have.
+MATERIAL_KEYS = (*SOURCE_KEYS, "reference", "plan", "name")
 
 
 @dataclass(frozen=True)
@@ -76,3 +84,29 @@ def load_material(
     fit = load_measurement(default_data_path(virtual), default_data_path(REFERENCE_MATERIAL))
     truth = None if eval_plan is None else virtual_truth(virtual, eval_plan)
     return MaterialData(name or virtual, fit, truth)
+
+
+def check_source(source, where: str) -> dict[str, str]:
+    """One material source as a mapping of :data:`MATERIAL_KEYS`, checked; ``where`` names it in errors."""
+    if not isinstance(source, dict):
+        raise InputError(f"expected a mapping such as {{nbrdf: FILE.h5}}, got {source!r}", column=where)
+    for key in source:
+        if key not in MATERIAL_KEYS:
+            raise InputError(f"unknown key {key!r}; expected {', '.join(MATERIAL_KEYS)}", column=where)
+    given = [k for k in SOURCE_KEYS if k in source]
+    if len(given) != 1:
+        raise InputError(f"needs exactly one of {', '.join(SOURCE_KEYS)}, got {given or 'none'}", column=where)
+    if "reference" in source and given[0] != "path":
+        raise InputError("'reference' goes with a GCMS raw 'path'", column=where)
+    if "plan" in source and (given[0] != "nbrdf" or source["plan"] not in PLAN_NAMES):
+        raise InputError(f"'plan' is for nbrdf sources, one of {', '.join(PLAN_NAMES)}; got {source['plan']!r}",
+                         column=where)
+    return {k: str(v) for k, v in source.items()}
+
+
+def source_name(source: dict[str, str]) -> str:
+    """The material name of a checked source: its ``name``, else the virtual material or the file stem."""
+    if "name" in source:
+        return source["name"]
+    key = next(k for k in SOURCE_KEYS if k in source)
+    return source[key] if key == "virtual" else Path(source[key]).stem

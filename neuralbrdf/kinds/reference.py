@@ -1,0 +1,10 @@
+"""Kind ``reference``: a ground-truth material written by ``neuralbrdf export-truth`` (SPEC §9).
+
+A virtual material's own formula (spectral) or an NBRDF proxy network (RGB) on directions
+(:mod:`neuralbrdf.evaluation.truth`).  Not trained here, so no checkpoint; sampled with a GGX
+mixture fitted to it like the neural kinds.
+"""
+
+from neuralbrdf.kinds import Kind
+
+KIND = Kind(name="reference", summary="a ground-truth material for evaluation (SPEC §9)")

@@ -1,0 +1,39 @@
+"""What the Lightning modules share: the optimiser factory, the kind written into checkpoints,
+and the collate function of data modules whose batches are whole materials."""
+
+from __future__ import annotations
+
+from neuralbrdf.kinds import CHECKPOINT_KIND_KEY
+
+
+def scheduled_optimizer(groups, optimizer, lr_scheduler, interval: str):
+    """Optimiser over parameter ``groups`` ``[(parameters, lr_scale), ...]`` and its scheduler.
+
+    ``optimizer`` and ``lr_scheduler`` are the config's factories; each group's learning rate is
+    the configured one times its ``lr_scale``.  The scheduler steps every ``interval``.
+    """
+    opt = optimizer([{"params": list(params)} for params, _ in groups])
+    for group, (_, scale) in zip(opt.param_groups, groups):
+        group["lr"] *= scale
+    if lr_scheduler is None:
+        return opt
+    return {"optimizer": opt, "lr_scheduler": {"scheduler": lr_scheduler(opt), "interval": interval}}
+
+
+class WritesKind:
+    """Mixin for a LightningModule of a fitted model: its checkpoints name their kind.
+
+    ``KIND`` is a registered :mod:`neuralbrdf.kinds` name; the exporter reads it back
+    (:func:`neuralbrdf.kinds.checkpoint_kind`).  Subclasses overriding ``on_save_checkpoint``
+    call ``super().on_save_checkpoint(checkpoint)``.
+    """
+
+    KIND: str
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        checkpoint[CHECKPOINT_KIND_KEY] = self.KIND
+
+
+def identity_collate(item):
+    """A DataLoader ``collate_fn`` that hands over each item as it is (one material per batch)."""
+    return item

@@ -1,0 +1,206 @@
+"""The materials of an NLB latent fit (:mod:`~neuralbrdf.lightning.latent_fit_module`) as batches.
+
+``sources`` lists one material per entry in the vocabulary of every data module
+(:mod:`neuralbrdf.sources`):
+
+* ``{path: FILE}`` — a BRDF sample table (SPEC §2.1), RGB or spectral (converted to linear
+  sRGB, SPEC §2.3), or with ``reference: MUNSELL`` a GCMS raw file and its Munsell N9
+  reference (SPEC §2.2);
+* ``{virtual: NAME}`` — a shipped virtual-instrument measurement (``cyan``, ``magenta``,
+  ``gold``, ``gonio``) with the shipped reference;
+* ``{nbrdf: FILE.h5}`` — an NBRDF proxy (SPEC §2.4) sampled on ``plan`` (the entry's own
+  ``plan`` key, else the data module's).
+
+Each may carry ``name`` (default: the file stem or virtual material).  ``--data.path FILE``
+(with ``--data.reference``) drops a single measurement into any latent-fit config.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+import pytorch_lightning as pl
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+from neuralbrdf.data.low2012 import load_low2012_parameters
+from neuralbrdf.data.plans import PLAN_NAMES
+from neuralbrdf.data.table import BrdfTable
+from neuralbrdf.errors import InputError
+from neuralbrdf.lightning.common import identity_collate
+from neuralbrdf.sources import check_source, load_material, source_name
+
+
+class FitSamples(NamedTuple):
+    """Samples of one or more materials: ``material`` ``[N]`` int64, ``wi, wo, f`` ``[N, 3]`` float32."""
+
+    material: torch.Tensor
+    wi: torch.Tensor
+    wo: torch.Tensor
+    f: torch.Tensor
+
+
+class EvalSet(NamedTuple):
+    """One material's evaluation: its fitting samples, and (NBRDF) the proxy on the eval plan."""
+
+    name: str
+    fit: FitSamples
+    truth: FitSamples | None
+    abc: torch.Tensor | None  # Löw et al.'s ABC on truth's directions, [N, 3]
+
+
+def _tensors(index: int, wi, wo, f) -> FitSamples:
+    n = len(f)
+    return FitSamples(
+        torch.full((n,), index, dtype=torch.long),
+        *(torch.as_tensor(np.asarray(a), dtype=torch.float32) for a in (wi, wo, f)),
+    )
+
+
+def _table_samples(index: int, table: BrdfTable) -> FitSamples:
+    table = table.to_rgb()
+    return _tensors(index, *table.vectors(), table.values)
+
+
+class _Steps(Dataset):
+    """One batch per step: all ``samples``, or ``batch_size`` of them, a fresh random subset per
+    request from a stream seeded by ``seed`` (reproducible in a single data-loading process)."""
+
+    def __init__(self, samples: FitSamples, steps: int, batch_size: int | None, seed: int) -> None:
+        self.samples, self.steps, self.batch_size = samples, steps, batch_size
+        self.rng = np.random.default_rng(seed)
+
+    def __len__(self) -> int:
+        return self.steps
+
+    def __getitem__(self, index: int) -> FitSamples:
+        if not 0 <= index < self.steps:
+            raise IndexError(index)
+        n = len(self.samples.f)
+        if self.batch_size is None or self.batch_size >= n:
+            return self.samples
+        rows = torch.from_numpy(self.rng.choice(n, self.batch_size, replace=False))
+        return FitSamples(*(column[rows] for column in self.samples))
+
+
+class _Items(Dataset):
+    def __init__(self, items: Sequence) -> None:
+        self.items = list(items)
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def __getitem__(self, index):
+        return self.items[index]
+
+
+class LatentFitData(pl.LightningDataModule):
+    """Materials to fit, all in one batch (module docstring).
+
+    Parameters
+    ----------
+    sources:
+        One mapping per material, in the vocabulary of :mod:`neuralbrdf.sources`.
+    path, reference:
+        A single measurement to fit instead of ``sources`` (``--data.path FILE`` drops a user's
+        BRDF table, or GCMS raw file with its Munsell N9 ``reference``, into any config).
+    plan:
+        Sampling plan (SPEC §3) of NBRDF sources without their own ``plan``.
+    eval_plan:
+        Plan on which NBRDF sources are compared with the fit; ``None``: no such evaluation.
+    low2012_abc:
+        Löw et al.'s published ABC fits (``abc-low2012/low2012_abc_merl.csv``) for the
+        comparison; ``None``: no comparison; a missing file: a warning and no comparison.
+    steps_per_epoch:
+        Optimisation steps per epoch.
+    batch_size:
+        ``None`` (default): every step sees every sample of every material (one full batch).
+        Else each step sees this many samples drawn at random from all of them: for plans too
+        large for full-batch steps, such as five materials on the Löw et al. set (1.15 M pairs).
+    seed:
+        Seed of those draws.
+    """
+
+    def __init__(
+        self,
+        sources: list[dict[str, str]] | None = None,
+        path: str | None = None,
+        reference: str | None = None,
+        plan: str = "DS1",
+        eval_plan: str | None = "low",
+        low2012_abc: str | None = None,
+        steps_per_epoch: int = 100,
+        batch_size: int | None = None,
+        seed: int = 0,
+    ) -> None:
+        super().__init__()
+        if path is not None:
+            sources = [{"path": path} if reference is None else {"path": path, "reference": reference}]
+        elif reference is not None:
+            raise InputError("data.reference goes with a GCMS raw data.path", column="data.reference")
+        if not sources:
+            raise InputError("at least one source is needed", column="data.sources")
+        for plan_name, key in ((plan, "data.plan"), (eval_plan, "data.eval_plan")):
+            if plan_name is not None and plan_name not in PLAN_NAMES:
+                raise InputError(f"unknown plan {plan_name!r}; expected one of {', '.join(PLAN_NAMES)}", column=key)
+        if not isinstance(steps_per_epoch, int) or steps_per_epoch < 1:
+            raise InputError(f"must be a positive integer, got {steps_per_epoch!r}", column="data.steps_per_epoch")
+        self.sources = [check_source(s, f"data.sources[{i}]") for i, s in enumerate(sources)]
+        self.material_names = [source_name(s) for s in self.sources]
+        duplicates = sorted({n for n in self.material_names if self.material_names.count(n) > 1})
+        if duplicates:
+            raise InputError(
+                f"material names must be unique, {duplicates} repeat (set 'name')", column="data.sources"
+            )
+        self.plan, self.eval_plan, self.low2012_abc = plan, eval_plan, low2012_abc
+        if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
+            raise InputError(f"must be a positive integer or null, got {batch_size!r}", column="data.batch_size")
+        self.steps_per_epoch, self.batch_size, self.seed = steps_per_epoch, batch_size, seed
+        self._steps: _Steps | None = None
+        self.train_samples: FitSamples | None = None
+        self.eval_sets: list[EvalSet] = []
+
+    def _load(self, index: int, source: dict[str, str], abc_fits) -> EvalSet:
+        name = self.material_names[index]
+        material = load_material(
+            path=source.get("path"),
+            reference=source.get("reference"),
+            nbrdf=source.get("nbrdf"),
+            virtual=source.get("virtual"),
+            plan=source.get("plan", self.plan),
+            eval_plan=self.eval_plan if "nbrdf" in source else None,
+            name=name,
+        )
+        fit = _table_samples(index, material.fit)
+        if material.truth is None:
+            return EvalSet(name, fit, None, None)
+        abc_params = abc_fits.get(Path(source["nbrdf"]).stem)
+        abc = None
+        if abc_params is not None:
+            abc = torch.as_tensor(abc_params.evaluate(*material.truth.vectors()), dtype=torch.float32)
+        return EvalSet(name, fit, _table_samples(index, material.truth), abc)
+
+    def setup(self, stage: str | None = None) -> None:
+        if self.train_samples is not None:
+            return
+        abc_fits = {}
+        if self.low2012_abc is not None:
+            if os.path.isfile(self.low2012_abc):
+                abc_fits = load_low2012_parameters(self.low2012_abc)
+            else:
+                warnings.warn(f"{self.low2012_abc}: Löw et al. ABC fits not found; no ABC comparison", stacklevel=2)
+        self.eval_sets = [self._load(i, s, abc_fits) for i, s in enumerate(self.sources)]
+        self.train_samples = FitSamples(*(torch.cat(c) for c in zip(*(e.fit for e in self.eval_sets))))
+
+    def train_dataloader(self) -> DataLoader:
+        if self._steps is None:  # one stream of random subsets for the whole fit
+            self._steps = _Steps(self.train_samples, self.steps_per_epoch, self.batch_size, self.seed)
+        return DataLoader(self._steps, batch_size=None)
+
+    def val_dataloader(self) -> DataLoader:
+        return DataLoader(_Items(self.eval_sets), batch_size=None, collate_fn=identity_collate)

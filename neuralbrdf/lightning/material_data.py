@@ -1,0 +1,68 @@
+"""One material from any source as a Lightning data module: the ABC fit's data (SPEC §4.1, §4.3)."""
+
+from __future__ import annotations
+
+import pytorch_lightning as pl
+from torch.utils.data import DataLoader
+
+from neuralbrdf.lightning.common import identity_collate
+from neuralbrdf.sources import MaterialData, load_material
+
+
+class SingleMaterialData(pl.LightningDataModule):
+    """One material from any source (the vocabulary of :mod:`neuralbrdf.sources`).
+
+    With no ``path``, ``nbrdf`` or ``virtual`` given, the shipped virtual ``gold`` DS1
+    measurement is used.  Every stage sees the same single item: the whole material.
+
+    Parameters
+    ----------
+    path, reference:
+        A BRDF sample table (sr⁻¹), or a GCMS raw file with its Munsell N9 ``reference``.
+    nbrdf:
+        An NBRDF proxy ``NAME.h5`` (MERL-derived, RGB), sampled on ``plan``.
+    virtual:
+        A shipped virtual stand-in (cyan, magenta, gold, gonio): its DS1 measurement.
+    plan:
+        Sampling plan of an NBRDF proxy: DS1, DS2, DS3, DS4 or low.
+    eval_plan:
+        Plan on which NBRDF and virtual sources are compared with the fit (hemisphere
+        log-cosine RMSE); ``None``: no such evaluation.
+    name:
+        Material name (default: the file stem or the virtual material).
+    """
+
+    def __init__(
+        self,
+        path: str | None = None,
+        reference: str | None = None,
+        nbrdf: str | None = None,
+        virtual: str | None = None,
+        plan: str = "DS1",
+        eval_plan: str | None = "low",
+        name: str | None = None,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        if path is None and nbrdf is None and virtual is None:
+            virtual = "gold"
+        self._kwargs = dict(
+            path=path, reference=reference, nbrdf=nbrdf, virtual=virtual, plan=plan, eval_plan=eval_plan, name=name
+        )
+        self.material: MaterialData | None = None
+
+    def prepare_data(self) -> None:
+        # before the trainer writes anything: bad input fails with no output
+        self.setup()
+
+    def setup(self, stage: str | None = None) -> None:
+        if self.material is None:
+            self.material = load_material(**self._kwargs)
+
+    def transfer_batch_to_device(self, batch, device, dataloader_idx):
+        return batch  # a MaterialData of NumPy tables, used on the CPU as it is
+
+    def _loader(self) -> DataLoader:
+        return DataLoader([self.material], batch_size=None, collate_fn=identity_collate)
+
+    train_dataloader = val_dataloader = test_dataloader = _loader

@@ -1,0 +1,103 @@
+"""The kind registry (issue 12): one module per kind, found without a list to edit; the
+exporter, the contract check and the renderer's proposal all ask it."""
+
+import subprocess
+import sys
+
+import pytest
+
+import onnx_fixtures as fx
+from neuralbrdf import kinds
+from neuralbrdf.errors import InputError
+from neuralbrdf.kinds import CHECKPOINT_KIND_KEY, Kind
+from neuralbrdf.lightning.abc_module import AbcFitModule
+from neuralbrdf.lightning.common import WritesKind
+from neuralbrdf.lightning.latent_fit_module import LatentFitModule
+from neuralbrdf.lightning.spectral_mlp_module import SpectralMlpModule
+
+TOY_KIND = '''
+from neuralbrdf.kinds import Kind
+
+KIND = Kind(name="toy", summary="a kind added as one file")
+'''
+
+
+def test_the_shipped_kinds_are_registered_with_what_the_library_needs():
+    assert kinds.names() == ["abc", "nlb", "reference", "spectral_mlp"]
+    for name in kinds.names():
+        kind = kinds.get(name)
+        assert kind.name == name and kind.summary
+        assert kind.proposal in ("fitted_ggx", "abc_lobe")
+    trained = {name for name in kinds.names() if kinds.get(name).from_checkpoint is not None}
+    assert trained == {"abc", "nlb", "spectral_mlp"}
+    assert kinds.get("spectral_mlp").spectral_only and not kinds.get("nlb").spectral_only
+    assert kinds.get("abc").proposal == "abc_lobe"
+
+
+def test_proposal_names_are_the_renderers():
+    mitsuba = pytest.importorskip("mitsuba")
+    mitsuba.set_variant("llvm_ad_rgb")
+    from neuralbrdf.render.sampling import PROPOSALS
+
+    assert {kinds.get(name).proposal for name in kinds.names()} <= set(PROPOSALS)
+
+
+def test_unknown_kind_names_the_registered_ones():
+    with pytest.raises(InputError, match=r"unknown model kind 'gan'; expected one of \['abc', 'nlb'"):
+        kinds.get("gan")
+
+
+@pytest.mark.parametrize("module", [SpectralMlpModule, AbcFitModule, LatentFitModule])
+def test_every_fitted_model_module_writes_a_registered_kind(module):
+    assert issubclass(module, WritesKind)
+    assert kinds.get(module.KIND).from_checkpoint is not None
+
+
+def test_the_shared_hook_writes_the_kind_into_the_checkpoint():
+    checkpoint = {}
+    SpectralMlpModule().on_save_checkpoint(checkpoint)
+    assert checkpoint[CHECKPOINT_KIND_KEY] == "spectral_mlp"
+
+
+def test_a_new_kind_is_one_new_file(tmp_path, monkeypatch):
+    path = fx.save(fx.tiny_rgb_model(fx.rgb_metadata("toy")), tmp_path / "toy.onnx")
+    with pytest.raises(InputError, match="unknown model kind 'toy'"):
+        kinds.load_model(path)
+    extra = tmp_path / "more_kinds"
+    extra.mkdir()
+    (extra / "toy.py").write_text(TOY_KIND)
+    monkeypatch.setattr(kinds, "__path__", [*kinds.__path__, str(extra)])
+    monkeypatch.setattr(kinds, "_REGISTRY", {})
+    assert "toy" in kinds.names()
+    model = kinds.load_model(path)
+    assert (model.kind, model.details) == ("toy", None)
+    assert kinds.get("toy").proposal == "fitted_ggx"
+    monkeypatch.delitem(sys.modules, "neuralbrdf.kinds.toy")
+
+
+def test_a_module_without_kind_is_refused(tmp_path, monkeypatch):
+    extra = tmp_path / "broken_kinds"
+    extra.mkdir()
+    (extra / "nothing_here.py").write_text("VALUE = 1\n")
+    monkeypatch.setattr(kinds, "__path__", [*kinds.__path__, str(extra)])
+    monkeypatch.setattr(kinds, "_REGISTRY", {})
+    with pytest.raises(TypeError, match="defines no KIND"):
+        kinds.names()
+    monkeypatch.delitem(sys.modules, "neuralbrdf.kinds.nothing_here")
+
+
+def test_a_spectral_only_kind_refuses_an_rgb_file(tmp_path):
+    path = fx.save(fx.tiny_rgb_model(fx.rgb_metadata("spectral_mlp")), tmp_path / "m.onnx")
+    with pytest.raises(InputError, match="spectral_mlp model must take a 'wavelength' input"):
+        kinds.load_model(path)
+
+
+def test_checking_and_exporting_never_load_mitsuba():
+    code = ("import sys, neuralbrdf.kinds, neuralbrdf.onnx_export, neuralbrdf.cli.export_command; "
+            "loaded = [m for m in ('mitsuba', 'drjit') if m in sys.modules]; assert not loaded, loaded")
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_kind_dataclass_defaults_describe_a_neural_kind():
+    kind = Kind(name="x", summary="y")
+    assert (kind.spectral_only, kind.proposal, kind.from_checkpoint) == (False, "fitted_ggx", None)
