@@ -1,0 +1,134 @@
+"""The level-of-detail targets on ``export/scenes/lod_demo.xml`` (SPEC §11, issue 10), one run per variant.
+
+    python benchmarks/lod_demo.py --variant llvm_ad_spectral [--out-dir out/lod/demo_spectral]
+        [--resolution 128] [--reference-spp 512] [--timing-spp 64] [--tolerance 1.0]
+
+Needs the demo models and their ladders (``bash export/lod_models.sh``).  Steps:
+
+1. ``neuralbrdf select`` on the scene (default settings: 96 px wide, noise-checked spp), timed:
+   target ≤ 3 min on 2 cores;
+2. the all-full scene and ``SELECTED.xml`` rendered at ``--resolution`` with
+   ``--reference-spp`` (the all-full one with two seeds: its seed-to-seed ΔE is the noise floor
+   of this comparison); whole-image mean ΔE2000 of the selected against the all-full reference:
+   target ≤ 1.0;
+3. both timed at ``--timing-spp`` in Dr.Jit's symbolic mode, after one compiling render each,
+   ``--repeats`` interleaved renders, median: target speed-up ≥ 1.5×.
+
+Writes ``full.png``, ``selected.png``, ``delta_e.png`` (the ΔE2000 map), ``comparison.png``
+and ``lod_demo.json`` (strict JSON) into ``--out-dir``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = ROOT / "export" / "scenes" / "lod_demo.xml"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--variant", default="llvm_ad_spectral")
+    parser.add_argument("--out-dir", default=None)
+    parser.add_argument("--resolution", type=int, default=128, help="width of the target renders (default 128)")
+    parser.add_argument("--reference-spp", type=int, default=512)
+    parser.add_argument("--timing-spp", type=int, default=64)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--tolerance", type=float, default=1.0)
+    args = parser.parse_args(argv)
+    out = Path(args.out_dir or ROOT / "out" / "lod" / f"demo_{args.variant}")
+    out.mkdir(parents=True, exist_ok=True)
+
+    from neuralbrdf.evaluation.images import delta_e2000_map
+    from neuralbrdf.lod.select import SelectSettings, select
+    from neuralbrdf.render.preview import set_variant, write_images
+    from neuralbrdf.render.scene_file import SceneFile, render_scene_file
+    from neuralbrdf.study.cost import machine
+
+    began = time.perf_counter()
+    selection = select(SCENE, out / "SELECTED.xml", SelectSettings(tolerance=args.tolerance, variant=args.variant))
+    selection_s = time.perf_counter() - began
+
+    set_variant(args.variant)
+    scenes = {"full": SceneFile(SCENE), "selected": SceneFile(out / "SELECTED.xml")}
+    for scene in scenes.values():
+        scene.set_resolution(args.resolution, args.resolution * 3 // 4)
+    images = {}
+    for name, seed in (("full", 0), ("selected", 0), ("full_other_seed", 1)):
+        images[name], _ = render_scene_file(scenes[name.split("_")[0]], args.reference_spp, seed)
+        print(f"{name}: rendered at {args.reference_spp} spp", file=sys.stderr)
+    delta_e = delta_e2000_map(images["selected"], images["full"])
+    noise = delta_e2000_map(images["full_other_seed"], images["full"])
+
+    times = {name: [] for name in scenes}
+    for name, scene in scenes.items():
+        render_scene_file(scene, args.timing_spp, 7)  # compiles
+    for repeat in range(args.repeats):
+        for name, scene in scenes.items():
+            times[name].append(render_scene_file(scene, args.timing_spp, 8 + repeat)[1])
+    full_s, selected_s = statistics.median(times["full"]), statistics.median(times["selected"])
+
+    write_images(images["full"], out / "full.png")
+    write_images(images["selected"], out / "selected.png")
+    _delta_e_figure(delta_e, images, out, args)
+    result = {
+        "variant": args.variant,
+        "scene": str(SCENE.relative_to(ROOT)),
+        "chosen": {m["name"]: m["chosen_rung"] for m in selection["materials"]},
+        "selection_time_s": selection_s,
+        "selection": {k: selection[k] for k in ("speedup", "image_delta_e2000_mean", "noise", "render")},
+        "target_render": {"width": args.resolution, "height": args.resolution * 3 // 4,
+                          "reference_spp": args.reference_spp, "timing_spp": args.timing_spp,
+                          "repeats": args.repeats},
+        "image_delta_e2000_mean": float(delta_e.mean()),
+        "image_delta_e2000_p95": float(np.percentile(delta_e, 95)),
+        "reference_noise_delta_e2000_mean": float(noise.mean()),
+        "full_time_s": full_s,
+        "selected_time_s": selected_s,
+        "times_s": times,
+        "speedup": full_s / selected_s,
+        "targets": {
+            "speedup_at_least_1.5": full_s / selected_s >= 1.5,
+            "delta_e2000_mean_at_most_1": float(delta_e.mean()) <= 1.0,
+            "selection_at_most_180_s": selection_s <= 180.0,
+        },
+        "machine": machine(),
+    }
+    (out / "lod_demo.json").write_text(json.dumps(result, indent=2, allow_nan=False) + "\n")
+    print(json.dumps({k: result[k] for k in ("chosen", "selection_time_s", "image_delta_e2000_mean",
+                                             "reference_noise_delta_e2000_mean", "speedup", "targets")}, indent=2))
+    return 0
+
+
+def _delta_e_figure(delta_e, images, out: Path, args) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from neuralbrdf.evaluation.images import displayed
+
+    figure, axes = plt.subplots(1, 3, figsize=(12, 3.4), constrained_layout=True)
+    axes[0].imshow(displayed(images["full"]))
+    axes[0].set_title(f"all full ({args.reference_spp} spp)")
+    axes[1].imshow(displayed(images["selected"]))
+    axes[1].set_title("selected")
+    shown = axes[2].imshow(delta_e, cmap="magma", vmin=0, vmax=max(2.0, float(np.percentile(delta_e, 99))))
+    axes[2].set_title(f"CIEDE2000, mean {delta_e.mean():.2f}")
+    figure.colorbar(shown, ax=axes[2], shrink=0.8)
+    for axis in axes:
+        axis.set_axis_off()
+    figure.suptitle(f"lod_demo.xml, {args.variant}")
+    figure.savefig(out / "comparison.png", dpi=110)
+    plt.close(figure)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
