@@ -42,24 +42,29 @@ def main(argv=None) -> int:
     parser.add_argument("--timing-spp", type=int, default=64)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--tolerance", type=float, default=1.0)
+    parser.add_argument("--preview-gold", action="store_true",
+                        help="the material-preview scene with only the gold (close-up) instead of lod_demo.xml")
     args = parser.parse_args(argv)
-    out = Path(args.out_dir or ROOT / "out" / "lod" / f"demo_{args.variant}")
+    tag = "preview_gold" if args.preview_gold else "demo"
+    out = Path(args.out_dir or ROOT / "out" / "lod" / f"{tag}_{args.variant}")
     out.mkdir(parents=True, exist_ok=True)
+    scene_path = _preview_gold_scene(out) if args.preview_gold else SCENE
 
     from neuralbrdf.evaluation.images import delta_e2000_map
-    from neuralbrdf.lod.select import SelectSettings, select
+    from neuralbrdf.lod.select import SelectSettings, film_aspect, select
     from neuralbrdf.render.preview import set_variant, write_images
     from neuralbrdf.render.scene_file import SceneFile, render_scene_file
     from neuralbrdf.study.cost import machine
 
     began = time.perf_counter()
-    selection = select(SCENE, out / "SELECTED.xml", SelectSettings(tolerance=args.tolerance, variant=args.variant))
+    selection = select(scene_path, out / "SELECTED.xml", SelectSettings(tolerance=args.tolerance, variant=args.variant))
     selection_s = time.perf_counter() - began
 
     set_variant(args.variant)
-    scenes = {"full": SceneFile(SCENE), "selected": SceneFile(out / "SELECTED.xml")}
+    scenes = {"full": SceneFile(scene_path), "selected": SceneFile(out / "SELECTED.xml")}
+    height = round(args.resolution * film_aspect(scenes["full"]))
     for scene in scenes.values():
-        scene.set_resolution(args.resolution, args.resolution * 3 // 4)
+        scene.set_resolution(args.resolution, height)
     images = {}
     for name, seed in (("full", 0), ("selected", 0), ("full_other_seed", 1)):
         images[name], _ = render_scene_file(scenes[name.split("_")[0]], args.reference_spp, seed)
@@ -80,11 +85,11 @@ def main(argv=None) -> int:
     _delta_e_figure(delta_e, images, out, args)
     result = {
         "variant": args.variant,
-        "scene": str(SCENE.relative_to(ROOT)),
+        "scene": str(scene_path),
         "chosen": {m["name"]: m["chosen_rung"] for m in selection["materials"]},
         "selection_time_s": selection_s,
         "selection": {k: selection[k] for k in ("speedup", "image_delta_e2000_mean", "noise", "render")},
-        "target_render": {"width": args.resolution, "height": args.resolution * 3 // 4,
+        "target_render": {"width": args.resolution, "height": height,
                           "reference_spp": args.reference_spp, "timing_spp": args.timing_spp,
                           "repeats": args.repeats},
         "image_delta_e2000_mean": float(delta_e.mean()),
@@ -107,6 +112,20 @@ def main(argv=None) -> int:
     return 0
 
 
+def _preview_gold_scene(out: Path) -> Path:
+    """The package's material-preview scene with the demo's gold model on the sphere (a close-up)."""
+    from neuralbrdf.render.preview import SCENE_FILE
+
+    model = ROOT / "out" / "lod" / "models" / "gold.onnx"
+    text = SCENE_FILE.read_text().replace(
+        '<include filename="$material"/>',
+        f'<bsdf type="neuralbrdf" id="material"><string name="filename" value="{model}"/></bsdf>',
+    )
+    path = out / "preview_gold.xml"
+    path.write_text(text)
+    return path
+
+
 def _delta_e_figure(delta_e, images, out: Path, args) -> None:
     import matplotlib
 
@@ -125,7 +144,7 @@ def _delta_e_figure(delta_e, images, out: Path, args) -> None:
     figure.colorbar(shown, ax=axes[2], shrink=0.8)
     for axis in axes:
         axis.set_axis_off()
-    figure.suptitle(f"lod_demo.xml, {args.variant}")
+    figure.suptitle(f"{'preview scene, gold only' if args.preview_gold else 'lod_demo.xml'}, {args.variant}")
     figure.savefig(out / "comparison.png", dpi=110)
     plt.close(figure)
 

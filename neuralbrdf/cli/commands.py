@@ -154,6 +154,7 @@ def select(args) -> None:
         print(f"{material['name']:<12} {material['chosen_rung']:<10} dE2000 {material['error_contribution']:.3f} "
               f"cost {material['cost']:.3f}")
     print(f"speed-up {result['speedup']:.2f}x ({result['reference_time_s']:.2f} s -> {result['selected_time_s']:.2f} s), "
-          f"mean dE2000 {result['image_delta_e2000_mean']:.3f} (noise {result['noise']['seed_to_seed_delta_e2000_mean']:.3f} "
-          f"at {result['noise']['spp']} spp); selection {result['selection_time_s']:.0f} s")
+          f"mean dE2000 {result['image_delta_e2000_mean']:.3f} at {result['noise']['spp']} spp (render noise "
+          f"{result['noise']['render_seed_to_seed_delta_e2000_mean']:.3f}, estimate noise "
+          f"{result['noise']['estimate_seed_to_seed_delta_e2000']:.3f}); selection {result['selection_time_s']:.0f} s")
     print(f"-> {args.out}, {Path(args.out).with_suffix('.json')}")

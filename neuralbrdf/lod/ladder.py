@@ -21,7 +21,7 @@ Each rung records in its ``metadata_props`` (keys :data:`RUNG_KEY` …) what it 
 parent's file name and SHA-256), its error against the parent — ``hemisphere_logcos_rmse``
 (SPEC §5, :func:`~neuralbrdf.evaluation.scores.hemisphere_scores`: 102 400 stratified pairs,
 spectra compared at 31 wavelengths) — and its measured evaluation cost: Dr.Jit nanoseconds per
-query (:class:`~neuralbrdf.render.drjit_onnx.DrJitGraph` on 2^18 and 2^20 random upper-hemisphere
+query (:class:`~neuralbrdf.render.drjit_onnx.DrJitGraph` on 2^20 and 2^22 random upper-hemisphere
 pairs, one wavelength per query for spectral models; :func:`drjit_costs`: all rungs and the
 parent measured in interleaved rounds in one process, so that machine load hits them alike) and that cost
 relative to the parent's.  ``DIR/ladder.json`` lists the rungs with the same numbers.
@@ -74,8 +74,8 @@ class LadderSettings:
     distill: DistillSettings = field(default_factory=DistillSettings)
     abc_pairs: int = 4096
     abc_starts: int = 8
-    cost_batches: tuple[int, int] = (2**18, 2**20)
-    cost_rounds: int = 7
+    cost_batches: tuple[int, int] = (2**20, 2**22)
+    cost_rounds: int = 9
     #: Held-out rms relative errors of the reduced spectrum → sRGB rule offered as RGB-variant rungs.
     rgb_tolerances: tuple[float, ...] = (1e-2, 3e-2)
     seed: int = 0

@@ -97,11 +97,11 @@ def find_ladders(scene: SceneFile, extra_dirs: list[Path]) -> dict[str, Ladder |
     return found
 
 
-def _film_aspect(scene: SceneFile) -> float:
+def film_aspect(scene: SceneFile) -> float:
     """Height / width of the scene's first film (Mitsuba's defaults 768 x 576 where unstated)."""
     for sensor in scene.root.iter("sensor"):
         for film in sensor.iter("film"):
-            size = {child.get("name"): child.get("value") for child in film if child.tag == "integer"}
+            size = {child.get("name"): scene.expand(child.get("value", "")) for child in film if child.tag == "integer"}
             try:
                 return float(size.get("height", 576)) / float(size.get("width", 768))
             except ValueError:
@@ -115,7 +115,7 @@ class _Renderer:
     def __init__(self, scene: SceneFile, settings: SelectSettings) -> None:
         self.base = scene.copy()
         width = settings.resolution
-        self.base.set_resolution(width, max(1, round(width * _film_aspect(scene))))
+        self.base.set_resolution(width, max(1, round(width * film_aspect(scene))))
         self.renders = 0
 
     def scene(self, choice: dict[str, Rung], parents: dict[str, Path] | None = None) -> SceneFile:
@@ -217,7 +217,8 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
             break
         spp = min(settings.max_spp, 2 * spp)
     noise_ok = estimate_noise <= settings.noise_fraction * settings.tolerance
-    reference, reference_s = fulls[0]
+    reference = fulls[0][0]
+    reference_s = min(seconds for _, seconds in fulls)  # the first render of a scene also compiles kernels
 
     # 2. each rung's effect
     options: dict[str, list[dict]] = {}
@@ -289,7 +290,7 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
                       "= mean dE2000 between two all-full renders with different seeds; estimate noise = change of "
                       "the all-cheapest scene's error between the two seeds",
         },
-        "render": {"variant": settings.variant, "width": settings.resolution, "aspect": _film_aspect(scene),
+        "render": {"variant": settings.variant, "width": settings.resolution, "aspect": film_aspect(scene),
                    "spp": spp, "seeds": list(seeds), "timing_repeats": settings.timing_repeats,
                    "timing_mode": "symbolic", "times_s": times},
         "candidates": options,

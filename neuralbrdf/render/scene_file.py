@@ -119,6 +119,14 @@ class SceneFile:
             element.remove(existing)
         ElementTree.SubElement(element, tag, name=key, value=str(value))
 
+    def expand(self, value: str) -> str:
+        """``value`` with a ``$name`` scene parameter replaced by its ``<default>`` (if declared)."""
+        if value.startswith("$"):
+            default = next((d for d in self.root.iter("default") if d.get("name") == value[1:]), None)
+            if default is not None:
+                return default.get("value", value)
+        return value
+
     # -- sensor and integrator
 
     def set_resolution(self, width: int, height: int | None = None) -> None:
