@@ -477,6 +477,8 @@ _LOAD_TIME_CACHE_SIZE = 64
 
 
 def _file_identity(path: Path) -> tuple:
+    if not path.is_file():
+        raise InputError("no such ONNX model file", path=path)
     status = path.stat()
     return str(path.resolve()), status.st_size, status.st_mtime_ns, status.st_ino
 
