@@ -127,21 +127,20 @@ def test_a_failed_fit_is_listed_not_written(tmp_path):
 # --------------------------------------------------------------------------- choosing
 
 
-def _option(rung, error, cost, saving=0.0):
-    return {"rung": rung, "error_contribution": error, "relative_cost": cost, "time_saving_s": saving}
+def _option(rung, error, cost):
+    return {"rung": rung, "error_contribution": error, "relative_cost": cost}
 
 
 def test_best_combination_keeps_the_summed_error_within_tolerance():
     full = _option("full", 0.0, 1.0)
     options = {
-        # a: half the render's time, b: a tenth
-        "a": [full, _option("abc", 0.6, 0.2, 0.4), _option("mlp", 0.2, 0.6, 0.2)],
-        "b": [full, _option("abc", 0.5, 0.2, 0.08), _option("mlp", 0.1, 0.6, 0.04)],
+        "a": [full, _option("abc", 0.6, 0.2), _option("mlp", 0.2, 0.6)],
+        "b": [full, _option("abc", 0.5, 0.3), _option("mlp", 0.1, 0.6)],
     }
     chosen = best_combination(options, tolerance=1.0)
-    assert {n: o["rung"] for n, o in chosen.items()} == {"a": "abc", "b": "mlp"}  # 0.7 <= 1, a weighs more
+    assert {n: o["rung"] for n, o in chosen.items()} == {"a": "abc", "b": "mlp"}  # cost 0.8, error 0.7
     chosen = best_combination(options, tolerance=0.5)
-    assert {n: o["rung"] for n, o in chosen.items()} == {"a": "mlp", "b": "mlp"}
+    assert {n: o["rung"] for n, o in chosen.items()} == {"a": "mlp", "b": "mlp"}  # cost 1.2 (full+abc: 1.3)
     chosen = best_combination(options, tolerance=0.05)
     assert {n: o["rung"] for n, o in chosen.items()} == {"a": "full", "b": "full"}
 

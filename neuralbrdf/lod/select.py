@@ -20,13 +20,13 @@ tolerance of 1 ΔE.)  The written scene uses each stand-in's own proposal.
    noise is at most ``noise_fraction × T``; the JSON states both and whether that was reached.
 2. **Each rung's effect.** Per material and rung: the scene with that material on the rung and
    the others full, against the all-full render at the same seed: its whole-image mean ΔE2000
-   is the rung's *error contribution*, its render time beside the all-full one the *saving*.
-3. **Choice.** The combination (one rung per material, full included) with the smallest
-   predicted render time whose summed contributions stay within ``T`` (contributions add when
-   materials cover different pixels, the common case; the verification catches the rest).
-   The prediction weighs each rung's relative cost (from its ladder) by the material's share of
-   the render time, estimated from the measured savings (:func:`time_share`); exhaustive over
-   the combinations (:func:`best_combination`).
+   is the rung's *error contribution*.
+3. **Choice.** The combination (one rung per material, full included) with the smallest summed
+   relative cost (from the ladders) whose summed contributions stay within ``T``
+   (contributions add when materials cover different pixels, the common case; the
+   verification catches the rest); exhaustive over the combinations (:func:`best_combination`).
+   The render times of step 2 are recorded but not used: each is the first render of a new
+   material combination and includes compiling its kernels, so they do not measure savings.
 4. **Verification.** The chosen scene against the all-full one at both seeds; while the larger
    mean ΔE2000 exceeds ``T`` the material with the largest contribution moves to its next more
    expensive rung.  Then the all-full and the selected scene (own proposals) are timed in
@@ -142,33 +142,23 @@ def _mean_delta_e(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.mean(delta_e2000_map(a, b)))
 
 
-def time_share(options: list[dict]) -> float:
-    """Seconds of the all-full render attributable to one material: each rung's measured saving
-    divided by the fraction of the cost it removes, ``saving / (1 − relative_cost)``, median over
-    the rungs cheaper than the full model, clipped at 0 (savings are timings, and noisy)."""
-    estimates = [o["time_saving_s"] / (1.0 - o["relative_cost"]) for o in options if o["relative_cost"] < 1.0]
-    return max(0.0, statistics.median(estimates)) if estimates else 0.0
-
-
 def best_combination(options: dict[str, list[dict]], tolerance: float) -> dict[str, dict]:
-    """The rung per material with the smallest predicted render time, ``Σ share_m · relative_cost``
-    (:func:`time_share`), among the combinations whose summed error contributions are within
-    ``tolerance``; ties go to the smaller summed relative cost, then error (an object that covers
-    nothing gets its cheapest rung).  The full rung has error 0, so a solution always exists."""
+    """The rung per material with the smallest summed relative cost (each rung's cost from its
+    ladder, relative to its full model) among the combinations whose summed error contributions
+    are within ``tolerance``; ties go to the smaller summed error.  The full rung has error 0, so a
+    solution always exists; an object that covers nothing gets its cheapest rung."""
     names = list(options)
     total = 1
     for name in names:
         total *= len(options[name])
     if total > MAX_COMBINATIONS:
         raise InputError(f"{total} rung combinations; at most {MAX_COMBINATIONS} are searched")
-    shares = {name: time_share(options[name]) for name in names}
     best, best_key = None, None
     for combination in itertools.product(*(options[n] for n in names)):
         error = sum(o["error_contribution"] for o in combination)
         if error > tolerance:
             continue
-        predicted = sum(shares[n] * o["relative_cost"] for n, o in zip(names, combination))
-        key = (round(predicted, 6), sum(o["relative_cost"] for o in combination), error)
+        key = (round(sum(o["relative_cost"] for o in combination), 9), error)
         if best_key is None or key < best_key:
             best, best_key = combination, key
     return dict(zip(names, best))
@@ -271,7 +261,7 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
              "kind": option["kind"], "bsdf_properties": option["bsdf_properties"],
              "error_contribution": option["error_contribution"], "cost": option["relative_cost"],
              "hemisphere_logcos_rmse": option["hemisphere_logcos_rmse"], "time_saving_s": option["time_saving_s"],
-             "time_share_s": time_share(options[name]), "has_ladder": ladders[name] is not None}
+             "has_ladder": ladders[name] is not None}
             for name, option in chosen.items()
         ],
         "reference_time_s": reference_time,
