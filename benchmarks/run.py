@@ -69,7 +69,7 @@ from neuralbrdf.physics.abc import AbcParameters
 from neuralbrdf.models.directional import NlbWithLatent
 from neuralbrdf.models.nlb import NlbNetwork
 from neuralbrdf.render import preview
-from neuralbrdf.onnx_contract import contract_metadata
+from neuralbrdf.kinds import contract_metadata
 from neuralbrdf.study.cost import bench_throughput, machine
 from neuralbrdf.study.cost import timed as _timed
 

@@ -1,16 +1,21 @@
 """The shipped YAML configs (``configs/`` of the repository, installed as ``neuralbrdf/configs``).
 
 ``neuralbrdf train --config abc`` and study profiles name them without a path; a path that
-exists is always used as it is.
+exists is always used as it is.  An *overlay* changes a few values of another config and says
+so in its leading comment (``# overlay of: NAME``); ``--config OVERLAY`` alone then loads
+``NAME`` first (:func:`overlay_base`).
 """
 
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 #: Folder of the shipped training configs (study profiles in its ``study/``).
 CONFIGS_DIR = Path(__file__).resolve().parent / "configs"
+#: The leading-comment line of an overlay naming its base config.
+_OVERLAY = re.compile(r"^#\s*overlay of:\s*(\S+)\s*$")
 
 
 def shipped_configs(folder: str = "") -> list[Path]:
@@ -29,3 +34,17 @@ def resolve_config(name: str | os.PathLike[str], folder: str = "") -> Path:
     if shipped is not None and shipped.suffix != ".yaml":
         shipped = shipped.with_suffix(".yaml")
     return shipped if shipped is not None and shipped.is_file() else path
+
+
+def overlay_base(path: str | os.PathLike[str]) -> Path | None:
+    """The config an overlay file applies to (its ``# overlay of: NAME`` line, resolved like a
+    ``--config`` name next to the overlay or among the shipped configs), else ``None``."""
+    for line in Path(path).read_text(encoding="utf-8", errors="replace").splitlines():
+        if not line.startswith("#"):
+            return None
+        match = _OVERLAY.match(line.strip())
+        if match:
+            beside = Path(path).parent / Path(match.group(1)).name
+            beside = beside if beside.suffix == ".yaml" else beside.with_suffix(".yaml")
+            return beside if beside.is_file() else resolve_config(match.group(1))
+    return None

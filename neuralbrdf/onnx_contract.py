@@ -1,7 +1,7 @@
 """The ONNX file contract between exported models and the renderers (SPEC §6).
 
 Every trained model (spectral MLP, NLB, ABC) exports to one self-contained ``.onnx`` file that
-:func:`load_model` validates at scene load, so that a bad file fails with one clear
+:func:`neuralbrdf.kinds.load_model` validates at scene load, so that a bad file fails with one clear
 :class:`~neuralbrdf.errors.InputError` naming the file and what is wrong, never mid-render.
 
 Graph interface
@@ -31,12 +31,13 @@ key                                value
 =================================  ===========================================================
 
 Spectral models are those with a ``wavelength`` input.  Exporters build the metadata with
-:func:`contract_metadata`, which writes exactly what :func:`load_model` reads.
+:func:`neuralbrdf.kinds.contract_metadata` (this module's :func:`generic_metadata` plus the kind's
+checks), which writes exactly what :func:`neuralbrdf.kinds.load_model` reads.
 
-This module checks the part of the contract every kind shares and never imports Mitsuba,
-Dr.Jit or PyTorch.  :func:`neuralbrdf.kinds.load_model` adds the checks of the file's kind (its
-name registered, its own keys, spectral where the kind requires it); renderers and evaluators
-open models through that.
+This module checks the part of the contract every kind shares (:func:`load_generic_model`,
+:func:`generic_metadata`) and never imports Mitsuba, Dr.Jit or PyTorch.
+:func:`neuralbrdf.kinds.load_model` adds the checks of the file's kind (its name registered, its
+own keys, spectral where the kind requires it); renderers and evaluators open models through that.
 """
 
 from __future__ import annotations
@@ -123,7 +124,7 @@ class OnnxModel:
         return 1 if self.is_spectral else 3
 
 
-def contract_metadata(
+def generic_metadata(
     kind: str,
     material: str,
     provenance: str,
@@ -131,7 +132,7 @@ def contract_metadata(
     wavelength_range_nm: tuple[float, float] | None = None,
     kind_metadata: Mapping[str, str] | None = None,
 ) -> dict[str, str]:
-    """The ``metadata_props`` entries of the contract, validated like :func:`load_model` does.
+    """The ``metadata_props`` entries every kind shares, validated like :func:`load_generic_model` does.
 
     ``kind_metadata`` holds the kind's own entries; their keys must start with
     ``neuralbrdf.<kind>.`` (:func:`kind_key`).
@@ -153,7 +154,7 @@ def contract_metadata(
     return metadata
 
 
-def load_model(path: str | os.PathLike[str]) -> OnnxModel:
+def load_generic_model(path: str | os.PathLike[str]) -> OnnxModel:
     """Load ``path`` and check it against the contract of SPEC §6 (see the module docstring).
 
     Raises :class:`InputError` naming the file for a missing or unreadable file, a file that is

@@ -21,7 +21,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from neuralbrdf.kinds.abc import AbcMetadata
-from neuralbrdf.onnx_contract import contract_metadata
+from neuralbrdf.kinds import contract_metadata
 
 OPSET = 17
 

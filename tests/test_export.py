@@ -1,5 +1,5 @@
 """Export to the ONNX contract (SPEC §6): the direction-space models of
-``neuralbrdf.models.directional`` against independent computations, and ``export/to_onnx.py`` —
+``neuralbrdf.models.directional`` against independent computations, and ``neuralbrdf export`` (``export/to_onnx.py``) —
 PyTorch = onnxruntime = Dr.Jit on every kind's file, ``load_model`` accepts it, a graph that does
 not reproduce PyTorch is never written, bad checkpoints exit 2 with one line."""
 
@@ -16,7 +16,6 @@ import pytest
 import pytorch_lightning as pl
 import torch
 from drjit.llvm import Float
-from export_scripts import load_export_script
 
 from neuralbrdf.geometry import half_diff_angles, inplane_to_vectors
 from neuralbrdf.lightning.spectral_mlp_module import SpectralMlpModule
@@ -29,14 +28,14 @@ from neuralbrdf.models.directional import (
 )
 from neuralbrdf.models.nlb import NlbConfig, NlbNetwork
 from neuralbrdf import kinds, onnx_export
+from neuralbrdf.cli import export_command
 from neuralbrdf.render.drjit_onnx import DrJitGraph
 from neuralbrdf.kinds import load_model
-from neuralbrdf.onnx_contract import contract_metadata
+from neuralbrdf.kinds import contract_metadata
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-to_onnx = load_export_script("to_onnx")
 
 RTOL = onnx_export.RELATIVE_TOLERANCE
 ATOL = onnx_export.ABSOLUTE_FLOOR_SR
@@ -155,7 +154,7 @@ def exported(checkpoints, tmp_path_factory):
     for case, (checkpoint, material) in CASES.items():
         out = d / f"{case}.onnx"
         args = ["--ckpt", str(checkpoints[checkpoint]), "--out", str(out)]
-        assert to_onnx.main(args + (["--material", material] if material else [])) == 0
+        assert export_command.main(args + (["--material", material] if material else [])) == 0
         files[case] = out
     return files
 
@@ -301,7 +300,7 @@ def test_pytorch_onnxruntime_and_drjit_agree_on_the_exported_file(exported, chec
 
 def test_nlb_latents_select_the_material(exported, checkpoints, tmp_path):
     brass = tmp_path / "brass.onnx"
-    assert to_onnx.main(["--ckpt", str(checkpoints["nlb"]), "--out", str(brass), "--material", "brass"]) == 0
+    assert export_command.main(["--ckpt", str(checkpoints["nlb"]), "--out", str(brass), "--material", "brass"]) == 0
     wi, wo, _ = random_pairs(64)
     run = lambda path: onnxruntime.InferenceSession(str(path)).run(["f"], {"wi": wi, "wo": wo})[0]  # noqa: E731
     assert not np.allclose(run(brass), run(exported["nlb"]), rtol=1e-3)
@@ -368,7 +367,7 @@ def test_export_refuses_a_graph_that_does_not_reproduce_pytorch(checkpoints, tmp
     out = tmp_path / "corrupt.onnx"
     with pytest.raises(onnx_export.ExportValidationError, match="differs from PyTorch"):
         onnx_export.export_checkpoint(checkpoints["spectral_mlp"], out)
-    assert to_onnx.main(["--ckpt", str(checkpoints["spectral_mlp"]), "--out", str(out)]) == 1
+    assert export_command.main(["--ckpt", str(checkpoints["spectral_mlp"]), "--out", str(out)]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "not written" in err
     assert _no_output_left(tmp_path, out.name)
@@ -433,7 +432,7 @@ def test_out_equal_to_the_checkpoint_is_refused_and_the_checkpoint_kept(tmp_path
     """Issue 13 class 1: ``--out c.ckpt --ckpt c.ckpt`` used to replace the checkpoint."""
     path = spectral_mlp_checkpoint(tmp_path / "c.ckpt")
     before = path.read_bytes()
-    assert to_onnx.main(["--ckpt", str(path), "--out", str(path)]) == 2
+    assert export_command.main(["--ckpt", str(path), "--out", str(path)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "is also an input of this command" in err, err
     assert path.read_bytes() == before
@@ -477,7 +476,7 @@ def test_bad_checkpoint_exits_2_with_one_line_naming_it(case, tmp_path, capsys):
     make, extra, message = BAD_CHECKPOINTS[case]
     path = make(tmp_path)
     out = tmp_path / "model.onnx"
-    assert to_onnx.main(["--ckpt", str(path), "--out", str(out), *extra]) == 2
+    assert export_command.main(["--ckpt", str(path), "--out", str(out), *extra]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("error: ") and str(path) in err and message in err, err
     assert _no_output_left(tmp_path, out.name)

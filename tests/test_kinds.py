@@ -14,6 +14,7 @@ from neuralbrdf.lightning.abc_module import AbcFitModule
 from neuralbrdf.lightning.common import WritesKind
 from neuralbrdf.lightning.latent_fit_module import LatentFitModule
 from neuralbrdf.lightning.spectral_mlp_module import SpectralMlpModule
+from neuralbrdf.onnx_contract import generic_metadata
 
 TOY_KIND = '''
 from neuralbrdf.kinds import Kind
@@ -60,7 +61,7 @@ def test_the_shared_hook_writes_the_kind_into_the_checkpoint():
 
 
 def test_a_new_kind_is_one_new_file(tmp_path, monkeypatch):
-    path = fx.save(fx.tiny_rgb_model(fx.rgb_metadata("toy")), tmp_path / "toy.onnx")
+    path = fx.save(fx.tiny_rgb_model(generic_metadata("toy", "fixture", "test")), tmp_path / "toy.onnx")
     with pytest.raises(InputError, match="unknown model kind 'toy'"):
         kinds.load_model(path)
     extra = tmp_path / "more_kinds"
@@ -87,7 +88,7 @@ def test_a_module_without_kind_is_refused(tmp_path, monkeypatch):
 
 
 def test_a_spectral_only_kind_refuses_an_rgb_file(tmp_path):
-    path = fx.save(fx.tiny_rgb_model(fx.rgb_metadata("spectral_mlp")), tmp_path / "m.onnx")
+    path = fx.save(fx.tiny_rgb_model(generic_metadata("spectral_mlp", "fixture", "test")), tmp_path / "m.onnx")
     with pytest.raises(InputError, match="spectral_mlp model must take a 'wavelength' input"):
         kinds.load_model(path)
 
@@ -101,3 +102,40 @@ def test_checking_and_exporting_never_load_mitsuba():
 def test_kind_dataclass_defaults_describe_a_neural_kind():
     kind = Kind(name="x", summary="y")
     assert (kind.spectral_only, kind.proposal, kind.from_checkpoint) == (False, "fitted_ggx", None)
+
+
+@pytest.mark.parametrize(
+    ("checkpoint", "kind"),
+    [
+        ({"hyper_parameters": {"_class_path": "neuralbrdf.lightning.spectral_mlp_module.SpectralMlpModule"}},
+         "spectral_mlp"),
+        ({"hyper_parameters": {"_class_path": "neuralbrdf.lightning.latent_fit_module.LatentFitModule"}}, "nlb"),
+        ({"material_names": ["a"], "nlb_config": {}}, "nlb"),
+        ({"abc_parameters": {}, "material": "m"}, "abc"),
+        ({CHECKPOINT_KIND_KEY: "abc"}, "abc"),
+    ],
+    ids=["spectral by class", "nlb by class", "nlb by layout", "abc by layout", "by key"],
+)
+def test_checkpoints_without_the_kind_key_are_recognised_by_their_layout(checkpoint, kind):
+    assert kinds.checkpoint_kind(checkpoint, "old.ckpt").name == kind
+
+
+@pytest.mark.parametrize("checkpoint", [{}, {CHECKPOINT_KIND_KEY: "reference"}, {"state_dict": {}}])
+def test_a_checkpoint_of_no_trained_kind_is_refused_naming_the_key(checkpoint):
+    with pytest.raises(InputError, match=r"unknown checkpoint kind .*expected one of \['abc', 'nlb', 'spectral_mlp'\]") as info:
+        kinds.checkpoint_kind(checkpoint, "x.ckpt")
+    assert info.value.column == CHECKPOINT_KIND_KEY and str(info.value.path) == "x.ckpt"
+
+
+def test_the_shipped_pretrained_networks_name_a_class_that_exists():
+    """Lightning rebuilds the module of --ckpt_path (validate, test, --resume) from its class path."""
+    import importlib
+
+    import torch
+
+    from neuralbrdf.lightning.latent_fit_module import PRETRAINED_DIR
+
+    for path in sorted(PRETRAINED_DIR.glob("*.ckpt")):
+        class_path = torch.load(path, map_location="cpu", weights_only=True)["hyper_parameters"]["_class_path"]
+        module, _, name = class_path.rpartition(".")
+        assert hasattr(importlib.import_module(module), name), (path.name, class_path)

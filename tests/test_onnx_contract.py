@@ -11,8 +11,7 @@ from onnx import TensorProto
 
 import onnx_fixtures as fx
 from neuralbrdf.errors import InputError
-from neuralbrdf import kinds
-from neuralbrdf.kinds import load_model
+from neuralbrdf.kinds import contract_metadata, load_model
 from neuralbrdf.kinds.abc import A_KEY as ABC_A_KEY
 from neuralbrdf.kinds.abc import B_KEY as ABC_B_KEY
 from neuralbrdf.kinds.abc import KD_KEY as ABC_KD_KEY
@@ -23,7 +22,6 @@ from neuralbrdf.onnx_contract import (
     KIND_KEY,
     MATERIAL_KEY,
     WAVELENGTH_MAX_KEY,
-    contract_metadata,
     probe_directions,
 )
 
@@ -199,8 +197,12 @@ def test_graph_onnxruntime_cannot_run(tmp_path):
 
 
 def test_contract_metadata_refuses_what_load_model_refuses():
-    with pytest.raises(InputError, match="unknown model kind 'gan'"):
-        kinds.get("gan")  # the registry behind kinds.load_model and the exporter's final check
+    with pytest.raises(InputError, match="unknown model kind"):
+        contract_metadata("gan", "m", "p")
+    with pytest.raises(InputError, match="spectral_mlp model must take a 'wavelength' input"):
+        contract_metadata("spectral_mlp", "m", "p")
+    with pytest.raises(InputError, match="ABC model lacks metadata keys"):
+        contract_metadata("abc", "m", "p")
     with pytest.raises(InputError, match="start with 'neuralbrdf.nlb.'"):
         contract_metadata("nlb", "m", "p", kind_metadata=ABC.entries())
     with pytest.raises(InputError, match="wavelength range"):

@@ -248,3 +248,18 @@ def test_parameter_count_counts_float_initializers():
     graph = helper.make_graph([], "g", [], [], initializer=weights)
     assert parameter_count(helper.make_model(graph)) == 3 * 7 + 7
     assert isinstance(onnx.TensorProto.FLOAT, int)
+
+
+def test_parameter_count_of_an_abc_file_counts_every_fitted_value(tmp_path):
+    """kd and A per channel are weights of the graph; B, C and eta are constants in its arithmetic."""
+    import onnx
+
+    from neuralbrdf.kinds import abc as abc_kind
+    from neuralbrdf.onnx_export import write_model
+    from neuralbrdf.physics.abc import AbcParameters
+    from neuralbrdf.study.cost import parameter_count
+
+    parameters = AbcParameters(kd=[0.1, 0.2, 0.3], A=[1.0, 0.9, 0.8], B=40.0, C=1.5, eta=1.5)
+    path = tmp_path / "abc.onnx"
+    write_model(abc_kind.exportable(parameters, "m", "test"), path)
+    assert parameter_count(onnx.load(str(path)), "abc") == 3 + 3 + 3

@@ -300,7 +300,8 @@ def test_binary_config_and_missing_evaluation_checkpoint_are_one_line(tmp_path):
 
 def _assert_failed_run(run_dir, cause_fragment, capsys):
     err = capsys.readouterr().err
-    assert f"error: fit failed: " in err and cause_fragment in err, err
+    assert "error: fit failed: " in err and cause_fragment in err, err
+    assert f"(run: {run_dir}; its metrics.json holds the cause)" in err
     text = (run_dir / "metrics.json").read_text()
     metrics = json.loads(text, parse_constant=lambda c: pytest.fail(f"not strict JSON: {c}"))
     assert metrics["status"] == "failed" and cause_fragment in metrics["cause"]
@@ -380,3 +381,85 @@ def test_checkpoints_are_written_whole_or_not_at_all(tmp_path, monkeypatch):
         run.AtomicCheckpointIO().save_checkpoint({"epoch": 2}, path)
     assert torch.load(path, weights_only=True) == {"epoch": 1}
     assert [p.name for p in path.parent.iterdir()] == ["last.ckpt"]
+
+
+# --------------------------------------------------------------------------- issue 12: the command's habits
+
+
+def test_a_fit_ends_with_a_summary_that_says_how_to_export(tmp_path, gcms_session, capsys):
+    run_dir = tmp_path / "run"
+    assert main(["fit", "--config", "spectral_mlp", *data_args(gcms_session), *quick("--run_dir", str(run_dir))]) == 0
+    err = capsys.readouterr().err
+    best = run_dir / "checkpoints" / "best.ckpt"
+    assert f"run: {run_dir}" in err and "metrics: fit/" in err and f"checkpoint: {best}" in err
+    assert f"export: neuralbrdf export --ckpt {best} --out MODEL.onnx" in err
+    assert "GPU available" not in err and "Tip" not in err  # quiet without --verbose
+
+
+def test_verbose_keeps_lightnings_lines_and_quiet_mode_restores_logging(tmp_path, gcms_session, caplog):
+    import logging
+
+    caplog.set_level(logging.INFO)
+    loggers = [logging.getLogger(name) for name in ("pytorch_lightning", "lightning.pytorch")]
+    levels = [logger.level for logger in loggers]
+    assert main(["fit", "--config", "spectral_mlp", *data_args(gcms_session),
+                 *quick("--run_dir", str(tmp_path / "quiet"))]) == 0
+    assert not [r for r in caplog.records if "GPU available" in r.getMessage()]
+    assert [logger.level for logger in loggers] == levels
+    assert main(["fit", "--config", "spectral_mlp", "--verbose", *data_args(gcms_session),
+                 *quick("--run_dir", str(tmp_path / "verbose"))]) == 0
+    assert [r for r in caplog.records if "GPU available" in r.getMessage()]
+
+
+def test_help_names_every_shipped_config_and_the_data_options():
+    from neuralbrdf.configs_dir import shipped_configs
+    from neuralbrdf.lightning.train_help import help_text
+
+    text = help_text()
+    for path in shipped_configs():
+        assert f"  {path.stem} " in text, path.stem
+    for option in ("--data.path", "--data.reference", "--data.virtual", "--data.nbrdf", "--data.plan",
+                   "--data.sources", "--data.test_split", "--run_dir", "--verbose"):
+        assert option in text, option
+    assert "sr⁻¹" in text and "``" not in text and ":mod:" not in text  # units kept, markup gone
+    assert len(text.splitlines()) < 200
+
+
+def test_help_and_no_arguments(capsys):
+    assert main(["--help"]) == 0 and "shipped configs (--config NAME)" in capsys.readouterr().out
+    assert main([]) == 2 and "usage: neuralbrdf train" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name", ["abc", "abc.yaml", "configs/abc.yaml"])
+def test_a_shipped_config_by_name(tmp_path, monkeypatch, name):
+    from neuralbrdf.configs_dir import CONFIGS_DIR, resolve_config
+
+    monkeypatch.chdir(tmp_path)  # no configs/ folder here
+    assert resolve_config(name) == CONFIGS_DIR / "abc.yaml"
+    assert resolve_config("no_such_config") == Path("no_such_config")
+    (tmp_path / "abc.yaml").write_text("seed_everything: 1\n")
+    assert resolve_config("abc.yaml") == Path("abc.yaml")  # a file that exists wins
+
+
+def test_an_overlay_alone_loads_its_base_first(tmp_path, monkeypatch):
+    from neuralbrdf.configs_dir import CONFIGS_DIR, overlay_base
+    from neuralbrdf.lightning.run import _resolve_config_files
+
+    monkeypatch.chdir(tmp_path)
+    assert overlay_base(CONFIGS_DIR / "nlb_latent_report.yaml") == CONFIGS_DIR / "nlb_latent.yaml"
+    assert overlay_base(CONFIGS_DIR / "nlb_latent.yaml") is None
+    base, overlay = str(CONFIGS_DIR / "nlb_latent.yaml"), str(CONFIGS_DIR / "nlb_latent_report.yaml")
+    expected = ["fit", "--config", base, "--config", overlay, "--data.plan", "DS2"]
+    assert _resolve_config_files(["fit", "--data.plan", "DS2", "-c", "nlb_latent_report"]) == expected
+    assert _resolve_config_files(["fit", "--config", "nlb_latent", "--config=nlb_latent_report", "--data.plan", "DS2"]) == expected
+
+
+def test_the_neuralbrdf_command_hands_train_and_export_their_arguments(capsys):
+    from neuralbrdf.cli.main import main as neuralbrdf
+
+    assert neuralbrdf(["train", "--help"]) == 0 and "data options of" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as exit_info:
+        neuralbrdf(["export", "--help"])
+    assert exit_info.value.code == 0 and "usage: neuralbrdf export" in capsys.readouterr().out
+    assert neuralbrdf(["export", "--ckpt", "missing.ckpt", "--out", "m.onnx"]) == 2
+    assert "missing.ckpt" in capsys.readouterr().err

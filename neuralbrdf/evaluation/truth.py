@@ -36,7 +36,7 @@ from neuralbrdf.errors import InputError
 from neuralbrdf.models.directional import LinearInWavelength
 from neuralbrdf.models.nlb import above_horizon
 from neuralbrdf.onnx_export import Exportable, ExportReport, write_model
-from neuralbrdf.onnx_contract import contract_metadata
+from neuralbrdf.kinds import contract_metadata
 from neuralbrdf.virtual.materials import MATERIALS, get_material
 
 #: Wavelength range (nm) of the virtual truths: the project's colour pipeline (SPEC §2.3).

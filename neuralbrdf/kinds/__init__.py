@@ -18,8 +18,9 @@ A new kind is one new module here: the registry imports every module of the pack
 use.  Generic evaluation (onnxruntime, the Dr.Jit interpreter) reads the ``.onnx`` graph and
 needs nothing from the kind.
 
-:func:`load_model` is the full contract check (the generic one of
-:func:`neuralbrdf.onnx_contract.load_model` and the kind's own); :func:`load_exportable`
+:func:`load_model` is the full contract check of a file and :func:`contract_metadata` builds a
+file's metadata the same way (the generic part of :mod:`neuralbrdf.onnx_contract` and the
+kind's own); :func:`load_exportable`
 gives a checkpoint's model to the exporter (:mod:`neuralbrdf.onnx_export`).  This module sits
 below the exporter and the renderer: it imports neither.
 """
@@ -43,7 +44,7 @@ from neuralbrdf import onnx_contract
 from neuralbrdf.onnx_contract import OnnxModel
 
 #: Checkpoint entry naming the kind; written by every Lightning module of a fitted model
-#: (:class:`neuralbrdf.lightning.kind_hook.WritesKind`).
+#: (:class:`neuralbrdf.lightning.common.WritesKind`).
 CHECKPOINT_KIND_KEY = "neuralbrdf_kind"
 
 
@@ -91,6 +92,9 @@ class Kind:
         for kinds that are written directly (``reference``).
     recognises:
         ``checkpoint -> bool`` for checkpoints written before :data:`CHECKPOINT_KIND_KEY` existed.
+    scalar_parameters:
+        Fitted values the graph holds as scalar constants rather than weight tensors (ABC's
+        ``B``, ``C``, ``η``), so that a parameter count can include them.
     """
 
     name: str
@@ -100,21 +104,25 @@ class Kind:
     proposal: str = "fitted_ggx"
     from_checkpoint: Callable[[dict, Path, str | None], Exportable] | None = None
     recognises: Callable[[dict], bool] | None = None
+    scalar_parameters: int = 0
 
 
 _REGISTRY: dict[str, Kind] = {}
 
 
 def _discover() -> dict[str, Kind]:
+    """The registry, filled on first use from every module of this package (all or nothing)."""
     if not _REGISTRY:
+        found: dict[str, Kind] = {}
         for module_info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
             module = importlib.import_module(f"{__name__}.{module_info.name}")
             kind = getattr(module, "KIND", None)
             if not isinstance(kind, Kind):
                 raise TypeError(f"{module.__name__} defines no KIND = Kind(...)")
-            if kind.name in _REGISTRY:
+            if kind.name in found:
                 raise TypeError(f"kind {kind.name!r} is defined twice ({module.__name__})")
-            _REGISTRY[kind.name] = kind
+            found[kind.name] = kind
+        _REGISTRY.update(found)
     return _REGISTRY
 
 
@@ -138,15 +146,37 @@ def load_model(path: str | os.PathLike[str]) -> OnnxModel:
     """``path`` checked against the whole contract: the shared part and its kind's own.
 
     Raises :class:`InputError` naming the file for everything
-    :func:`neuralbrdf.onnx_contract.load_model` refuses, an unregistered kind, a
+    :func:`neuralbrdf.onnx_contract.load_generic_model` refuses, an unregistered kind, a
     non-spectral model of a spectral-only kind, and bad kind-specific metadata.
     """
-    model = onnx_contract.load_model(path)
-    kind = get(model.kind, path=model.path, column=onnx_contract.KIND_KEY)
-    if kind.spectral_only and not model.is_spectral:
-        raise InputError(f"a {kind.name} model must take a 'wavelength' input", path=model.path)
-    details = kind.read_metadata(model.metadata, model.path, model.is_spectral)
+    model = onnx_contract.load_generic_model(path)
+    details = _kind_details(model.kind, model.metadata, model.path, model.is_spectral)
     return dataclasses.replace(model, details=details)
+
+
+def contract_metadata(
+    kind: str,
+    material: str,
+    provenance: str,
+    *,
+    wavelength_range_nm: tuple[float, float] | None = None,
+    kind_metadata: Mapping[str, str] | None = None,
+) -> dict[str, str]:
+    """A file's ``metadata_props``: :func:`~neuralbrdf.onnx_contract.generic_metadata` checked as
+    :func:`load_model` checks it (``kind`` registered, spectral where it must be, its own entries
+    ``kind_metadata`` valid); :class:`InputError` otherwise."""
+    metadata = onnx_contract.generic_metadata(
+        kind, material, provenance, wavelength_range_nm=wavelength_range_nm, kind_metadata=kind_metadata
+    )
+    _kind_details(kind, metadata, "<metadata>", wavelength_range_nm is not None)
+    return metadata
+
+
+def _kind_details(name: str, metadata: Mapping[str, str], path, is_spectral: bool) -> object:
+    kind = get(name, path=path, column=onnx_contract.KIND_KEY)
+    if kind.spectral_only and not is_spectral:
+        raise InputError(f"a {kind.name} model must take a 'wavelength' input", path=path)
+    return kind.read_metadata(metadata, path, is_spectral)
 
 
 # --------------------------------------------------------------------------- checkpoints

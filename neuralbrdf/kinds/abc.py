@@ -28,10 +28,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from neuralbrdf.errors import InputError
-from neuralbrdf.kinds import Exportable, Kind, pick_material, provenance
+from neuralbrdf.kinds import Exportable, Kind, contract_metadata, pick_material, provenance
 from neuralbrdf.physics.abc import AbcParameters
 from neuralbrdf.models.directional import AbcOnDirections
-from neuralbrdf.onnx_contract import contract_metadata, kind_key, metadata_float, metadata_float_list
+from neuralbrdf.onnx_contract import kind_key, metadata_float, metadata_float_list
 
 NAME = "abc"
 KD_KEY = kind_key(NAME, "kd")
@@ -95,7 +95,6 @@ def exportable(parameters: AbcParameters, material: str, provenance_text: str) -
     metadata = contract_metadata(
         NAME, material, provenance_text, wavelength_range_nm=wavelength_range, kind_metadata=stored.entries()
     )
-    read_metadata(metadata, "<metadata>", wavelength_range is not None)
     return Exportable(module, NAME, material, metadata, wavelength_range)
 
 
@@ -115,4 +114,5 @@ KIND = Kind(
     proposal="abc_lobe",
     from_checkpoint=from_checkpoint,
     recognises=lambda checkpoint: "abc_parameters" in checkpoint,
+    scalar_parameters=3,  # B, C, eta (kd and A are weight tensors of the graph)
 )

@@ -17,10 +17,9 @@ import torch
 
 from neuralbrdf.checkpoints import check_weights_match, read_checkpoint
 from neuralbrdf.errors import InputError
-from neuralbrdf.kinds import Exportable, Kind, pick_material, provenance
+from neuralbrdf.kinds import Exportable, Kind, contract_metadata, pick_material, provenance
 from neuralbrdf.models.directional import NlbWithLatent
 from neuralbrdf.models.nlb import NlbNetwork
-from neuralbrdf.onnx_contract import contract_metadata
 
 #: Entries a latent-fit checkpoint has beside Lightning's own.
 _FIT_KEYS = ("nlb_config", "material_names", "state_dict")
@@ -68,7 +67,7 @@ def from_checkpoint(checkpoint: dict, path: Path, material: str | None) -> Expor
 
 def _recognises(checkpoint: dict) -> bool:
     class_path = str((checkpoint.get("hyper_parameters") or {}).get("_class_path", ""))
-    return class_path.rsplit(".", 1)[-1] == "LatentFitModule" or all(key in checkpoint for key in _FIT_KEYS)
+    return class_path.rsplit(".", 1)[-1] == "LatentFitModule" or ("material_names" in checkpoint and "nlb_config" in checkpoint)
 
 
 KIND = Kind(

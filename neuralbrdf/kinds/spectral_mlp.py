@@ -15,10 +15,9 @@ from pathlib import Path
 
 from neuralbrdf.checkpoints import check_weights_match
 from neuralbrdf.errors import InputError
-from neuralbrdf.kinds import Exportable, Kind, pick_material, provenance
+from neuralbrdf.kinds import Exportable, Kind, contract_metadata, pick_material, provenance
 from neuralbrdf.models.directional import SpectralMlpOnDirections
 from neuralbrdf.models.spectral_mlp import SpectralMLP
-from neuralbrdf.onnx_contract import contract_metadata
 
 #: Prefix of the network's tensors in the Lightning module's state dict.
 _PREFIX = "network."

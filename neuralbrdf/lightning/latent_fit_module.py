@@ -67,7 +67,8 @@ from neuralbrdf.losses import check_loss_domain, log_cosine, nlb_loss
 from neuralbrdf.models.nlb import LatentTable
 
 #: The shipped pretrained compact network (SPEC §4.2), the default ``checkpoint``.
-PRETRAINED_COMPACT = Path(__file__).resolve().parents[1] / "pretrained" / "nlb_compact.ckpt"
+PRETRAINED_DIR = Path(__file__).resolve().parents[1] / "pretrained"
+PRETRAINED_COMPACT = PRETRAINED_DIR / "nlb_compact.ckpt"
 #: How the shipped checkpoint is made (for the error message when it is missing).
 PRETRAIN_COMMAND = "python train.py fit --config configs/nlb_pretrain.yaml"
 
@@ -81,8 +82,8 @@ class LatentFitModule(WritesKind, pl.LightningModule):
     Parameters
     ----------
     checkpoint:
-        :class:`~neuralbrdf.lightning.nlb_module.NlbPretrainModule` checkpoint; ``None``: the
-        shipped ``neuralbrdf/pretrained/nlb_compact.ckpt``.
+        :class:`~neuralbrdf.lightning.nlb_module.NlbPretrainModule` checkpoint, or the name of
+        a shipped one (``nlb_compact``, ``nlb_64x4``); ``None``: the shipped ``nlb_compact``.
     latent_init:
         Constant every latent starts from; ``None``: the centroid of the pretrained corpus
         latents.
@@ -121,6 +122,8 @@ class LatentFitModule(WritesKind, pl.LightningModule):
         if not early_stop_tolerance >= 0:
             raise InputError(f"must be non-negative, got {early_stop_tolerance}", column="model.early_stop_tolerance")
         path = PRETRAINED_COMPACT if checkpoint is None else Path(checkpoint)
+        if checkpoint is not None and not path.is_file() and (PRETRAINED_DIR / f"{checkpoint}.ckpt").is_file():
+            path = PRETRAINED_DIR / f"{checkpoint}.ckpt"  # a shipped network by name, e.g. nlb_64x4
         if checkpoint is None and not path.is_file():
             raise InputError(f"the shipped pretrained NLB checkpoint is missing; make it with `{PRETRAIN_COMMAND}` "
                              "and copy its checkpoints/best.ckpt there, or set model.checkpoint", path=path)

@@ -48,6 +48,7 @@ configuration file that is not YAML, an invalid hyper-parameter raised as
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import logging
@@ -73,7 +74,8 @@ from neuralbrdf.atomic import TEMP_MARKER, atomic_path, atomic_write, command_in
 from neuralbrdf.errors import InputError
 from neuralbrdf.errors import one_line
 from neuralbrdf.checkpoints import read_checkpoint
-from neuralbrdf.configs_dir import resolve_config
+from neuralbrdf.configs_dir import overlay_base, resolve_config
+from neuralbrdf.lightning.common import WritesKind
 from neuralbrdf.lightning.train_help import help_text
 
 METRICS_FILE = "metrics.json"
@@ -366,6 +368,7 @@ class NeuralBrdfCLI(LightningCLI):
         except BaseException as exc:
             self._restore_earlier_log()
             self._after_failure(exc)
+            exc.neuralbrdf_run_dir = self.run_dir  # where a failed fit's metrics.json says why
             raise
         self._restore_earlier_log()
         self._drop_set_aside()
@@ -504,19 +507,39 @@ def _input_error(exc: BaseException) -> InputError | None:
     return None
 
 
-def _resolve_config_files(args: list[str]) -> list[str]:
-    """``args`` with each ``--config NAME`` of a shipped config replaced by its file
-    (:func:`~neuralbrdf.configs_dir.resolve_config`); every config must be a readable UTF-8 text
-    file (jsonargparse shows a traceback for a binary one)."""
-    args = list(args)
-    for k, arg in enumerate(args):
-        if arg == "--config" and k + 1 < len(args):
-            args[k + 1] = path = str(resolve_config(args[k + 1]))
-        elif arg.startswith("--config="):
-            path = str(resolve_config(arg.split("=", 1)[1]))
-            args[k] = f"--config={path}"
-        else:
+def _config_args(args: list[str]) -> tuple[list[str], list[str]]:
+    """``(the other arguments, the config files named)``: ``--config X``, ``--config=X``, ``-c X``."""
+    rest, configs, k = [], [], 0
+    while k < len(args):
+        if args[k] in ("--config", "-c") and k + 1 < len(args):
+            configs.append(args[k + 1])
+            k += 2
             continue
+        if args[k].startswith("--config="):
+            configs.append(args[k].split("=", 1)[1])
+        else:
+            rest.append(args[k])
+        k += 1
+    return rest, configs
+
+
+def _resolve_config_files(args: list[str]) -> list[str]:
+    """``args`` with each config named by a shipped config's name replaced by its file
+    (:func:`~neuralbrdf.configs_dir.resolve_config`) and an overlay's base config put before it when
+    not given (:func:`~neuralbrdf.configs_dir.overlay_base`); every config must be a readable UTF-8
+    text file (jsonargparse shows a traceback for a binary one)."""
+    rest, names = _config_args(args)
+    configs: list[Path] = []
+    for name in names:
+        path = resolve_config(name)
+        base = overlay_base(path) if path.is_file() else None
+        if base is not None and base.resolve() not in {c.resolve() for c in configs}:
+            configs.append(base)
+        configs.append(path)
+    # the subcommand stays first; the configs come before every other option, which override them
+    head = rest[:1] if rest and not rest[0].startswith("-") else []
+    resolved = [*head, *(a for path in configs for a in ("--config", str(path))), *rest[len(head):]]
+    for path in configs:
         try:
             Path(path).read_bytes().decode("utf-8")
         except FileNotFoundError:
@@ -525,16 +548,37 @@ def _resolve_config_files(args: list[str]) -> list[str]:
             raise InputError(f"not a YAML configuration: not UTF-8 text ({error.reason} at byte {error.start})", path=path) from None
         except OSError as error:
             raise InputError(f"cannot read the configuration ({error.strerror or error})", path=path) from None
-    return args
+    return resolved
 
 
-def _quiet() -> None:
-    """Lightning's start-up lines (GPU/TPU/HPU available, tips) and library deprecation notices off."""
-    for name in ("pytorch_lightning", "lightning", "lightning_fabric", "lightning.pytorch"):
-        logging.getLogger(name).setLevel(logging.WARNING)
-    warnings.filterwarnings("ignore", category=DeprecationWarning)
-    warnings.filterwarnings("ignore", category=FutureWarning)
-    warnings.filterwarnings("ignore", message=r".*(smaller than the logging interval|LeafSpec).*")
+#: Loggers of Lightning's start-up lines (GPU/TPU/HPU available, tips), silenced unless --verbose.
+LIGHTNING_LOGGERS = ("pytorch_lightning", "lightning", "lightning_fabric", "lightning.pytorch")
+
+
+@contextlib.contextmanager
+def _quiet(verbose: bool):
+    """Unless ``verbose``: Lightning's INFO lines and library deprecation notices off for the run,
+    restored afterwards (other warnings still show)."""
+    loggers = [logging.getLogger(name) for name in LIGHTNING_LOGGERS]
+    levels = [logger.level for logger in loggers]
+    with warnings.catch_warnings():
+        if not verbose:
+            for logger in loggers:
+                logger.setLevel(logging.WARNING)
+            warnings.filterwarnings("ignore", category=DeprecationWarning)
+            warnings.filterwarnings("ignore", category=FutureWarning)
+            warnings.filterwarnings("ignore", message=r".*(smaller than the logging interval|LeafSpec).*")
+        try:
+            yield
+        finally:
+            for logger, level in zip(loggers, levels):
+                logger.setLevel(level)
+
+
+def _failed_run(exc: BaseException) -> str:
+    """`` (run: DIR)`` for a failed fit whose run directory holds its metrics.json, else ``""``."""
+    run_dir = getattr(exc, "neuralbrdf_run_dir", None)
+    return f" (run: {run_dir}; its {METRICS_FILE} holds the cause)" if run_dir and (run_dir / METRICS_FILE).is_file() else ""
 
 
 def _summary(cli: NeuralBrdfCLI) -> str:
@@ -551,7 +595,10 @@ def _summary(cli: NeuralBrdfCLI) -> str:
     best = next((c for c in checkpoints if c.stem in ("best", "fitted")), None)
     if best is not None:
         lines.append(f"checkpoint: {best}")
-        lines.append(f"export: neuralbrdf export --ckpt {best} --out MODEL.onnx")
+    if best is not None and isinstance(cli.model, WritesKind):  # a fitted model, not a pretraining
+        names = list(getattr(cli.model, "material_names", None) or [])
+        material = f" --material NAME (one file per material: {', '.join(names)})" if len(names) > 1 else ""
+        lines.append(f"export: neuralbrdf export --ckpt {best} --out MODEL.onnx{material}")
     return "\n".join(lines)
 
 
@@ -570,25 +617,23 @@ def main(args: list[str] | None = None) -> int:
     warnings.filterwarnings("ignore", message=r".*configure_optimizers` returned `None`")
     args = sys.argv[1:] if args is None else list(args)
     if not args or args[0] in ("-h", "--help"):
-        print(help_text())
-        return 0
+        print(help_text(), file=sys.stdout if args else sys.stderr)
+        return 0 if args else 2
     verbose = "--verbose" in args
     args = [arg for arg in args if arg != "--verbose"]
     try:
-        with warnings.catch_warnings():
-            if not verbose:
-                _quiet()
+        with _quiet(verbose):
             args = _resolve_config_files(args)
             with command_inputs():
                 cli = NeuralBrdfCLI(args=args)
     except FitFailed as failure:
-        print(f"error: fit failed: {failure}", file=sys.stderr)
+        print(f"error: fit failed: {failure}{_failed_run(failure)}", file=sys.stderr)
         return 1
     except Exception as exc:
         error = _input_error(exc)
         cause = getattr(exc, "neuralbrdf_fit_failure", None)
         if error is None and cause is not None and isinstance(exc, DATA_FAILURES):
-            print(f"error: fit failed: {cause}", file=sys.stderr)
+            print(f"error: fit failed: {cause}{_failed_run(exc)}", file=sys.stderr)
             return 1
         if error is None:
             raise

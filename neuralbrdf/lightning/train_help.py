@@ -16,15 +16,15 @@ import textwrap
 
 import yaml
 
-from neuralbrdf.configs_dir import shipped_configs
+from neuralbrdf.configs_dir import overlay_base, shipped_configs
 
 USAGE = """\
 usage: neuralbrdf train {fit,validate,test} --config CONFIG [--data.KEY VALUE ...] [--run_dir DIR]
        (python train.py ... is the same command)
 
 Train, validate or test a model from a YAML config (LightningCLI). CONFIG is a shipped config by
-name (e.g. abc, spectral_mlp) or any YAML file; several --config files are merged in order (the
-overlays below). Any config value can be overridden on the command line: --data.path FILE,
+name (e.g. abc, spectral_mlp) or any YAML file; several --config files are merged in order, the
+options after them override them. Any config value can be overridden on the command line: --data.path FILE,
 --trainer.max_epochs 5, --model.gamma 1.0.
 """
 
@@ -105,7 +105,10 @@ def help_text() -> str:
     data_classes: dict[str, list[str]] = {}
     for path in shipped_configs():
         text = path.read_text(encoding="utf-8")
-        summary = _summary(_leading_comment(text))
+        summary = _summary([line for line in _leading_comment(text) if not line.startswith("overlay of:")])
+        base = overlay_base(path)
+        if base is not None:
+            summary = f"[overlay: {path.stem} alone loads {base.stem} first] {summary}"
         out.extend(textwrap.wrap(plain(summary), 96, initial_indent=f"  {path.stem:<20}", subsequent_indent=" " * 22))
         class_path = _data_class(yaml.safe_load(text) or {})
         if class_path:

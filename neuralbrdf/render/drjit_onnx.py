@@ -865,7 +865,7 @@ class DrJitGraph:
     ----------
     proto:
         The model; the contract of SPEC §6 is assumed
-        (:func:`~neuralbrdf.onnx_contract.load_model` checks it).
+        (:func:`~neuralbrdf.onnx_contract.load_generic_model` checks it).
     source:
         File name used in error messages.
 

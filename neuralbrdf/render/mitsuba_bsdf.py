@@ -167,7 +167,7 @@ def reset_clamped_values() -> None:
 def _nonnegative(columns: list) -> list:
     """``columns`` with negative and non-finite values set to 0; lanes with any such value are
     counted (:func:`clamped_values`).  The load-time probe of
-    :func:`~neuralbrdf.onnx_contract.load_model` refuses models it finds negative; this
+    :func:`neuralbrdf.kinds.load_model` refuses models it finds negative; this
     guarantees that no negative radiance reaches an image where the probe did not look."""
     out, bad = [], None
     for column in columns:

@@ -225,7 +225,7 @@ def cost(spec: dict, model: Path, variant: str) -> dict:
         "mqueries_per_s": throughput[fastest]["queries_per_s"] / 1e6,
         "fastest_backend": fastest,
         "throughput": {b: {"queries_per_s": r["queries_per_s"], "median_s": r["median_s"]} for b, r in throughput.items()},
-        "parameters": costs.parameter_count(proto),
+        "parameters": costs.parameter_count(proto, loaded.kind),
     }
 
 

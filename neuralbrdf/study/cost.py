@@ -8,7 +8,8 @@ and ``benchmarks/run.py``).
 * :func:`bench_throughput` — queries per second of an ``.onnx`` model through onnxruntime and
   Dr.Jit (:class:`~neuralbrdf.render.drjit_onnx.DrJitGraph`) and, given the torch module, PyTorch;
   warm-up call timed apart, then the median of ``repeats`` calls;
-* :func:`parameter_count` — float weights stored in the ``.onnx`` file;
+* :func:`parameter_count` — float weights stored in the ``.onnx`` file and the fitted scalars its
+  kind keeps as constants (:attr:`neuralbrdf.kinds.Kind.scalar_parameters`);
 * :func:`machine` — CPU, cores, versions and thread counts, recorded beside every figure.
 """
 
@@ -146,13 +147,17 @@ def bench_throughput(proto, spectral: bool, batch: int, repeats: int, module=Non
     return results
 
 
-def parameter_count(proto) -> int:
-    """Number of floating-point values stored as initializers (weights, baked latent, tables)."""
+def parameter_count(proto, kind: str | None = None) -> int:
+    """Floating-point values stored as initializers (weights, baked latent, tables), plus the
+    scalar parameters of ``kind`` (registered in :mod:`neuralbrdf.kinds`) held as constants."""
     import onnx
     from onnx import numpy_helper
 
+    from neuralbrdf import kinds
+
     floats = (onnx.TensorProto.FLOAT, onnx.TensorProto.DOUBLE, onnx.TensorProto.FLOAT16)
-    return int(sum(numpy_helper.to_array(t).size for t in proto.graph.initializer if t.data_type in floats))
+    stored = int(sum(numpy_helper.to_array(t).size for t in proto.graph.initializer if t.data_type in floats))
+    return stored + (kinds.get(kind).scalar_parameters if kind is not None else 0)
 
 
 def render_ratio(model: Path, variant: str, resolution: int, spp: int, repeats: int) -> dict:
