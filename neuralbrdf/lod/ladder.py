@@ -47,10 +47,9 @@ from neuralbrdf.atomic import atomic_paths
 from neuralbrdf.errors import InputError
 from neuralbrdf.evaluation.scores import OnnxEvaluator, hemisphere_scores
 from neuralbrdf.fitting.abc_fit import fit_abc
-from neuralbrdf.kinds import Exportable, load_model
+from neuralbrdf.kinds import Exportable, contract_metadata, load_model
 from neuralbrdf.kinds import abc as abc_kind
 from neuralbrdf.lod.distill import ABC_WAVELENGTHS_NM, DistillSettings, abc_table, distill_spectral_mlp, teacher_samples
-from neuralbrdf.onnx_contract import contract_metadata
 from neuralbrdf.onnx_export import write_model
 
 LADDER_FILE = "ladder.json"
