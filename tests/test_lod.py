@@ -2,7 +2,7 @@
 
 The parent is the virtual gold's ground truth (``export-truth virtual:gold``: spectral, glossy);
 its ladder is built once per module with small settings (few distillation steps, one student,
-one cost round) so that the tests stay fast; what is checked does not depend on the rungs
+one cost round, 6400 hemisphere pairs for the errors) so that the tests stay fast; what is checked does not depend on the rungs
 being good, only on their files, metadata and recorded numbers being right.
 """
 
@@ -42,6 +42,8 @@ FAST = LadderSettings(
     abc_starts=2,
     cost_batches=(2**12, 2**14),
     cost_rounds=1,
+    error_strata=(8, 10),
+    rgb_tolerances=(3e-2,),
 )
 
 
@@ -109,7 +111,7 @@ def test_recorded_parent_error_is_reproduced_independently(ladder, rung):
     recorded = next(r for r in document["rungs"] if r["name"] == rung)["hemisphere_logcos_rmse"]
     independent = _independent_logcos_rmse(folder / f"{rung}.onnx", parent)
     assert recorded > 1e-3  # a stand-in differs from its parent; 0 would mean it was compared to itself
-    assert independent == pytest.approx(recorded, rel=0.15)
+    assert independent == pytest.approx(recorded, rel=0.2)
 
 
 def test_a_failed_fit_is_listed_not_written(tmp_path):

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import tempfile
 import time
 from dataclasses import asdict, dataclass, field
@@ -45,7 +46,7 @@ import onnx
 
 from neuralbrdf.atomic import atomic_paths
 from neuralbrdf.errors import InputError
-from neuralbrdf.evaluation.scores import OnnxEvaluator, hemisphere_scores
+from neuralbrdf.evaluation.scores import HEMISPHERE_STRATA, OnnxEvaluator, hemisphere_scores
 from neuralbrdf.fitting.abc_fit import fit_abc
 from neuralbrdf.kinds import Exportable, contract_metadata, load_model
 from neuralbrdf.kinds import abc as abc_kind
@@ -75,6 +76,9 @@ class LadderSettings:
     abc_starts: int = 8
     cost_batches: tuple[int, int] = (2**20, 2**22)
     cost_rounds: int = 9
+    #: ``(cos θ, φ)`` strata of the hemisphere pairs the errors are measured on (fewer: quick checks only;
+    #: the metric's name means the default, SPEC §9).
+    error_strata: tuple[int, int] = HEMISPHERE_STRATA
     #: Held-out rms relative errors of the reduced spectrum → sRGB rule offered as RGB-variant rungs.
     rgb_tolerances: tuple[float, ...] = (1e-2, 3e-2)
     seed: int = 0
@@ -178,7 +182,7 @@ class MemoisedEvaluator:
     """An evaluator that remembers its last few results by the bytes of their inputs: the parent is
     compared with every rung on the same hemisphere pairs, and evaluated on them once."""
 
-    def __init__(self, evaluator, size: int = 4) -> None:
+    def __init__(self, evaluator, size: int = 8) -> None:
         self.evaluator, self.size = evaluator, size
         self.is_spectral = evaluator.is_spectral
         self.cache: dict[str, np.ndarray] = {}
@@ -195,9 +199,9 @@ class MemoisedEvaluator:
         return self.cache[key]
 
 
-def parent_error(rung: Path, parent) -> float:
+def parent_error(rung: Path, parent, strata: tuple[int, int] = HEMISPHERE_STRATA) -> float:
     """``hemisphere_logcos_rmse`` of the model file ``rung`` against the parent (module docstring)."""
-    return float(hemisphere_scores(OnnxEvaluator(rung), parent)["hemisphere_logcos_rmse"])
+    return float(hemisphere_scores(OnnxEvaluator(rung), parent, strata=strata)["hemisphere_logcos_rmse"])
 
 
 # --------------------------------------------------------------------------- the ladder
@@ -235,7 +239,7 @@ def build_ladder(model_path: str | Path, out_dir: str | Path, settings: LadderSe
                 continue
             built[name] = (path, describes, time.perf_counter() - start)
             log(f"{name}: built in {built[name][2]:.1f} s")
-        errors = {name: parent_error(path, reference) for name, (path, _, _) in built.items()}
+        errors = {name: parent_error(path, reference, settings.error_strata) for name, (path, _, _) in built.items()}
         protos = {FULL_RUNG: parent.model.proto, **{name: load_model(path).proto for name, (path, _, _) in built.items()}}
         costs = drjit_costs(protos, parent.is_spectral, settings.cost_batches, settings.cost_rounds)
         rungs.append(_entry(FULL_RUNG, str(model_path), parent.model.kind, "the parent itself", 0.0,
@@ -250,15 +254,15 @@ def build_ladder(model_path: str | Path, out_dir: str | Path, settings: LadderSe
             rungs.append(_entry(name, f"{name}.onnx", load_model(path).kind, describes, errors[name], costs[name],
                                 relative, seconds))
         if parent.is_spectral:
-            rungs += _rgb_rule_rungs(parent, reference, model_path, costs[FULL_RUNG], settings.rgb_tolerances)
+            rungs += _rgb_rule_rungs(parent, reference, model_path, costs[FULL_RUNG], settings)
     from neuralbrdf.study.cost import machine
 
     document = {
         "format": LADDER_FORMAT,
         "parent": {"file": str(model_path), "sha256": sha, "kind": parent.model.kind,
                    "material": parent.model.material, "spectral": parent.is_spectral},
-        "error_metric": "hemisphere_logcos_rmse against the parent (SPEC §5; 102 400 stratified pairs, theta <= 80 "
-                        "deg; spectra at 400-700 nm every 10 nm, else linear sRGB)",
+        "error_metric": f"hemisphere_logcos_rmse against the parent (SPEC §5; {math.prod(settings.error_strata) ** 2} "
+                        "stratified pairs, theta <= 80 deg; spectra at 400-700 nm every 10 nm, else linear sRGB)",
         "cost_metric": "Dr.Jit ns per query inside a kernel (slope of the shortest wall times of batches of "
                        f"{settings.cost_batches[0]} and {settings.cost_batches[1]} random pairs, one wavelength per "
                        f"query for spectral models, {settings.cost_rounds} interleaved rounds); relative_cost = rung / full",
@@ -298,19 +302,21 @@ class ReducedRgbEvaluator:
         return np.clip(np.clip(spectra, 0.0, None).T @ self.rule.weights, 0.0, None)
 
 
-def _rgb_rule_rungs(parent: OnnxEvaluator, reference, model_path: Path, full_cost_ns: float, tolerances) -> list[dict]:
+def _rgb_rule_rungs(parent: OnnxEvaluator, reference, model_path: Path, full_cost_ns: float,
+                    settings: LadderSettings) -> list[dict]:
     """``full_rgbT`` rungs (module docstring)."""
     from neuralbrdf.render.mitsuba_bsdf import fit_rgb_rule
     from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE
 
     default = fit_rgb_rule(parent.model, parent.session, DEFAULT_RMS_TOLERANCE)
     out = []
-    for tolerance in tolerances:
+    for tolerance in settings.rgb_tolerances:
         start = time.perf_counter()
         rule = fit_rgb_rule(parent.model, parent.session, tolerance)
         if rule.size >= default.size:
             continue  # no fewer wavelengths than the default rule: not cheaper
-        error = float(hemisphere_scores(ReducedRgbEvaluator(parent, rule), reference)["hemisphere_logcos_rmse"])
+        scores = hemisphere_scores(ReducedRgbEvaluator(parent, rule), reference, strata=settings.error_strata)
+        error = float(scores["hemisphere_logcos_rmse"])
         relative = rule.size / default.size
         out.append(_entry(
             f"full_rgb{tolerance:g}", str(model_path), parent.model.kind,
