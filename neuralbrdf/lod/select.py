@@ -74,7 +74,7 @@ class SelectSettings:
     resolution: int = 96
     spp: int = 32
     max_spp: int = 1024
-    #: The seed-to-seed ΔE2000 mean must be at most this fraction of the tolerance.
+    #: The estimate noise (module docstring, step 1) must be at most this fraction of the tolerance.
     noise_fraction: float = 0.25
     seed: int = 0
     timing_repeats: int = 3
@@ -216,7 +216,6 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
         options[material.name] = [{
             "rung": FULL_RUNG, "file": str(material.model), "kind": None, "relative_cost": 1.0,
             "bsdf_properties": {}, "hemisphere_logcos_rmse": 0.0, "error_contribution": 0.0, "time_s": reference_s,
-            "time_saving_s": 0.0,
         }]
         if ladders[material.name] is None:
             log(f"{material.name}: no ladder for {material.model}; stays full")
@@ -228,7 +227,7 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
             options[material.name].append({
                 "rung": rung.name, "file": str(rung.path), "kind": rung.kind, "relative_cost": rung.relative_cost,
                 "bsdf_properties": dict(rung.properties), "hemisphere_logcos_rmse": rung.hemisphere_logcos_rmse,
-                "error_contribution": error, "time_s": seconds, "time_saving_s": reference_s - seconds,
+                "error_contribution": error, "time_s": seconds,
             })
             log(f"{material.name} -> {rung.name}: dE2000 {error:.3f}, {seconds:.2f} s (full {reference_s:.2f} s)")
 
@@ -260,7 +259,7 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
             {"name": name, "model": str(full[name].path), "chosen_rung": option["rung"], "file": option["file"],
              "kind": option["kind"], "bsdf_properties": option["bsdf_properties"],
              "error_contribution": option["error_contribution"], "cost": option["relative_cost"],
-             "hemisphere_logcos_rmse": option["hemisphere_logcos_rmse"], "time_saving_s": option["time_saving_s"],
+             "hemisphere_logcos_rmse": option["hemisphere_logcos_rmse"],
              "has_ladder": ladders[name] is not None}
             for name, option in chosen.items()
         ],
