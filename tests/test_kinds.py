@@ -99,6 +99,14 @@ def test_checking_and_exporting_never_load_mitsuba():
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
+def test_checking_a_file_loads_neither_pytorch_nor_mitsuba(tmp_path):
+    path = fx.write_abc_like(tmp_path / "abc.onnx", fx.AbcMetadata((0.1, 0.2, 0.3), (1.0, 0.8, 0.6), 60.0, 1.3, 1.5))
+    code = ("import sys; from neuralbrdf import kinds; "
+            f"model = kinds.load_model({str(path)!r}); assert model.details.B == 60.0; "
+            "loaded = [m for m in ('torch', 'mitsuba', 'drjit') if m in sys.modules]; assert not loaded, loaded")
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
 def test_kind_dataclass_defaults_describe_a_neural_kind():
     kind = Kind(name="x", summary="y")
     assert (kind.spectral_only, kind.proposal, kind.from_checkpoint) == (False, "fitted_ggx", None)

@@ -22,7 +22,9 @@ needs nothing from the kind.
 file's metadata the same way (the generic part of :mod:`neuralbrdf.onnx_contract` and the
 kind's own); :func:`load_exportable`
 gives a checkpoint's model to the exporter (:mod:`neuralbrdf.onnx_export`).  This module sits
-below the exporter and the renderer: it imports neither.
+below the exporter and the renderer: it imports neither.  Kind modules import PyTorch only inside
+their checkpoint loaders, so that checking a file (what the renderer does at scene load) stays
+light.
 """
 
 from __future__ import annotations
@@ -35,13 +37,14 @@ import pkgutil
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from torch import nn
-
-from neuralbrdf.checkpoints import read_checkpoint
-from neuralbrdf.errors import InputError, one_line
 from neuralbrdf import onnx_contract
+from neuralbrdf.errors import InputError, one_line
 from neuralbrdf.onnx_contract import OnnxModel
+
+if TYPE_CHECKING:
+    from torch import nn
 
 #: Checkpoint entry naming the kind; written by every Lightning module of a fitted model
 #: (:class:`neuralbrdf.lightning.common.WritesKind`).
@@ -234,6 +237,8 @@ def pick_material(available: list[str], requested: str | None, path: str | os.Pa
 
 def load_exportable(ckpt: str | os.PathLike[str], material: str | None = None) -> Exportable:
     """The model of checkpoint ``ckpt`` as a function of directions, with its contract metadata."""
+    from neuralbrdf.checkpoints import read_checkpoint
+
     path = Path(ckpt)
     checkpoint = read_checkpoint(path)
     kind = checkpoint_kind(checkpoint, path)

@@ -29,9 +29,8 @@ from pathlib import Path
 
 from neuralbrdf.errors import InputError
 from neuralbrdf.kinds import Exportable, Kind, contract_metadata, pick_material, provenance
-from neuralbrdf.physics.abc import AbcParameters
-from neuralbrdf.models.directional import AbcOnDirections
 from neuralbrdf.onnx_contract import kind_key, metadata_float, metadata_float_list
+from neuralbrdf.physics.abc import AbcParameters
 
 NAME = "abc"
 KD_KEY = kind_key(NAME, "kd")
@@ -87,6 +86,8 @@ def read_metadata(metadata: Mapping[str, str], path, is_spectral: bool) -> AbcMe
 
 def exportable(parameters: AbcParameters, material: str, provenance_text: str) -> Exportable:
     """The model of ABC ``parameters`` with its contract metadata, ready to export."""
+    from neuralbrdf.models.directional import AbcOnDirections
+
     module = AbcOnDirections(parameters)
     wavelength_range = module.wavelength_range_nm if module.is_spectral else None
     stored = AbcMetadata(

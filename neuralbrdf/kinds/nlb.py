@@ -12,14 +12,15 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import torch
-
-from neuralbrdf.checkpoints import check_weights_match, read_checkpoint
 from neuralbrdf.errors import InputError
 from neuralbrdf.kinds import Exportable, Kind, contract_metadata, pick_material, provenance
-from neuralbrdf.models.directional import NlbWithLatent
-from neuralbrdf.models.nlb import NlbNetwork
+
+if TYPE_CHECKING:
+    import torch
+
+    from neuralbrdf.models.nlb import NlbNetwork
 
 #: Entries a latent-fit checkpoint has beside Lightning's own.
 _FIT_KEYS = ("nlb_config", "material_names", "state_dict")
@@ -36,6 +37,9 @@ class FittedNlb:
 
 
 def _fitted(checkpoint: dict, path: Path) -> FittedNlb:
+    from neuralbrdf.checkpoints import check_weights_match
+    from neuralbrdf.models.nlb import NlbNetwork
+
     missing = [key for key in _FIT_KEYS if key not in checkpoint]
     if missing:  # e.g. a pretraining checkpoint: it names its materials but has no nlb_config
         raise InputError(f"not a latent-fit checkpoint (LatentFitModule): missing {missing[0]!r}", path=path)
@@ -53,11 +57,15 @@ def _fitted(checkpoint: dict, path: Path) -> FittedNlb:
 
 def load_fitted(path: str | os.PathLike[str]) -> FittedNlb:
     """The network and named latents of a latent-fit checkpoint, else :class:`InputError`."""
+    from neuralbrdf.checkpoints import read_checkpoint
+
     path = Path(path)
     return _fitted(read_checkpoint(path, "fitted NLB checkpoint"), path)
 
 
 def from_checkpoint(checkpoint: dict, path: Path, material: str | None) -> Exportable:
+    from neuralbrdf.models.directional import NlbWithLatent
+
     fitted = _fitted(checkpoint, path)
     name = pick_material(list(fitted.latents), material, path)
     module = NlbWithLatent(fitted.network, fitted.latents[name])

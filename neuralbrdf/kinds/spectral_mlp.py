@@ -13,11 +13,8 @@ from __future__ import annotations
 import inspect
 from pathlib import Path
 
-from neuralbrdf.checkpoints import check_weights_match
 from neuralbrdf.errors import InputError
 from neuralbrdf.kinds import Exportable, Kind, contract_metadata, pick_material, provenance
-from neuralbrdf.models.directional import SpectralMlpOnDirections
-from neuralbrdf.models.spectral_mlp import SpectralMLP
 
 #: Prefix of the network's tensors in the Lightning module's state dict.
 _PREFIX = "network."
@@ -32,6 +29,10 @@ def _material(checkpoint: dict) -> str:
 
 
 def from_checkpoint(checkpoint: dict, path: Path, material: str | None) -> Exportable:
+    from neuralbrdf.checkpoints import check_weights_match
+    from neuralbrdf.models.directional import SpectralMlpOnDirections
+    from neuralbrdf.models.spectral_mlp import SpectralMLP
+
     for key in ("state_dict", "hyper_parameters"):
         if key not in checkpoint:
             raise InputError("spectral MLP checkpoint lacks this key", path=path, column=key)
