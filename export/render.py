@@ -1,8 +1,17 @@
-"""Render an exported model (SPEC §6) in the shipped material-preview scene with Mitsuba 3 (SPEC §7).
+"""Render an exported model (SPEC §6) in the shipped material-preview scene, or any Mitsuba 3 scene
+that uses the ``neuralbrdf`` BSDF, with Mitsuba 3 (SPEC §7).
 
     python export/render.py --model MODEL.onnx --out IMAGE.png [--exr] [--variant llvm_ad_rgb]
         [--backend drjit|onnxruntime] [--spp 64] [--resolution 256] [--seed 0] [--rgb-tolerance 1e-3]
     python export/render.py --reference-bsdf roughconductor --out REF.png ...
+    python export/render.py --scene SCENE.xml --out IMAGE.png [same options]
+
+**Your own scene** (``--scene``): any Mitsuba 3 scene file; its ``neuralbrdf`` BSDFs name their
+model files (relative to the scene file or absolute), see ``export/README.md``.  Options given
+on the command line override the scene: ``--resolution`` sets every film's size,
+``--max-depth`` the integrator's path length, ``--backend`` and ``--rgb-tolerance`` every
+``neuralbrdf`` material's property; options not given leave the scene as it is
+(:mod:`neuralbrdf.render.scene_file`).
 
 The scene, passes, memory and backends are those of :mod:`neuralbrdf.render.preview` (the
 scene ships inside the package: ``neuralbrdf/render/scenes/material_preview.xml``).
@@ -60,10 +69,12 @@ from neuralbrdf.render.preview import (
     pass_sizes,
     render,
     render_passes,
+    check_render_size,
     set_variant,
     within_drjit_budget,
     write_images,
 )
+from neuralbrdf.render.scene_file import SceneFile, render_scene_file
 from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE
 
 __all__ = [
@@ -81,6 +92,10 @@ def build_parser() -> argparse.ArgumentParser:
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--model", help="exported model file (.onnx, SPEC §6)")
     source.add_argument("--reference-bsdf", choices=sorted(REFERENCE_BSDFS), help="render a built-in BSDF instead")
+    source.add_argument(
+        "--scene", help="render this Mitsuba scene file instead of the preview scene (its neuralbrdf BSDFs name their "
+        "models); options given override the scene's film size, max_depth and the materials' backend/rgb_tolerance",
+    )
     parser.add_argument(
         "--out", required=True,
         help="output PNG (8-bit sRGB); never the model file, a directory or a device; a symbolic link is "
@@ -90,18 +105,18 @@ def build_parser() -> argparse.ArgumentParser:
         "--exr", action="store_true", help="also write the linear image as OUT with suffix .exr (both or neither)"
     )
     parser.add_argument("--variant", default=DEFAULT_VARIANT, help=f"Mitsuba variant (default {DEFAULT_VARIANT})")
-    parser.add_argument("--backend", choices=BACKENDS, default="drjit", help="model evaluation (default drjit)")
+    parser.add_argument("--backend", choices=BACKENDS, default=None, help="model evaluation (default drjit)")
     parser.add_argument(
         "--rgb-tolerance",
         type=float,
-        default=DEFAULT_RMS_TOLERANCE,
+        default=None,
         help="spectral models in RGB variants: held-out rms relative error of the fitted few-wavelength "
         f"sRGB rule (default {DEFAULT_RMS_TOLERANCE:g}; 0: integrate all 31 wavelengths)",
     )
     parser.add_argument("--spp", type=int, default=64, help="samples per pixel (default 64)")
     parser.add_argument(
-        "--resolution", type=int, default=256,
-        help=f"image width = height in pixels (default 256; refused before rendering if the image and one pass "
+        "--resolution", type=int, default=None,
+        help=f"image width = height in pixels (default 256, or the scene's own; refused before rendering if the image and one pass "
         f"would need more than {MEMORY_FRACTION * 100:.0f}%% of this machine's memory)",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the pass seeds (default 0)")
@@ -112,9 +127,34 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"samples per pixel per pass (default: {PASS_LANES_SYMBOLIC} paths per pass, "
         f"{PASS_LANES_WAVEFRONT} for the onnxruntime backend)",
     )
-    parser.add_argument("--max-depth", type=int, default=DEFAULT_MAX_DEPTH, help="path length limit (default 5)")
+    parser.add_argument("--max-depth", type=int, default=None,
+                        help=f"path length limit (default {DEFAULT_MAX_DEPTH}, or the scene's own)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
+
+
+def render_scene(args, written: list[Path]) -> tuple[np.ndarray, float, str]:
+    """``--scene``: the user's scene with the options given applied; ``(image, seconds, description)``."""
+    for name in ("spp", "resolution", "max_depth", "spp_per_pass"):
+        value = getattr(args, name)
+        if value is not None and value < 1:
+            raise InputError(f"--{name.replace('_', '-')} must be a positive integer, got {value}")
+    scene_file = SceneFile(args.scene)
+    if not scene_file.materials():
+        print(f"note: {args.scene} has no neuralbrdf material; rendering it as it is", file=sys.stderr)
+    if args.resolution is not None:
+        check_render_size(args.resolution, min(args.spp, args.spp_per_pass or args.spp), False)
+        scene_file.set_resolution(args.resolution)
+    if args.max_depth is not None:
+        scene_file.set_max_depth(args.max_depth)
+    if args.backend is not None:
+        scene_file.set_all("backend", args.backend)
+    if args.rgb_tolerance is not None:
+        scene_file.set_all("rgb_tolerance", repr(float(args.rgb_tolerance)))
+    check_outputs(*written)
+    set_variant(args.variant)
+    image, seconds = render_scene_file(scene_file, args.spp, args.seed, args.spp_per_pass, progress=not args.quiet)
+    return image, seconds, f"scene {args.scene}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -125,11 +165,27 @@ def main(argv: list[str] | None = None) -> int:
         with command_inputs():
             if out.suffix.lower() != ".png":
                 raise InputError("the output must be a .png file (add --exr for a linear EXR beside it)", path=out)
+            if args.scene is not None:
+                from neuralbrdf.render.mitsuba_bsdf import clamped_values, reset_clamped_values
+
+                set_variant(args.variant)
+                reset_clamped_values()
+                image, elapsed, described = render_scene(args, written)
+                clamped = clamped_values()
+                if not np.all(np.isfinite(image)):
+                    print(f"error: the render of {described} is not finite; nothing written", file=sys.stderr)
+                    return 1
+                write_images(image, out, written[1] if args.exr else None)
+                print(f"rendered {described} in {args.variant} at {args.spp} spp in {elapsed:.1f} s; wrote "
+                      f"{', '.join(map(str, written))}" + (f" ({clamped} clamped evaluations)" if clamped else ""))
+                return 0
+            args.resolution = 256 if args.resolution is None else args.resolution
+            args.max_depth = DEFAULT_MAX_DEPTH if args.max_depth is None else args.max_depth
             material = Material(
                 model=None if args.model is None else Path(args.model),
-                backend=args.backend,
+                backend=args.backend or "drjit",
                 reference_bsdf=args.reference_bsdf,
-                rgb_tolerance=args.rgb_tolerance,
+                rgb_tolerance=DEFAULT_RMS_TOLERANCE if args.rgb_tolerance is None else args.rgb_tolerance,
             )
             material = within_drjit_budget(material)  # reads the model: an input from here on
             check_outputs(*written)

@@ -4,7 +4,7 @@ other in a cycle.  Read bottom-up::
 
     conventions + the ONNX file contract → physics → data → virtual instrument →
     sources, models → losses/metrics/fitting → kinds → export, render → evaluation →
-    Lightning → study, command line
+    Lightning → study, level of detail (lod), command line
 """
 
 import ast
@@ -27,7 +27,7 @@ FLOORS = (
     {"onnx_export", "render"},
     {"evaluation"},
     {"lightning"},
-    {"study", "cli", "__main__"},
+    {"study", "lod", "cli", "__main__"},
 )
 FLOOR = {group: level for level, groups in enumerate(FLOORS) for group in groups}
 

@@ -123,3 +123,38 @@ def evaluate(args) -> None:
     result = run_evaluation(args.model, args.truth, args.out_dir, settings, render_images=not args.no_render)
     print(format_table(result))
     print(f"-> {args.out_dir}/evaluation.json" + ("" if args.no_render else ", model.png, truth.png, error_map.png, comparison.png"))
+
+
+def ladder(args) -> None:
+    from neuralbrdf.lod.ladder import build_ladder
+    from neuralbrdf.lod.select import default_ladder_dir
+
+    out_dir = Path(args.out_dir) if args.out_dir else default_ladder_dir(Path(args.model))
+    document = build_ladder(args.model, out_dir)
+    print(f"{'rung':<10} {'kind':<13} {'log-cos RMSE':>12} {'ns/query':>9} {'cost':>6}")
+    for rung in document["rungs"]:
+        print(f"{rung['name']:<10} {rung['kind']:<13} {rung['hemisphere_logcos_rmse']:>12.4f} "
+              f"{rung['drjit_ns_per_query']:>9.2f} {rung['relative_cost']:>6.3f}")
+    for failure in document["failed"]:
+        print(f"{failure['name']}: not written ({failure['cause']})")
+    print(f"-> {out_dir}/ladder.json")
+
+
+def select(args) -> None:
+    from neuralbrdf.lod.select import SelectSettings
+    from neuralbrdf.lod.select import select as run_selection
+
+    for name in ("resolution", "spp", "max_spp"):
+        if getattr(args, name) < 1:
+            raise InputError(f"--{name.replace('_', '-')} must be a positive integer, got {getattr(args, name)}")
+    settings = SelectSettings(tolerance=args.tolerance, variant=args.variant, resolution=args.resolution,
+                              spp=args.spp, max_spp=max(args.max_spp, args.spp), seed=args.seed)
+    result = run_selection(args.scene, args.out, settings, [Path(d) for d in args.ladder])
+    for material in result["materials"]:
+        print(f"{material['name']:<12} {material['chosen_rung']:<10} dE2000 {material['error_contribution']:.3f} "
+              f"cost {material['cost']:.3f}")
+    print(f"speed-up {result['speedup']:.2f}x ({result['reference_time_s']:.2f} s -> {result['selected_time_s']:.2f} s), "
+          f"mean dE2000 {result['image_delta_e2000_mean']:.3f} at {result['noise']['spp']} spp (render noise "
+          f"{result['noise']['render_seed_to_seed_delta_e2000_mean']:.3f}, estimate noise "
+          f"{result['noise']['estimate_seed_to_seed_delta_e2000']:.3f}); selection {result['selection_time_s']:.0f} s")
+    print(f"-> {args.out}, {Path(args.out).with_suffix('.json')}")

@@ -179,6 +179,39 @@ def build_parser() -> argparse.ArgumentParser:
     study_command.add_arguments(add("study", study_command.run, study_command.HELP, study_command.DESCRIPTION))
 
     p = add(
+        "ladder",
+        commands.ladder,
+        "make cheaper stand-ins of a model file (ABC fit, distilled networks) with their error and cost",
+        "Make the cost ladder of MODEL.onnx (SPEC §11): an ABC fit to the model's own dense samples and, for spectral "
+        "models, smaller spectral MLPs distilled from it, each a model file under the same contract recording its "
+        "hemisphere log-cos RMSE against the parent and its measured Dr.Jit cost per query. Writes DIR/RUNG.onnx and "
+        "DIR/ladder.json (together or not at all).",
+    )
+    p.add_argument("model", help="model file (.onnx)")
+    p.add_argument("--out-dir", default=None, help="output folder (default: MODEL.ladder beside the model, where "
+                   "'neuralbrdf select' looks first)")
+
+    p = add(
+        "select",
+        commands.select,
+        "pick per neuralbrdf material of a scene the cheapest ladder rung within an image tolerance",
+        "For every neuralbrdf BSDF of SCENE.xml, render the scene at low resolution with that material swapped for each "
+        "rung of its ladder (matched seeds, the others full) and compare with the all-full render (mean CIEDE2000); "
+        "pick the cheapest combination whose summed contributions stay within --tolerance and verify it. The sample "
+        "count is raised until the seed-to-seed noise is at most a quarter of the tolerance. Writes OUT (the scene "
+        "pointing at the chosen rung files) and OUT with suffix .json.",
+    )
+    p.add_argument("scene", help="Mitsuba scene file with neuralbrdf BSDFs")
+    p.add_argument("--tolerance", type=float, default=1.0, help="mean CIEDE2000 of the whole image (default 1.0)")
+    p.add_argument("--out", required=True, help="output scene SELECTED.xml (SELECTED.json beside it)")
+    p.add_argument("--ladder", nargs="+", default=[], help="ladder folders (default: MODEL.ladder beside each model)")
+    p.add_argument("--variant", default="llvm_ad_spectral", help="Mitsuba variant (default llvm_ad_spectral)")
+    p.add_argument("--resolution", type=int, default=96, help="width of the selection renders (default 96)")
+    p.add_argument("--spp", type=int, default=32, help="starting samples per pixel (default 32; raised for noise)")
+    p.add_argument("--max-spp", type=int, default=1024, help="largest samples per pixel (default 1024)")
+    p.add_argument("--seed", type=int, default=0, help="render seed (default 0)")
+
+    p = add(
         "regenerate-default-data",
         commands.regenerate_default_data,
         "regenerate the shipped virtual DS1 measurements",

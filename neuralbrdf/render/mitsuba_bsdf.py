@@ -30,6 +30,13 @@ Properties
     spectrum → sRGB rule fitted at load (default 1e-3; ``0`` integrates all 31 wavelengths
     exactly, at 31 network evaluations per query).  See *Colour* below.
 
+``proposal``
+    Optional: another model file whose sampling proposal this BSDF uses instead of its own
+    (resolved like ``filename``).  Any valid proposal leaves the image's expectation unchanged;
+    ``neuralbrdf select`` renders a cheaper stand-in with its parent's proposal so that, at
+    matched seeds, both trace the same paths and their image difference is the stand-in's
+    bias, not Monte Carlo noise (:mod:`neuralbrdf.lod.select`).
+
 Any other property fails loading (Mitsuba reports unreferenced properties).
 
 Methods: ``eval`` returns ``f · cos θo``; ``sample`` draws from the fitted lobe mixture of
@@ -346,7 +353,7 @@ def _numpy_spectra(session: onnxruntime.InferenceSession, wi: np.ndarray, wo: np
     return f.reshape(len(wavelengths), len(wi))
 
 
-def _rgb_rule(model: OnnxModel, session: onnxruntime.InferenceSession, rms_tolerance: float) -> ReducedQuadrature:
+def fit_rgb_rule(model: OnnxModel, session: onnxruntime.InferenceSession, rms_tolerance: float) -> ReducedQuadrature:
     """The reduced spectrum → linear sRGB rule of a spectral model (module docstring)."""
     low, high = model.wavelength_range_nm
     grid = np.clip(SPECTRAL_TO_RGB_GRID_NM, low, high)
@@ -477,6 +484,60 @@ def _read_properties(props: mi.Properties) -> tuple[Path, str, float]:
     return Path(str(mi.file_resolver().resolve(filename))), backend, rgb_tolerance
 
 
+def _proposal_path(props: mi.Properties) -> Path | None:
+    """The ``proposal`` property (module docstring), resolved, or ``None``."""
+    if "proposal" not in props:
+        return None
+    path = Path(str(mi.file_resolver().resolve(str(props.get("proposal")))))
+    if not path.is_file():
+        raise InputError("no such model file for the 'proposal' property", path=path, column="proposal")
+    return path
+
+
+#: Load-time work per model file (:func:`_load_time_work`), keyed by the file's identity.
+_LOAD_TIME_CACHE: dict[tuple, tuple] = {}
+#: Entries kept; the oldest goes first.
+_LOAD_TIME_CACHE_SIZE = 64
+
+
+def _file_identity(path: Path) -> tuple:
+    if not path.is_file():
+        raise InputError("no such ONNX model file", path=path)
+    status = path.stat()
+    return str(path.resolve()), status.st_size, status.st_mtime_ns, status.st_ino
+
+
+def validated_model(path: Path) -> OnnxModel:
+    """:func:`neuralbrdf.kinds.load_model` of ``path``, reused while the file is unchanged (same size,
+    time, inode)."""
+    key = ("model", _file_identity(path))
+    if key not in _LOAD_TIME_CACHE:
+        _remember(key, kinds.load_model(path))
+    return _LOAD_TIME_CACHE[key]
+
+
+def _remember(key: tuple, value) -> None:
+    if len(_LOAD_TIME_CACHE) >= _LOAD_TIME_CACHE_SIZE:
+        del _LOAD_TIME_CACHE[next(iter(_LOAD_TIME_CACHE))]
+    _LOAD_TIME_CACHE[key] = value
+
+
+def _load_time_work(path: Path, rgb_tolerance: float) -> tuple[OnnxModel, LobeMixture, ReducedQuadrature | None]:
+    """The validated model, its fitted sampling proposal and (spectral model, RGB variant) its sRGB
+    rule, computed once per unchanged file, variant and tolerance: a scene loaded again — the
+    selector of :mod:`neuralbrdf.lod.select` loads one scene many times — skips the probing."""
+    spectral_to_rgb = not mi.is_spectral
+    key = ("work", _file_identity(path), spectral_to_rgb, rgb_tolerance)
+    if key not in _LOAD_TIME_CACHE:
+        model = validated_model(path)
+        session = _session(path)
+        probe = _probe_function(model, session)
+        mixture = fit_proposal(kinds.get(model.kind).proposal, probe, model.details)
+        rgb_rule = fit_rgb_rule(model, session, rgb_tolerance) if model.is_spectral and spectral_to_rgb else None
+        _remember(key, (model, mixture, rgb_rule))
+    return _LOAD_TIME_CACHE[key]
+
+
 def _bsdf_class(variant: str) -> type:
     """The BSDF class for ``variant`` (a Python BSDF derives from that variant's ``mi.BSDF``)."""
     if variant in _BSDF_CLASSES:
@@ -488,18 +549,15 @@ def _bsdf_class(variant: str) -> type:
         def __init__(self, props: mi.Properties) -> None:
             mi.BSDF.__init__(self, props)
             path, backend, rgb_tolerance = _read_properties(props)
-            self.model = kinds.load_model(path)
-            session = _session(path)
+            self.model, self.mixture, self.rgb_rule = _load_time_work(path, rgb_tolerance)
+            proposal = _proposal_path(props)
+            if proposal is not None:
+                self.mixture = _load_time_work(proposal, rgb_tolerance)[1]
             if backend == "onnxruntime":
-                self.backend = _OnnxRuntimeBackend(self.model, session)
+                self.backend = _OnnxRuntimeBackend(self.model, _session(path))
             else:
                 self.backend = _DrJitBackend(self.model)
-            probe = _probe_function(self.model, session)
-            self.mixture: LobeMixture = fit_proposal(kinds.get(self.model.kind).proposal, probe, self.model.details)
             self._spectral_variant = mi.is_spectral
-            self.rgb_rule = None
-            if self.model.is_spectral and not mi.is_spectral:
-                self.rgb_rule = _rgb_rule(self.model, session, rgb_tolerance)
             self.m_flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
             self.m_components = [self.m_flags]
 

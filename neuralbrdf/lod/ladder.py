@@ -1,0 +1,393 @@
+"""A cost ladder of cheaper stand-ins for an exported model (SPEC §11): ``neuralbrdf ladder``.
+
+Every rung is a model file under the same ONNX contract (SPEC §6), so both plugin backends, both
+colour variants and the sampler render it unchanged:
+
+* ``full`` — the parent file itself (error 0, the reference cost);
+* ``abc`` — the ABC model (Löw et al. 2012, SPEC §4.1) fitted with
+  :func:`~neuralbrdf.fitting.abc_fit.fit_abc` to the parent's own dense samples
+  (:func:`~neuralbrdf.lod.distill.abc_table`); kind ``abc``, so it keeps its analytic sampler;
+* ``mlp_LxH`` — spectral parents only: smaller spectral MLPs (``L`` hidden layers of ``H`` units)
+  distilled from the parent (:func:`~neuralbrdf.lod.distill.distill_spectral_mlp`); kind
+  ``spectral_mlp``;
+* ``full_rgbT`` — spectral parents in RGB variants only: the parent file itself with the
+  plugin's reduced spectrum → sRGB rule (:mod:`~neuralbrdf.render.spectral_quadrature`) fitted
+  to the looser held-out tolerance ``T`` (property ``rgb_tolerance``, default 1e-3): fewer
+  network evaluations per RGB query.  Its error is the hemisphere log-cos RMSE of its linear
+  sRGB against the exact 31-wavelength integral, its cost the ratio of the rules' wavelength
+  counts (the network evaluations per RGB query).  No new file: the ladder records the property.
+
+Each rung records in its ``metadata_props`` (keys :data:`RUNG_KEY` …) what it approximates (the
+parent's file name and SHA-256), its error against the parent — ``hemisphere_logcos_rmse``
+(SPEC §5, :func:`~neuralbrdf.evaluation.scores.hemisphere_scores`: 102 400 stratified pairs,
+spectra compared at 31 wavelengths) — and its measured evaluation cost: Dr.Jit nanoseconds per
+query (:class:`~neuralbrdf.render.drjit_onnx.DrJitGraph` on 2^20 and 2^22 random upper-hemisphere
+pairs, one wavelength per query for spectral models; :func:`drjit_costs`: all rungs and the
+parent measured in interleaved rounds in one process, so that machine load hits them alike) and that cost
+relative to the parent's.  ``DIR/ladder.json`` lists the rungs with the same numbers.
+
+A rung whose fit fails (an ABC fit that reports failure, a student whose loss is not finite) is
+not written; ladder.json lists it under ``failed`` with the cause.  All files of a ladder appear
+together or not at all (:func:`neuralbrdf.atomic.atomic_paths`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import onnx
+
+from neuralbrdf.atomic import atomic_paths
+from neuralbrdf.errors import InputError
+from neuralbrdf.evaluation.scores import HEMISPHERE_STRATA, OnnxEvaluator, hemisphere_scores
+from neuralbrdf.fitting.abc_fit import fit_abc
+from neuralbrdf.kinds import Exportable, contract_metadata, load_model
+from neuralbrdf.kinds import abc as abc_kind
+from neuralbrdf.lod.distill import ABC_WAVELENGTHS_NM, DistillSettings, abc_table, distill_spectral_mlp, teacher_samples
+from neuralbrdf.onnx_export import write_model
+
+LADDER_FILE = "ladder.json"
+LADDER_FORMAT = "neuralbrdf.ladder/1"
+#: Rung metadata keys (all strings, beside the contract's own keys).
+RUNG_KEY = "neuralbrdf.ladder.rung"
+PARENT_KEY = "neuralbrdf.ladder.parent"
+PARENT_SHA256_KEY = "neuralbrdf.ladder.parent_sha256"
+ERROR_KEY = "neuralbrdf.ladder.parent_hemisphere_logcos_rmse"
+COST_KEY = "neuralbrdf.ladder.drjit_ns_per_query"
+RELATIVE_COST_KEY = "neuralbrdf.ladder.relative_cost"
+FULL_RUNG = "full"
+
+
+@dataclass(frozen=True)
+class LadderSettings:
+    """What :func:`build_ladder` makes and how it measures."""
+
+    #: ``(hidden_layers, hidden)`` of the distilled students (spectral parents).
+    students: tuple[tuple[int, int], ...] = ((2, 8), (1, 8), (1, 4))
+    distill: DistillSettings = field(default_factory=DistillSettings)
+    abc_pairs: int = 4096
+    abc_starts: int = 8
+    cost_batches: tuple[int, int] = (2**20, 2**22)
+    cost_rounds: int = 9
+    #: ``(cos θ, φ)`` strata of the hemisphere pairs the errors are measured on (fewer: quick checks only;
+    #: the metric's name means the default, SPEC §9).
+    error_strata: tuple[int, int] = HEMISPHERE_STRATA
+    #: Held-out rms relative errors of the reduced spectrum → sRGB rule offered as RGB-variant rungs.
+    rgb_tolerances: tuple[float, ...] = (1e-2, 3e-2)
+    seed: int = 0
+
+
+def file_sha256(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+# --------------------------------------------------------------------------- rungs
+
+
+def _abc_rung(parent: OnnxEvaluator, settings: LadderSettings, provenance: str) -> Exportable:
+    model = parent.model
+    table = abc_table(parent, settings.abc_pairs, settings.seed, source=f"samples of {model.path.name}")
+    result = fit_abc(table, n_starts=settings.abc_starts, seed=settings.seed)
+    if not result.success:
+        raise ValueError(f"ABC fit failed: {result.failure_reason}")
+    return abc_kind.exportable(result.parameters, model.material, provenance)
+
+
+def _student_rung(samples, layers: int, hidden: int, parent: OnnxEvaluator, settings: LadderSettings,
+                  provenance: str) -> Exportable:
+    model = parent.model
+    module = distill_spectral_mlp(samples, hidden, layers, model.wavelength_range_nm, settings.distill)
+    metadata = contract_metadata("spectral_mlp", model.material, provenance,
+                                 wavelength_range_nm=model.wavelength_range_nm)
+    return Exportable(module, "spectral_mlp", model.material, metadata, model.wavelength_range_nm)
+
+
+def _candidates(parent: OnnxEvaluator, settings: LadderSettings):
+    """``(name, describes, build)`` of every stand-in rung this parent gets."""
+    name = parent.model.path.name
+    out = [("abc", f"ABC fit (SPEC §4.1) to {settings.abc_pairs} x "
+                   f"{len(ABC_WAVELENGTHS_NM) if parent.is_spectral else 3} samples of {name}",
+            lambda provenance: _abc_rung(parent, settings, provenance))]
+    if parent.is_spectral:
+        samples = []
+
+        def shared_samples():
+            if not samples:
+                samples.append(teacher_samples(parent, settings.distill.n_pairs, settings.seed,
+                                               parent.model.wavelength_range_nm))
+            return samples[0]
+
+        for layers, hidden in settings.students:
+            out.append((
+                f"mlp_{layers}x{hidden}",
+                f"spectral MLP {layers}x{hidden} distilled from {settings.distill.n_pairs} samples of {name}",
+                lambda provenance, layers=layers, hidden=hidden: _student_rung(
+                    shared_samples(), layers, hidden, parent, settings, provenance),
+            ))
+    return out
+
+
+# --------------------------------------------------------------------------- measurement
+
+
+def drjit_costs(protos: dict[str, onnx.ModelProto], spectral: bool, batches: tuple[int, int], rounds: int) -> dict[str, float]:
+    """Dr.Jit nanoseconds per query of each graph inside a kernel: the slope
+    ``(t(large) − t(small)) / (large − small)`` of the shortest wall times of two batch sizes (the
+    shortest: other processes only ever add time on a shared machine), so that
+    the per-call cost of interpreting the graph in Python (which a render pays once per kernel,
+    not per sample) cancels.  Rounds are interleaved over the graphs and batch sizes, one warm-up
+    call each first, on random upper-hemisphere pairs (:func:`neuralbrdf.study.cost.probe_inputs`)."""
+    import drjit as dr
+    from drjit.llvm import Float
+
+    from neuralbrdf.render.drjit_onnx import DrJitGraph
+    from neuralbrdf.study.cost import probe_inputs, timed
+
+    inputs = {}
+    for batch in batches:
+        feeds = probe_inputs(batch, spectral)
+        wi = [Float(feeds["wi"][:, k]) for k in range(3)]
+        wo = [Float(feeds["wo"][:, k]) for k in range(3)]
+        wavelength = Float(feeds["wavelength"]) if spectral else None
+        dr.eval(*wi, *wo, *([wavelength] if spectral else []))
+        inputs[batch] = (wi, wo, wavelength)
+    graphs = {name: DrJitGraph(proto) for name, proto in protos.items()}
+
+    def call(graph, batch):
+        columns = [c for c in graph(*inputs[batch]) if not isinstance(c, float)]
+        dr.eval(*columns)
+        dr.sync_thread()
+
+    times = {(name, batch): [] for name in graphs for batch in batches}
+    for name, graph in graphs.items():
+        for batch in batches:
+            call(graph, batch)
+    for _ in range(rounds):
+        for name, graph in graphs.items():
+            for batch in batches:
+                times[name, batch].append(timed(lambda: call(graph, batch)))
+    small, large = batches
+    return {name: max(1e9 * (min(times[name, large]) - min(times[name, small])) / (large - small), 1e-3)
+            for name in graphs}
+
+
+class MemoisedEvaluator:
+    """An evaluator that remembers its last few results by the bytes of their inputs: the parent is
+    compared with every rung on the same hemisphere pairs, and evaluated on them once."""
+
+    def __init__(self, evaluator, size: int = 8) -> None:
+        self.evaluator, self.size = evaluator, size
+        self.is_spectral = evaluator.is_spectral
+        self.cache: dict[str, np.ndarray] = {}
+
+    def values(self, wi, wo, wavelength=None):
+        digest = hashlib.sha256()
+        for array in (wi, wo, wavelength):
+            digest.update(b"-" if array is None else np.ascontiguousarray(array).tobytes())
+        key = digest.hexdigest()
+        if key not in self.cache:
+            if len(self.cache) >= self.size:
+                del self.cache[next(iter(self.cache))]
+            self.cache[key] = self.evaluator.values(wi, wo, wavelength)
+        return self.cache[key]
+
+
+def parent_error(rung: Path, parent, strata: tuple[int, int] = HEMISPHERE_STRATA) -> float:
+    """``hemisphere_logcos_rmse`` of the model file ``rung`` against the parent (module docstring)."""
+    return float(hemisphere_scores(OnnxEvaluator(rung), parent, strata=strata)["hemisphere_logcos_rmse"])
+
+
+# --------------------------------------------------------------------------- the ladder
+
+
+def _with_metadata(path: Path, entries: dict[str, str]) -> bytes:
+    proto = onnx.load(str(path))
+    metadata = {entry.key: entry.value for entry in proto.metadata_props}
+    metadata.update(entries)
+    onnx.helper.set_model_props(proto, metadata)
+    return proto.SerializeToString()
+
+
+def build_ladder(model_path: str | Path, out_dir: str | Path, settings: LadderSettings = LadderSettings(),
+                 log=print) -> dict:
+    """Make the stand-ins of ``model_path`` in ``out_dir`` and write ``out_dir/ladder.json``
+    (module docstring); returns the JSON document."""
+    model_path, out_dir = Path(model_path).resolve(), Path(out_dir)
+    parent = OnnxEvaluator(model_path)
+    reference = MemoisedEvaluator(parent)
+    sha = file_sha256(model_path)
+    rungs, failed, built = [], [], {}
+    began = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="neuralbrdf-ladder-") as work:
+        for name, describes, build in _candidates(parent, settings):
+            start = time.perf_counter()
+            provenance = f"ladder rung {name!r} of {model_path.name} (sha256 {sha[:12]}): {describes}"
+            try:
+                exportable = build(provenance)
+                path = Path(work) / f"{name}.onnx"
+                write_model(exportable, path)
+            except (ValueError, InputError) as error:
+                failed.append({"name": name, "approximates": describes, "cause": str(error)})
+                log(f"{name}: failed: {error}")
+                continue
+            built[name] = (path, describes, time.perf_counter() - start)
+            log(f"{name}: built in {built[name][2]:.1f} s")
+        errors = {name: parent_error(path, reference, settings.error_strata) for name, (path, _, _) in built.items()}
+        protos = {FULL_RUNG: parent.model.proto, **{name: load_model(path).proto for name, (path, _, _) in built.items()}}
+        costs = drjit_costs(protos, parent.is_spectral, settings.cost_batches, settings.cost_rounds)
+        rungs.append(_entry(FULL_RUNG, str(model_path), parent.model.kind, "the parent itself", 0.0,
+                            costs[FULL_RUNG], 1.0, 0.0))
+        payloads = {}
+        for name, (path, describes, seconds) in built.items():
+            relative = costs[name] / costs[FULL_RUNG]
+            payloads[name] = _with_metadata(path, {
+                RUNG_KEY: name, PARENT_KEY: model_path.name, PARENT_SHA256_KEY: sha,
+                ERROR_KEY: repr(errors[name]), COST_KEY: repr(costs[name]), RELATIVE_COST_KEY: repr(relative),
+            })
+            rungs.append(_entry(name, f"{name}.onnx", load_model(path).kind, describes, errors[name], costs[name],
+                                relative, seconds))
+        if parent.is_spectral:
+            rungs += _rgb_rule_rungs(parent, reference, model_path, costs[FULL_RUNG], settings)
+    from neuralbrdf.study.cost import machine
+
+    document = {
+        "format": LADDER_FORMAT,
+        "parent": {"file": str(model_path), "sha256": sha, "kind": parent.model.kind,
+                   "material": parent.model.material, "spectral": parent.is_spectral},
+        "error_metric": f"hemisphere_logcos_rmse against the parent (SPEC §5; {math.prod(settings.error_strata) ** 2} "
+                        "stratified pairs, theta <= 80 deg; spectra at 400-700 nm every 10 nm, else linear sRGB)",
+        "cost_metric": "Dr.Jit ns per query inside a kernel (slope of the shortest wall times of batches of "
+                       f"{settings.cost_batches[0]} and {settings.cost_batches[1]} random pairs, one wavelength per "
+                       f"query for spectral models, {settings.cost_rounds} interleaved rounds); relative_cost = rung / full",
+        "rungs": sorted(rungs, key=lambda r: r["relative_cost"], reverse=True),
+        "failed": failed,
+        "settings": _settings_dict(settings),
+        "wall_time_s": time.perf_counter() - began,
+        "machine": machine(),
+    }
+    targets = [out_dir / f"{name}.onnx" for name in payloads] + [out_dir / LADDER_FILE]
+    with atomic_paths(*targets) as temporaries:
+        for temporary, payload in zip(temporaries, payloads.values()):
+            temporary.write_bytes(payload)
+        temporaries[-1].write_text(json.dumps(document, indent=2, allow_nan=False) + "\n")
+    return document
+
+
+def _entry(name, file, kind, approximates, error, cost_ns, relative, build_s, properties=None,
+           variants="rgb spectral") -> dict:
+    return {"name": name, "file": file, "kind": kind, "approximates": approximates,
+            "hemisphere_logcos_rmse": error, "drjit_ns_per_query": cost_ns, "relative_cost": relative,
+            "build_time_s": build_s, "bsdf_properties": properties or {}, "variants": variants}
+
+
+class ReducedRgbEvaluator:
+    """A spectral model's linear sRGB through a reduced rule (what the plugin returns in RGB variants)."""
+
+    is_spectral = False
+
+    def __init__(self, parent: OnnxEvaluator, rule) -> None:
+        self.parent, self.rule = parent, rule
+
+    def values(self, wi, wo, wavelength=None):
+        n, k = len(wi), self.rule.size
+        spectra = self.parent.values(np.tile(wi, (k, 1)), np.tile(wo, (k, 1)),
+                                     np.repeat(np.asarray(self.rule.wavelengths_nm), n)).reshape(k, n)
+        return np.clip(np.clip(spectra, 0.0, None).T @ self.rule.weights, 0.0, None)
+
+
+def _rgb_rule_rungs(parent: OnnxEvaluator, reference, model_path: Path, full_cost_ns: float,
+                    settings: LadderSettings) -> list[dict]:
+    """``full_rgbT`` rungs (module docstring)."""
+    from neuralbrdf.render.mitsuba_bsdf import fit_rgb_rule
+    from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE
+
+    default = fit_rgb_rule(parent.model, parent.session, DEFAULT_RMS_TOLERANCE)
+    out = []
+    for tolerance in settings.rgb_tolerances:
+        start = time.perf_counter()
+        rule = fit_rgb_rule(parent.model, parent.session, tolerance)
+        if rule.size >= default.size:
+            continue  # no fewer wavelengths than the default rule: not cheaper
+        scores = hemisphere_scores(ReducedRgbEvaluator(parent, rule), reference, strata=settings.error_strata)
+        error = float(scores["hemisphere_logcos_rmse"])
+        relative = rule.size / default.size
+        out.append(_entry(
+            f"full_rgb{tolerance:g}", str(model_path), parent.model.kind,
+            f"{model_path.name} in RGB variants with its sRGB rule at held-out rms {tolerance:g} ({rule.size} "
+            f"wavelengths, {default.size} at the default {DEFAULT_RMS_TOLERANCE:g})",
+            error, full_cost_ns * relative, relative, time.perf_counter() - start,
+            properties={"rgb_tolerance": repr(float(tolerance))}, variants="rgb",
+        ))
+    return out
+
+
+def _settings_dict(settings: LadderSettings) -> dict:
+    document = asdict(settings)
+    document["students"] = [list(s) for s in settings.students]
+    return document
+
+
+# --------------------------------------------------------------------------- reading
+
+
+@dataclass(frozen=True)
+class Rung:
+    """One rung of a read ladder: its file (absolute), cost and error against the parent, the
+    plugin properties it needs and whether it applies in RGB variants only."""
+
+    name: str
+    path: Path
+    kind: str
+    relative_cost: float
+    hemisphere_logcos_rmse: float
+    properties: tuple[tuple[str, str], ...] = ()
+    rgb_only: bool = False
+
+
+@dataclass(frozen=True)
+class Ladder:
+    parent: Path
+    parent_sha256: str
+    rungs: tuple[Rung, ...]  # the full model first, then by decreasing cost
+
+
+def read_ladder(folder: str | Path) -> Ladder:
+    """``folder/ladder.json`` (as :func:`build_ladder` writes it), checked; rung files resolved
+    against ``folder``."""
+    folder = Path(folder)
+    path = folder / LADDER_FILE
+    if not path.is_file():
+        raise InputError("no ladder.json here (make one with 'neuralbrdf ladder MODEL.onnx --out-dir DIR')", path=folder)
+    try:
+        document = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise InputError(f"not JSON: {error}", path=path) from None
+    if not isinstance(document, dict) or document.get("format") != LADDER_FORMAT:
+        raise InputError(f"not a ladder file (format must be {LADDER_FORMAT!r})", path=path, column="format")
+    try:
+        parent = document["parent"]
+        rungs = []
+        for entry in document["rungs"]:
+            file = Path(entry["file"])
+            properties = entry.get("bsdf_properties", {})
+            if not isinstance(properties, dict):
+                raise TypeError("bsdf_properties must be a mapping")
+            rungs.append(Rung(str(entry["name"]), file if file.is_absolute() else folder.resolve() / file,
+                              str(entry["kind"]), float(entry["relative_cost"]),
+                              float(entry["hemisphere_logcos_rmse"]),
+                              tuple((str(k), str(v)) for k, v in properties.items()),
+                              str(entry.get("variants", "rgb spectral")).split() == ["rgb"]))
+        ladder = Ladder(Path(parent["file"]), str(parent["sha256"]),
+                        tuple(sorted(rungs, key=lambda r: (r.name != FULL_RUNG, -r.relative_cost))))
+    except (KeyError, TypeError, ValueError) as error:
+        raise InputError(f"malformed ladder entry ({type(error).__name__}: {error})", path=path) from None
+    if not ladder.rungs or ladder.rungs[0].name != FULL_RUNG:
+        raise InputError("a ladder lists its full model as rung 'full'", path=path, column="rungs")
+    return ladder

@@ -1,0 +1,318 @@
+"""Pick, per object, the cheapest model a scene can use (SPEC §11): ``neuralbrdf select``.
+
+For a Mitsuba scene whose ``neuralbrdf`` BSDFs have cost ladders (:mod:`neuralbrdf.lod.ladder`),
+at a low resolution (``resolution`` wide) and matched seeds:
+
+**Matched paths.**  A stand-in is rendered with its parent's sampling proposal (the plugin's
+``proposal`` property).  The proposal does not change what a render converges to, only its
+noise, so with the same seed the stand-in and the full scene trace the same paths (same
+directions, same wavelengths) and differ only by the BSDF values along them: their image
+difference is the stand-in's bias, and most of the Monte Carlo noise cancels.  (Rendered with
+its own proposal, a stand-in's image differs from the full one by about the seed-to-seed noise
+even where it is exact; at the sample counts a selection can afford that noise is far above a
+tolerance of 1 ΔE.)  The written scene uses each stand-in's own proposal.
+
+1. **Noise.** At ``spp`` (doubling up to ``max_spp``) the all-full scene and the all-cheapest scene
+   (every material on its cheapest rung) are rendered with two seeds.  The mean CIEDE2000 of the
+   two all-full renders is the *render noise* (stated, not used); the difference between the
+   all-cheapest scene's error at the one seed and at the other is the *estimate noise*, how far
+   a measured error contribution moves with the seed.  The sample count grows until the estimate
+   noise is at most ``noise_fraction × T``; the JSON states both and whether that was reached.
+2. **Each rung's effect.** Per material and rung: the scene with that material on the rung and
+   the others full, against the all-full render at the same seed: its whole-image mean ΔE2000
+   is the rung's *error contribution*.
+3. **Choice.** The combination (one rung per material, full included) with the smallest summed
+   relative cost (from the ladders) whose summed contributions stay within ``T``
+   (contributions add when materials cover different pixels, the common case; the
+   verification catches the rest); exhaustive over the combinations (:func:`best_combination`).
+   The render times of step 2 are recorded but not used: each is the first render of a new
+   material combination and includes compiling its kernels, so they do not measure savings.
+4. **Verification.** The chosen scene against the all-full one at both seeds; while the larger
+   mean ΔE2000 exceeds ``T`` the material with the largest contribution moves to its next more
+   expensive rung.  Then the all-full and the selected scene (own proposals) are timed in
+   interleaved renders (median of ``timing_repeats``, Dr.Jit's default symbolic mode, after one
+   compiling render each).
+
+The error renders run in Dr.Jit's wavefront mode: a scene with one material swapped then reuses
+the compiled kernels of the others (in symbolic mode every combination compiles its own kernel,
+~15 s each on 2 cores).
+
+Outputs (together or neither): ``SELECTED.xml``, the scene with each material pointing at its
+chosen rung file and plugin properties (file paths rewritten relative to the output's folder),
+and ``SELECTED.json``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import statistics
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from neuralbrdf.atomic import atomic_paths
+from neuralbrdf.errors import InputError
+from neuralbrdf.evaluation.images import delta_e2000_map
+from neuralbrdf.lod.ladder import FULL_RUNG, Ladder, Rung, file_sha256, read_ladder
+from neuralbrdf.render.scene_file import SceneFile, render_scene_file
+
+#: Default ladder folder of ``MODEL.onnx``: ``MODEL.ladder`` beside it.
+LADDER_SUFFIX = ".ladder"
+#: Most combinations the exhaustive choice enumerates.
+MAX_COMBINATIONS = 200_000
+
+
+@dataclass(frozen=True)
+class SelectSettings:
+    tolerance: float = 1.0
+    variant: str = "llvm_ad_spectral"
+    #: Width of the selection renders (height from the scene's aspect ratio).
+    resolution: int = 96
+    spp: int = 32
+    max_spp: int = 1024
+    #: The estimate noise (module docstring, step 1) must be at most this fraction of the tolerance.
+    noise_fraction: float = 0.25
+    seed: int = 0
+    timing_repeats: int = 3
+
+
+def default_ladder_dir(model: Path) -> Path:
+    return model.with_name(model.stem + LADDER_SUFFIX)
+
+
+def find_ladders(scene: SceneFile, extra_dirs: list[Path]) -> dict[str, Ladder | None]:
+    """Per material name, the ladder whose parent has the model file's SHA-256: among
+    ``extra_dirs`` and ``MODEL.ladder`` beside each model (``None``: no ladder, stays full)."""
+    candidates = [read_ladder(d) for d in extra_dirs]
+    found = {}
+    for material in scene.materials():
+        sha = file_sha256(material.model)
+        own = default_ladder_dir(material.model)
+        pool = candidates + ([read_ladder(own)] if (own / "ladder.json").is_file() else [])
+        found[material.name] = next((ladder for ladder in pool if ladder.parent_sha256 == sha), None)
+    return found
+
+
+def film_aspect(scene: SceneFile) -> float:
+    """Height / width of the scene's first film (Mitsuba's defaults 768 x 576 where unstated)."""
+    for sensor in scene.root.iter("sensor"):
+        for film in sensor.iter("film"):
+            size = {child.get("name"): scene.expand(child.get("value", "")) for child in film if child.tag == "integer"}
+            try:
+                return float(size.get("height", 576)) / float(size.get("width", 768))
+            except ValueError:
+                raise InputError("the film's width/height are not numbers", path=scene.path) from None
+    raise InputError("the scene has no <sensor> with a <film>", path=scene.path)
+
+
+class _Renderer:
+    """Renders choices ``{material: Rung}`` of the scene at the selection resolution."""
+
+    def __init__(self, scene: SceneFile, settings: SelectSettings) -> None:
+        self.base = scene.copy()
+        width = settings.resolution
+        self.base.set_resolution(width, max(1, round(width * film_aspect(scene))))
+        self.renders = 0
+
+    def scene(self, choice: dict[str, Rung], parents: dict[str, Path] | None = None) -> SceneFile:
+        """The scene with ``choice``; with ``parents``, stand-ins sample with their parent's proposal."""
+        scene = self.base.copy()
+        for name, rung in choice.items():
+            if rung.name != FULL_RUNG:
+                properties = dict(rung.properties)
+                if parents is not None and rung.path != parents[name]:
+                    properties["proposal"] = str(parents[name])
+                scene.set_model(name, rung.path, properties)
+        return scene
+
+    def render(self, choice: dict[str, Rung], spp: int, seed: int, parents: dict[str, Path] | None = None,
+               wavefront: bool = True) -> tuple[np.ndarray, float]:
+        self.renders += 1
+        image, seconds = render_scene_file(self.scene(choice, parents), spp, seed, wavefront=wavefront)
+        if not np.all(np.isfinite(image)):
+            raise InputError("a render of the scene is not finite", path=self.base.path)
+        return image, seconds
+
+
+def _mean_delta_e(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.mean(delta_e2000_map(a, b)))
+
+
+def best_combination(options: dict[str, list[dict]], tolerance: float) -> dict[str, dict]:
+    """The rung per material with the smallest summed relative cost (each rung's cost from its
+    ladder, relative to its full model) among the combinations whose summed error contributions
+    are within ``tolerance``; ties go to the smaller summed error.  The full rung has error 0, so a
+    solution always exists; an object that covers nothing gets its cheapest rung."""
+    names = list(options)
+    total = 1
+    for name in names:
+        total *= len(options[name])
+    if total > MAX_COMBINATIONS:
+        raise InputError(f"{total} rung combinations; at most {MAX_COMBINATIONS} are searched")
+    best, best_key = None, None
+    for combination in itertools.product(*(options[n] for n in names)):
+        error = sum(o["error_contribution"] for o in combination)
+        if error > tolerance:
+            continue
+        key = (round(sum(o["relative_cost"] for o in combination), 9), error)
+        if best_key is None or key < best_key:
+            best, best_key = combination, key
+    return dict(zip(names, best))
+
+
+def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings = SelectSettings(),
+           ladder_dirs: list[Path] | None = None, log=print) -> dict:
+    """Run the selection (module docstring), write ``out_xml`` and the JSON beside it; return the JSON."""
+    from neuralbrdf.render.preview import set_variant
+
+    began = time.perf_counter()
+    if not settings.tolerance > 0:
+        raise InputError(f"--tolerance must be > 0, got {settings.tolerance}")
+    out_xml = Path(out_xml)
+    if out_xml.suffix.lower() != ".xml":
+        raise InputError("the output must be an .xml file (SELECTED.json is written beside it)", path=out_xml)
+    out_json = out_xml.with_suffix(".json")
+    scene = SceneFile(scene_path)
+    materials = scene.materials()
+    if not materials:
+        raise InputError("the scene has no neuralbrdf material to select models for", path=scene.path)
+    ladders = find_ladders(scene, list(ladder_dirs or []))
+    full = {m.name: Rung(FULL_RUNG, m.model, "", 1.0, 0.0) for m in materials}
+    parents = {m.name: m.model for m in materials}
+    rgb_variant = "_rgb" in settings.variant
+    candidates = {
+        name: [] if ladder is None else [r for r in ladder.rungs[1:] if rgb_variant or not r.rgb_only]
+        for name, ladder in ladders.items()
+    }
+    cheapest = {name: min([full[name], *rungs], key=lambda r: r.relative_cost) for name, rungs in candidates.items()}
+    set_variant(settings.variant)
+    renderer = _Renderer(scene, settings)
+    seeds = (settings.seed, settings.seed + 1)
+
+    # 1. noise
+    spp = settings.spp
+    while True:
+        fulls = [renderer.render(full, spp, seed) for seed in seeds]
+        cheaps = [renderer.render(cheapest, spp, seed, parents)[0] for seed in seeds]
+        render_noise = _mean_delta_e(fulls[0][0], fulls[1][0])
+        cheap_errors = [_mean_delta_e(c, f[0]) for c, f in zip(cheaps, fulls)]
+        estimate_noise = abs(cheap_errors[0] - cheap_errors[1])
+        log(f"{spp} spp: render noise dE2000 {render_noise:.3f}; all-cheapest error {cheap_errors[0]:.3f} / "
+            f"{cheap_errors[1]:.3f} at two seeds (estimate noise {estimate_noise:.3f})")
+        if estimate_noise <= settings.noise_fraction * settings.tolerance or spp >= settings.max_spp:
+            break
+        spp = min(settings.max_spp, 2 * spp)
+    noise_ok = estimate_noise <= settings.noise_fraction * settings.tolerance
+    reference = fulls[0][0]
+    reference_s = min(seconds for _, seconds in fulls)  # the first render of a scene also compiles kernels
+
+    # 2. each rung's effect
+    options: dict[str, list[dict]] = {}
+    for material in materials:
+        options[material.name] = [{
+            "rung": FULL_RUNG, "file": str(material.model), "kind": None, "relative_cost": 1.0,
+            "bsdf_properties": {}, "hemisphere_logcos_rmse": 0.0, "error_contribution": 0.0, "time_s": reference_s,
+        }]
+        if ladders[material.name] is None:
+            log(f"{material.name}: no ladder for {material.model}; stays full")
+            continue
+        options[material.name][0]["kind"] = ladders[material.name].rungs[0].kind or None
+        for rung in candidates[material.name]:
+            image, seconds = renderer.render({**full, material.name: rung}, spp, settings.seed, parents)
+            error = _mean_delta_e(image, reference)
+            options[material.name].append({
+                "rung": rung.name, "file": str(rung.path), "kind": rung.kind, "relative_cost": rung.relative_cost,
+                "bsdf_properties": dict(rung.properties), "hemisphere_logcos_rmse": rung.hemisphere_logcos_rmse,
+                "error_contribution": error, "time_s": seconds,
+            })
+            log(f"{material.name} -> {rung.name}: dE2000 {error:.3f}, {seconds:.2f} s (full {reference_s:.2f} s)")
+
+    # 3. choice, 4. verification
+    chosen = best_combination(options, settings.tolerance)
+    while True:
+        rung_of = {name: _rung(option, full[name]) for name, option in chosen.items()}
+        verified = [_mean_delta_e(renderer.render(rung_of, spp, seed, parents)[0], f[0]) for seed, f in zip(seeds, fulls)]
+        described = ", ".join(f"{name}={option['rung']}" for name, option in chosen.items())
+        log(f"selected {described}: dE2000 {verified[0]:.3f} / {verified[1]:.3f} at two seeds")
+        if max(verified) <= settings.tolerance:
+            break
+        worst = max(chosen, key=lambda n: chosen[n]["error_contribution"])
+        dearer = [o for o in options[worst] if o["relative_cost"] > chosen[worst]["relative_cost"]]
+        chosen[worst] = min(dearer, key=lambda o: o["relative_cost"]) if dearer else options[worst][0]
+
+    times: dict[str, list[float]] = {"full": [], "selected": []}
+    for name, choice in (("full", full), ("selected", rung_of)):
+        renderer.render(choice, spp, settings.seed + 2, wavefront=False)  # compiles the kernel
+    for _ in range(settings.timing_repeats):
+        for name, choice in (("full", full), ("selected", rung_of)):
+            times[name].append(renderer.render(choice, spp, settings.seed + 2, wavefront=False)[1])
+    reference_time, selected_time = statistics.median(times["full"]), statistics.median(times["selected"])
+
+    result = {
+        "scene": str(scene.path),
+        "tolerance_delta_e2000": settings.tolerance,
+        "materials": [
+            {"name": name, "model": str(full[name].path), "chosen_rung": option["rung"], "file": option["file"],
+             "kind": option["kind"], "bsdf_properties": option["bsdf_properties"],
+             "error_contribution": option["error_contribution"], "cost": option["relative_cost"],
+             "hemisphere_logcos_rmse": option["hemisphere_logcos_rmse"],
+             "has_ladder": ladders[name] is not None}
+            for name, option in chosen.items()
+        ],
+        "reference_time_s": reference_time,
+        "selected_time_s": selected_time,
+        "speedup": reference_time / selected_time,
+        "image_delta_e2000_mean": max(verified),
+        "image_delta_e2000_mean_per_seed": verified,
+        "noise": {
+            "render_seed_to_seed_delta_e2000_mean": render_noise,
+            "estimate_seed_to_seed_delta_e2000": estimate_noise,
+            "all_cheapest_delta_e2000_per_seed": cheap_errors,
+            "spp": spp,
+            "estimate_noise_within_fraction_of_tolerance": noise_ok,
+            "required_fraction": settings.noise_fraction,
+            "method": "matched seeds and matched paths (stand-ins sample with their parent's proposal); render noise "
+                      "= mean dE2000 between two all-full renders with different seeds; estimate noise = change of "
+                      "the all-cheapest scene's error between the two seeds",
+        },
+        "render": {"variant": settings.variant, "width": settings.resolution, "aspect": film_aspect(scene),
+                   "spp": spp, "seeds": list(seeds), "timing_repeats": settings.timing_repeats,
+                   "timing_mode": "symbolic", "times_s": times},
+        "candidates": options,
+        "renders": renderer.renders,
+        "selection_time_s": time.perf_counter() - began,
+        "settings": asdict(settings),
+    }
+    if not noise_ok:
+        log(f"warning: the estimate noise ({estimate_noise:.3f}) stayed above {settings.noise_fraction} x T at {spp} spp")
+    selected = scene.copy()  # the user's film and settings, not the selection's
+    for name, rung in rung_of.items():
+        if rung.name != FULL_RUNG:
+            selected.set_model(name, rung.path, dict(rung.properties))
+    _relocate_paths(selected, out_xml.resolve().parent)
+    with atomic_paths(out_xml, out_json) as (xml_tmp, json_tmp):
+        xml_tmp.write_text(selected.text() + "\n")
+        json_tmp.write_text(json.dumps(result, indent=2, allow_nan=False) + "\n")
+    return result
+
+
+def _rung(option: dict, full: Rung) -> Rung:
+    if option["rung"] == FULL_RUNG:
+        return full
+    return Rung(option["rung"], Path(option["file"]), option["kind"], option["relative_cost"],
+                option["hemisphere_logcos_rmse"], tuple(option["bsdf_properties"].items()))
+
+
+def _relocate_paths(scene: SceneFile, folder: Path) -> None:
+    """Rewrite the scene's file paths (``filename`` properties, ``<include>``) relative to ``folder``."""
+    for element in scene.root.iter():
+        attribute = "filename" if element.tag == "include" else ("value" if element.get("name") == "filename" else None)
+        if attribute is None or element.get(attribute) is None or "$" in element.get(attribute):
+            continue
+        path = Path(element.get(attribute))
+        absolute = path if path.is_absolute() else scene.folder / path
+        element.set(attribute, os.path.relpath(absolute.resolve(), folder))
