@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from export_scripts import load_export_script
+from neuralbrdf.cli import render_command
 from neuralbrdf.errors import InputError
 from neuralbrdf.evaluation.scores import OnnxEvaluator
 from neuralbrdf.evaluation.truth import export_truth
@@ -23,7 +23,6 @@ from neuralbrdf.lod.distill import DistillSettings
 from neuralbrdf.lod.ladder import (
     COST_KEY,
     ERROR_KEY,
-    LADDER_FILE,
     PARENT_SHA256_KEY,
     RUNG_KEY,
     LadderSettings,
@@ -249,10 +248,9 @@ def test_select_refuses_a_scene_without_neural_materials(tmp_path):
 def test_render_command_renders_a_user_scene(ladder, tmp_path):
     parent, _, _ = ladder
     scene = _scene(parent.parent / "user", parent, visible=True)
-    render = load_export_script("render")
     out = tmp_path / "scene.png"
-    code = render.main(["--scene", str(scene), "--out", str(out), "--variant", "llvm_ad_rgb", "--resolution", "16",
+    code = render_command.main(["--scene", str(scene), "--out", str(out), "--variant", "llvm_ad_rgb", "--resolution", "16",
                         "--spp", "2", "--quiet"])
     assert code == 0 and out.is_file()
-    code = render.main(["--scene", str(tmp_path / "missing.xml"), "--out", str(tmp_path / "x.png"), "--quiet"])
+    code = render_command.main(["--scene", str(tmp_path / "missing.xml"), "--out", str(tmp_path / "x.png"), "--quiet"])
     assert code == 2 and not (tmp_path / "x.png").exists()

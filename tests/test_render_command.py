@@ -1,7 +1,9 @@
-"""``export/render.py``: the material-preview scene renders exported models in RGB and spectral
+"""``neuralbrdf render`` (``export/render.py``): the material-preview scene renders exported models in RGB and spectral
 variants with both backends, to PNG and EXR written atomically; passes split and weight the
 samples correctly; a Lambertian model renders like Mitsuba's own ``diffuse``; bad input exits 2."""
 
+import subprocess
+import sys
 from pathlib import Path
 
 import drjit as dr
@@ -10,9 +12,8 @@ import numpy as np
 import pytest
 
 import onnx_fixtures as fx
-from export_scripts import load_export_script
-
-render = load_export_script("render")
+from neuralbrdf.cli import render_command
+from neuralbrdf.render import preview as render
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +33,7 @@ def read_exr(path: Path) -> np.ndarray:
 def test_renders_png_and_exr_in_rgb_and_spectral_variants(models, variant, tmp_path, capsys):
     out = tmp_path / "preview.png"
     args = ["--model", str(models["spectral"]), "--out", str(out), "--exr", "--variant", variant]
-    assert render.main([*args, "--resolution", "32", "--spp", "4", "--quiet"]) == 0
+    assert render_command.main([*args, "--resolution", "32", "--spp", "4", "--quiet"]) == 0
     assert "wrote" in capsys.readouterr().out
     image = read_exr(out.with_suffix(".exr"))
     # (spectral variants may give slightly negative sRGB per pixel: out-of-gamut samples at 4 spp)
@@ -137,7 +138,7 @@ def test_bad_input_exits_2_with_one_line(models, case, tmp_path, capsys):
     arguments = [a.format(tmp=tmp_path, spectral=models["spectral"]) for a in arguments]
     if "--out" not in arguments:
         arguments += ["--out", str(tmp_path / "x.png")]
-    assert render.main(["--resolution", "8", "--spp", "1", "--quiet", *arguments]) == 2
+    assert render_command.main(["--resolution", "8", "--spp", "1", "--quiet", *arguments]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("error: ") and message in err, err
     assert list(tmp_path.iterdir()) == []
@@ -165,7 +166,7 @@ def test_user_errors_are_one_line_before_any_rendering(models, tmp_path, capsys,
         "unwritable output": (["--model", str(models["spectral"]), "--out", str(blocker / "x.png")], "cannot write"),
     }
     for name, (arguments, message) in cases.items():
-        assert render.main(["--spp", "1", "--quiet", *arguments]) == 2, name
+        assert render_command.main(["--spp", "1", "--quiet", *arguments]) == 2, name
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and err.startswith("error: ") and message in err, (name, err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "folder.png", "model.png"]
@@ -179,7 +180,7 @@ def test_cuda_variant_without_a_gpu_is_one_line(models, tmp_path, capsys):
                    capture_output=True)
     if probe.returncode == 0:
         pytest.skip("this machine has a CUDA device")
-    assert render.main(["--model", str(models["spectral"]), "--variant", "cuda_ad_rgb", "--out", str(tmp_path / "x.png")]) == 2
+    assert render_command.main(["--model", str(models["spectral"]), "--variant", "cuda_ad_rgb", "--out", str(tmp_path / "x.png")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "cuda_ad_rgb" in err and "no CUDA device" in err, err
     assert list(tmp_path.iterdir()) == []
@@ -200,7 +201,7 @@ def test_negative_model_values_are_clamped_and_counted(tmp_path, monkeypatch, ca
     path = fx.export_module(HalfNegative(), tmp_path / "neg.onnx", fx.rgb_metadata("nlb"), spectral=False)
     monkeypatch.setattr(onnx_contract, "_check_trial_evaluation", lambda *a: None)  # a probe that missed it
     out = tmp_path / "neg.png"
-    assert render.main(["--model", str(path), "--resolution", "16", "--spp", "2", "--quiet", "--exr", "--out", str(out)]) == 0
+    assert render_command.main(["--model", str(path), "--resolution", "16", "--spp", "2", "--quiet", "--exr", "--out", str(out)]) == 0
     err = capsys.readouterr().err
     assert "were negative or not finite and were clamped to 0" in err, err
     import mitsuba as mi
@@ -209,7 +210,7 @@ def test_negative_model_values_are_clamped_and_counted(tmp_path, monkeypatch, ca
 
 
 def test_help_states_how_outputs_and_sizes_are_checked():
-    text = " ".join(render.build_parser().format_help().split())
+    text = " ".join(render_command.build_parser().format_help().split())
     assert "symbolic link is written through" in text and "75% of this machine's memory" in text
 
 
@@ -225,10 +226,24 @@ def test_an_llvm_older_than_19_is_one_line_before_rendering(models, tmp_path):
 
     out = tmp_path / "x.png"
     proc = subprocess.run(
-        [sys.executable, str(Path(render.__file__)), "--model", str(models["grey"]), "--out", str(out),
+        [sys.executable, str(Path(__file__).resolve().parents[1] / "export" / "render.py"), "--model", str(models["grey"]), "--out", str(out),
          "--resolution", "8", "--spp", "1", "--quiet"],
         capture_output=True, text=True, env={**os.environ, "DRJIT_LIBLLVM_PATH": str(OLD_LLVM)}, timeout=300,
     )
     assert proc.returncode == 2, proc.stderr[-500:]
     assert proc.stderr.count("\n") == 1 and "libllvm19" in proc.stderr and "LLVM 15" in proc.stderr
     assert not out.exists()
+
+
+def test_a_scene_loaded_without_the_plugin_registered_says_what_to_call(models, tmp_path):
+    """Issue 12 item 9: not Mitsuba's bare 'Plugin "neuralbrdf" not found!'."""
+    scene = tmp_path / "mine.xml"
+    scene.write_text(f'<scene version="3.0.0"><bsdf type="neuralbrdf" id="m">'
+                     f'<string name="filename" value="{models["grey"]}"/></bsdf></scene>')
+    code = ("import mitsuba as mi; mi.set_variant('llvm_ad_rgb')\n"
+            "from neuralbrdf.errors import InputError\n"
+            "from neuralbrdf.render.scene_file import SceneFile\n"
+            f"try:\n    SceneFile({str(scene)!r}).load()\nexcept InputError as error:\n    print(error)\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert str(scene) in result.stdout and "call neuralbrdf.render.register() after mi.set_variant('llvm_ad_rgb')" \
+        in result.stdout, result.stdout + result.stderr

@@ -34,6 +34,7 @@ EPILOG = (
 DELEGATED = {
     "train": "train, validate or test a model from a YAML config (neuralbrdf train --help; same as train.py)",
     "export": "export a trained checkpoint to one validated ONNX file (same as export/to_onnx.py)",
+    "render": "render a model in the preview scene, or any scene that uses it (same as export/render.py)",
 }
 
 
@@ -223,14 +224,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _delegated(name: str):
-    """The ``main(argv)`` of a command with its own parser (train: LightningCLI; export)."""
+    """The ``main(argv)`` of a command with its own parser (train: LightningCLI; export; render)."""
     if name == "train":
         from neuralbrdf.lightning.run import main as train
 
         return train
+    if name == "render":  # imports Mitsuba: only when asked for
+        from neuralbrdf.cli import render_command
+
+        return render_command.main
     from neuralbrdf.cli import export_command
 
-    return lambda argv: export_command.main(argv, prog="neuralbrdf export")
+    return export_command.main
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -126,6 +126,23 @@ _BSDF_CLASSES: dict[str, type] = {}
 _UPSAMPLERS: dict[str, _SrgbUpsampler] = {}
 
 
+def scene_load_error(error: RuntimeError, path) -> InputError:
+    """The :class:`InputError` for Mitsuba's failure to load the scene ``path``; a missing
+    ``neuralbrdf`` plugin gets the call that registers it instead of Mitsuba's bare message."""
+    message = str(error)
+    if f'Plugin "{PLUGIN_NAME}" not found' in message:
+        variant = mi.variant()
+        return InputError(
+            f"the scene uses the {PLUGIN_NAME!r} BSDF, which is not registered in Mitsuba variant {variant!r}: "
+            f"call neuralbrdf.render.register() after mi.set_variant({variant!r}) and before loading the scene "
+            "(again after every change of variant); neuralbrdf render does this itself",
+            path=path,
+        )
+    # Mitsuba's last line is the cause (a plugin's own exception message ends its traceback)
+    return InputError(f"cannot load the scene: {message.strip().splitlines()[-1] if message.strip() else type(error).__name__}",
+                      path=path)
+
+
 def register() -> None:
     """Register the ``neuralbrdf`` BSDF plugin for the current Mitsuba variant (idempotent).
 

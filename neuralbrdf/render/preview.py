@@ -174,7 +174,9 @@ def load_scene(material: Material, resolution: int, max_depth: int = DEFAULT_MAX
     except InputError:
         raise
     except RuntimeError as error:
-        raise InputError(f"cannot load the scene: {str(error).splitlines()[-1]}", path=SCENE_FILE) from None
+        from neuralbrdf.render.mitsuba_bsdf import scene_load_error
+
+        raise scene_load_error(error, SCENE_FILE) from None
 
 
 def machine_memory_bytes() -> int:

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from neuralbrdf.atomic import atomic_write, note_input
-from neuralbrdf.errors import InputError, one_line
+from neuralbrdf.errors import InputError
 
 PLUGIN = "neuralbrdf"
 #: Largest scene file read (bytes); scenes reference meshes, they do not hold them.
@@ -166,7 +166,7 @@ class SceneFile:
         """``mi.Scene`` of the edited text in the current variant (module docstring)."""
         import mitsuba as mi
 
-        from neuralbrdf.render.mitsuba_bsdf import validated_model
+        from neuralbrdf.render.mitsuba_bsdf import scene_load_error, validated_model
 
         for material in self.materials():
             validated_model(material.model)  # one clear InputError (naming the file) before Mitsuba wraps it
@@ -174,7 +174,7 @@ class SceneFile:
             try:
                 return mi.load_string(self.text(), **parameters)
             except RuntimeError as error:
-                raise InputError(f"cannot load the scene: {one_line(error)}", path=self.path) from None
+                raise scene_load_error(error, self.path) from None
 
 
 def _property(element: ElementTree.Element, name: str) -> ElementTree.Element | None:
