@@ -66,7 +66,8 @@ def _train(config: str, run_dir: Path, settings: Settings, *args: str) -> float:
     if metrics.exists():
         return json.loads(metrics.read_text()).get("fit/wall_time_s", 0.0)
     epochs = [] if settings.epochs is None else ["--trainer.max_epochs", str(settings.epochs)]
-    status = train(["fit", "--config", str(ROOT / "configs" / config), "--run_dir", str(run_dir), *epochs, *args])
+    status = train(["fit", "--config", str(ROOT / "configs" / config), "--run_dir", str(run_dir),
+                    "--trainer.enable_progress_bar", "false", *epochs, *args])
     if status != 0:
         raise RuntimeError(f"training {config} into {run_dir} failed with status {status}")
     return json.loads(metrics.read_text()).get("fit/wall_time_s", 0.0)

@@ -72,7 +72,8 @@ TARGETS = {
 
 
 def _train(run_dir: Path, config: str, *overrides: str) -> dict:
-    args = ["fit", "--config", str(REPO / "configs" / config), "--run_dir", str(run_dir), *overrides]
+    args = ["fit", "--config", str(REPO / "configs" / config), "--run_dir", str(run_dir),
+            "--trainer.enable_progress_bar", "false", *overrides]
     threads = torch.get_num_threads()
     status = train_main(args)
     torch.set_num_threads(threads)
@@ -82,7 +83,8 @@ def _train(run_dir: Path, config: str, *overrides: str) -> dict:
 
 
 def _test(run_dir: Path, config: str, ckpt: Path, *overrides: str) -> dict:
-    args = ["test", "--config", str(REPO / "configs" / config), "--ckpt_path", str(ckpt), *overrides]
+    args = ["test", "--config", str(REPO / "configs" / config), "--ckpt_path", str(ckpt),
+            "--trainer.enable_progress_bar", "false", *overrides]
     if train_main(args) != 0:
         raise RuntimeError(f"train.py {' '.join(args)} failed")
     return json.loads((run_dir / "metrics.json").read_text())
