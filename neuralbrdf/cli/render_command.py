@@ -142,9 +142,38 @@ def render_scene(args, written: list[Path]) -> tuple[np.ndarray, float, str]:
     if args.rgb_tolerance is not None:
         scene_file.set_all("rgb_tolerance", repr(float(args.rgb_tolerance)))
     check_outputs(*written)
-    set_variant(args.variant)
+    _start(args.variant)
     image, seconds = render_scene_file(scene_file, args.spp, args.seed, args.spp_per_pass, progress=not args.quiet)
     return image, seconds, f"scene {args.scene}"
+
+
+def render_preview(args, written: list[Path]) -> tuple[np.ndarray, float, str]:
+    """The material-preview scene with ``--model`` or ``--reference-bsdf``; ``(image, seconds, description)``."""
+    args.resolution = 256 if args.resolution is None else args.resolution
+    args.max_depth = DEFAULT_MAX_DEPTH if args.max_depth is None else args.max_depth
+    material = Material(
+        model=None if args.model is None else Path(args.model),
+        backend=args.backend or "drjit",
+        reference_bsdf=args.reference_bsdf,
+        rgb_tolerance=DEFAULT_RMS_TOLERANCE if args.rgb_tolerance is None else args.rgb_tolerance,
+    )
+    material = within_drjit_budget(material)  # reads the model: an input from here on
+    check_outputs(*written)
+    _start(args.variant)
+    start = time.perf_counter()
+    image = render(
+        material, args.variant, args.spp, args.resolution, args.seed, args.spp_per_pass, args.max_depth,
+        progress=not args.quiet,
+    )
+    return image, time.perf_counter() - start, f"{material.describe()}, {args.resolution}x{args.resolution}"
+
+
+def _start(variant: str) -> None:
+    """Select the variant (registering the plugin) and zero its clamped-evaluation count."""
+    from neuralbrdf.render.mitsuba_bsdf import reset_clamped_values
+
+    set_variant(variant)
+    reset_clamped_values()
 
 
 def main(argv: list[str] | None = None, prog: str = "neuralbrdf render") -> int:
@@ -155,43 +184,13 @@ def main(argv: list[str] | None = None, prog: str = "neuralbrdf render") -> int:
         with command_inputs():
             if out.suffix.lower() != ".png":
                 raise InputError("the output must be a .png file (add --exr for a linear EXR beside it)", path=out)
-            if args.scene is not None:
-                from neuralbrdf.render.mitsuba_bsdf import clamped_values, reset_clamped_values
+            draw = render_scene if args.scene is not None else render_preview
+            image, elapsed, described = draw(args, written)
+            from neuralbrdf.render.mitsuba_bsdf import clamped_values
 
-                set_variant(args.variant)
-                reset_clamped_values()
-                image, elapsed, described = render_scene(args, written)
-                clamped = clamped_values()
-                if not np.all(np.isfinite(image)):
-                    print(f"error: the render of {described} is not finite; nothing written", file=sys.stderr)
-                    return 1
-                write_images(image, out, written[1] if args.exr else None)
-                print(f"rendered {described} in {args.variant} at {args.spp} spp in {elapsed:.1f} s; wrote "
-                      f"{', '.join(map(str, written))}" + (f" ({clamped} clamped evaluations)" if clamped else ""))
-                return 0
-            args.resolution = 256 if args.resolution is None else args.resolution
-            args.max_depth = DEFAULT_MAX_DEPTH if args.max_depth is None else args.max_depth
-            material = Material(
-                model=None if args.model is None else Path(args.model),
-                backend=args.backend or "drjit",
-                reference_bsdf=args.reference_bsdf,
-                rgb_tolerance=DEFAULT_RMS_TOLERANCE if args.rgb_tolerance is None else args.rgb_tolerance,
-            )
-            material = within_drjit_budget(material)  # reads the model: an input from here on
-            check_outputs(*written)
-            start = time.perf_counter()
-            from neuralbrdf.render.mitsuba_bsdf import clamped_values, reset_clamped_values
-
-            set_variant(args.variant)
-            reset_clamped_values()
-            image = render(
-                material, args.variant, args.spp, args.resolution, args.seed, args.spp_per_pass, args.max_depth,
-                progress=not args.quiet,
-            )
-            elapsed = time.perf_counter() - start
             clamped = clamped_values()
             if not np.all(np.isfinite(image)):
-                print(f"error: the render of {material.describe()} is not finite; nothing written", file=sys.stderr)
+                print(f"error: the render of {described} is not finite; nothing written", file=sys.stderr)
                 return 1
             write_images(image, out, written[1] if args.exr else None)
     except InputError as error:
@@ -199,12 +198,10 @@ def main(argv: list[str] | None = None, prog: str = "neuralbrdf render") -> int:
         return 2
     if clamped:
         print(
-            f"warning: {clamped} evaluations of {material.describe()} were negative or not finite and were "
+            f"warning: {clamped} evaluations of {described} were negative or not finite and were "
             "clamped to 0 (the model is wrong somewhere its load-time probe did not look)",
             file=sys.stderr,
         )
-    print(
-        f"rendered {material.describe()} in {args.variant}, {args.resolution}x{args.resolution} at {args.spp} spp "
-        f"in {elapsed:.1f} s; wrote {', '.join(map(str, written))}"
-    )
+    print(f"rendered {described} in {args.variant} at {args.spp} spp in {elapsed:.1f} s; wrote "
+          f"{', '.join(map(str, written))}")
     return 0
