@@ -144,26 +144,14 @@ def drjit_costs(protos: dict[str, onnx.ModelProto], spectral: bool, batches: tup
     the per-call cost of interpreting the graph in Python (which a render pays once per kernel,
     not per sample) cancels.  Rounds are interleaved over the graphs and batch sizes, one warm-up
     call each first, on random upper-hemisphere pairs (:func:`neuralbrdf.study.cost.probe_inputs`)."""
-    import drjit as dr
-    from drjit.llvm import Float
-
     from neuralbrdf.render.drjit_onnx import DrJitGraph
-    from neuralbrdf.study.cost import probe_inputs, timed
+    from neuralbrdf.study.cost import drjit_evaluate, drjit_inputs, probe_inputs, timed
 
-    inputs = {}
-    for batch in batches:
-        feeds = probe_inputs(batch, spectral)
-        wi = [Float(feeds["wi"][:, k]) for k in range(3)]
-        wo = [Float(feeds["wo"][:, k]) for k in range(3)]
-        wavelength = Float(feeds["wavelength"]) if spectral else None
-        dr.eval(*wi, *wo, *([wavelength] if spectral else []))
-        inputs[batch] = (wi, wo, wavelength)
+    inputs = {batch: drjit_inputs(probe_inputs(batch, spectral), spectral) for batch in batches}
     graphs = {name: DrJitGraph(proto) for name, proto in protos.items()}
 
     def call(graph, batch):
-        columns = [c for c in graph(*inputs[batch]) if not isinstance(c, float)]
-        dr.eval(*columns)
-        dr.sync_thread()
+        drjit_evaluate(graph, inputs[batch])
 
     times = {(name, batch): [] for name in graphs for batch in batches}
     for name, graph in graphs.items():

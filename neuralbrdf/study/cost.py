@@ -87,12 +87,31 @@ def probe_inputs(batch: int, spectral: bool, seed: int = SEED) -> dict[str, np.n
     return feeds
 
 
+def drjit_inputs(feeds: dict[str, np.ndarray], spectral: bool) -> tuple:
+    """``(wi, wo, wavelength)`` of :func:`probe_inputs` as evaluated ``drjit.llvm`` columns, the
+    arguments of a :class:`~neuralbrdf.render.drjit_onnx.DrJitGraph` (``wavelength`` ``None`` for RGB)."""
+    import drjit as dr
+    from drjit.llvm import Float
+
+    wi = [Float(feeds["wi"][:, k]) for k in range(3)]
+    wo = [Float(feeds["wo"][:, k]) for k in range(3)]
+    wavelength = Float(feeds["wavelength"]) if spectral else None
+    dr.eval(*wi, *wo, *([wavelength] if spectral else []))
+    return wi, wo, wavelength
+
+
+def drjit_evaluate(graph, inputs: tuple) -> None:
+    """Evaluate ``graph`` on ``inputs`` (:func:`drjit_inputs`) to completion: the timed unit."""
+    import drjit as dr
+
+    dr.eval(*[c for c in graph(*inputs) if not isinstance(c, float)])
+    dr.sync_thread()
+
+
 def bench_throughput(proto, spectral: bool, batch: int, repeats: int, module=None) -> dict:
     """Queries per second of one model (``onnx.ModelProto``) through onnxruntime and Dr.Jit, and
     through PyTorch when ``module`` (the same model as a torch module) is given."""
-    import drjit as dr
     import onnxruntime
-    from drjit.llvm import Float
 
     from neuralbrdf.render.drjit_onnx import DrJitGraph
 
@@ -130,18 +149,9 @@ def bench_throughput(proto, spectral: bool, batch: int, repeats: int, module=Non
         graph = DrJitGraph(proto)
 
     graph_s = timed(make_graph)
-    wi = [Float(feeds["wi"][:, k]) for k in range(3)]
-    wo = [Float(feeds["wo"][:, k]) for k in range(3)]
-    wavelength = Float(feeds["wavelength"]) if spectral else None
-    dr.eval(*wi, *wo, *([wavelength] if spectral else []))
-
-    def drjit_call():
-        columns = [c for c in graph(wi, wo, wavelength) if not isinstance(c, float)]
-        dr.eval(*columns)
-        dr.sync_thread()
-
+    inputs = drjit_inputs(feeds, spectral)
     results["drjit"] = {"graph_build_s": graph_s, "multiply_adds": graph.multiply_adds,
-                        **first_and_median(drjit_call, repeats)}
+                        **first_and_median(lambda: drjit_evaluate(graph, inputs), repeats)}
     for entry in results.values():
         entry["queries_per_s"] = batch / entry["median_s"]
     return results
