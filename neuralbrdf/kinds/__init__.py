@@ -185,6 +185,12 @@ def _kind_details(name: str, metadata: Mapping[str, str], path, is_spectral: boo
 # --------------------------------------------------------------------------- checkpoints
 
 
+def module_class_name(checkpoint: dict) -> str:
+    """The class name of the LightningModule that wrote ``checkpoint`` (``""`` when not recorded)."""
+    class_path = str((checkpoint.get("hyper_parameters") or {}).get("_class_path", ""))
+    return class_path.rsplit(".", 1)[-1]
+
+
 def checkpoint_kind(checkpoint: dict, path: str | os.PathLike[str]) -> Kind:
     """The kind of a checkpoint: its :data:`CHECKPOINT_KIND_KEY` entry, else its layout."""
     name = checkpoint.get(CHECKPOINT_KIND_KEY)

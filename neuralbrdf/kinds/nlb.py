@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from neuralbrdf.errors import InputError
-from neuralbrdf.kinds import Exportable, Kind, contract_metadata, pick_material, provenance
+from neuralbrdf.kinds import Exportable, Kind, contract_metadata, module_class_name, pick_material, provenance
 
 if TYPE_CHECKING:
     import torch
@@ -74,8 +74,7 @@ def from_checkpoint(checkpoint: dict, path: Path, material: str | None) -> Expor
 
 
 def _recognises(checkpoint: dict) -> bool:
-    class_path = str((checkpoint.get("hyper_parameters") or {}).get("_class_path", ""))
-    return class_path.rsplit(".", 1)[-1] == "LatentFitModule" or ("material_names" in checkpoint and "nlb_config" in checkpoint)
+    return module_class_name(checkpoint) == "LatentFitModule" or ("material_names" in checkpoint and "nlb_config" in checkpoint)
 
 
 KIND = Kind(

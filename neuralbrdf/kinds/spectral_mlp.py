@@ -14,7 +14,7 @@ import inspect
 from pathlib import Path
 
 from neuralbrdf.errors import InputError
-from neuralbrdf.kinds import Exportable, Kind, contract_metadata, pick_material, provenance
+from neuralbrdf.kinds import Exportable, Kind, contract_metadata, module_class_name, pick_material, provenance
 
 #: Prefix of the network's tensors in the Lightning module's state dict.
 _PREFIX = "network."
@@ -50,8 +50,7 @@ def from_checkpoint(checkpoint: dict, path: Path, material: str | None) -> Expor
 
 
 def _recognises(checkpoint: dict) -> bool:
-    class_path = str((checkpoint.get("hyper_parameters") or {}).get("_class_path", ""))
-    return class_path.rsplit(".", 1)[-1] == "SpectralMlpModule"
+    return module_class_name(checkpoint) == "SpectralMlpModule"
 
 
 KIND = Kind(
