@@ -26,7 +26,7 @@ import numpy as np
 
 from neuralbrdf.atomic import atomic_paths
 from neuralbrdf.evaluation.images import IMAGE_METRICS, displayed, image_scores
-from neuralbrdf.evaluation.scores import DIRECTION_METRICS, HEMISPHERE_STRATA, OnnxEvaluator, direction_scores
+from neuralbrdf.evaluation.scores import DIRECTION_METRICS, HEMISPHERE_STRATA, Evaluator, OnnxEvaluator, direction_scores
 
 DEFAULT_VARIANT = "llvm_ad_spectral"
 DEFAULT_SPP = 256
@@ -115,12 +115,15 @@ def _json_number(value):
 
 def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path,
              settings: RenderSettings = RenderSettings(), render_images: bool = True,
-             strata: tuple[int, int] = HEMISPHERE_STRATA) -> dict:
+             strata: tuple[int, int] = HEMISPHERE_STRATA, truth_evaluator: Evaluator | None = None) -> dict:
     """Score ``model_path`` against ``truth_path`` and write ``out_dir`` (module docstring);
-    ``strata``: fewer hemisphere pairs than the default, for quick studies and tests."""
+    ``strata``: fewer hemisphere pairs than the default, for quick studies and tests;
+    ``truth_evaluator``: ``truth_path`` already loaded (a study keeps one per truth,
+    :class:`~neuralbrdf.evaluation.scores.MemoEvaluator`)."""
     model_path, truth_path, out_dir = Path(model_path), Path(truth_path), Path(out_dir)
     started = time.perf_counter()
-    model, truth = OnnxEvaluator(model_path), OnnxEvaluator(truth_path)
+    model = OnnxEvaluator(model_path)
+    truth = OnnxEvaluator(truth_path) if truth_evaluator is None else truth_evaluator
     directions = direction_scores(model, truth, strata=strata)
     timings = {"directions_s": time.perf_counter() - started}
     result = {
