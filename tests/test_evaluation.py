@@ -249,3 +249,29 @@ def test_memo_evaluator_computes_each_input_once():
     assert inner.calls == 4
     compared_values(memo, other_wi, other_wo, spectral=True)
     assert inner.calls == 5 and memo.model == "inner model"
+
+
+def test_truth_renders_are_kept_per_file_settings_and_seed(tmp_path, monkeypatch):
+    from neuralbrdf.evaluation import evaluate as evaluation
+
+    calls = []
+
+    def fake_render(path, settings, seed):
+        calls.append((path.name, settings.spp, seed))
+        return np.full((2, 2, 3), float(len(calls)), dtype=np.float32)
+
+    monkeypatch.setattr(evaluation, "_render", fake_render)
+    truth = tmp_path / "truth.onnx"
+    truth.write_bytes(b"one")
+    settings = evaluation.RenderSettings(spp=4, resolution=2)
+    kept: dict = {}
+    first = evaluation._render_kept(kept, truth, settings, 0)
+    assert evaluation._render_kept(kept, truth, settings, 0) is first and len(calls) == 1
+    assert not first.flags.writeable
+    evaluation._render_kept(kept, truth, settings, 1)
+    evaluation._render_kept(kept, truth, evaluation.RenderSettings(spp=8, resolution=2), 0)
+    assert len(calls) == 3
+    truth.write_bytes(b"changed")  # another file at the same path is rendered afresh
+    assert evaluation._render_kept(kept, truth, settings, 0)[0, 0, 0] == 4.0
+    evaluation._render_kept(None, truth, settings, 0)  # nothing kept: always rendered
+    assert len(calls) == 5

@@ -12,7 +12,7 @@ each with its output (stdout and stderr, file descriptors included) in ``CELL_DI
 answers one line per cell on its own channel, and keeps each material's truth evaluator with its
 values on the fixed direction pairs (:class:`~neuralbrdf.evaluation.scores.MemoEvaluator`: the
 truth's share of the direction metrics, two thirds of them for a spectral truth, is computed
-once per worker).  Steps:
+once per worker) and the truth's two renders (:data:`TRUTH_RENDERS`).  Steps:
 
 1. **Data** (``data/NAME.csv``): a virtual material is measured by the virtual
    goniospectrophotometer (:mod:`neuralbrdf.virtual.instrument`) on the plan with the cell's
@@ -65,6 +65,9 @@ PER_ANGLE_THETA_I = np.arange(-60.0, 60.1, 5.0)
 LOSS_COLUMN_WORDS = ("loss",)
 #: Truth evaluators a worker keeps (cells run material by material; each holds ~30 MB of values).
 TRUTHS_KEPT = 2
+#: The truth renders of the main cells (two per material and render settings, ~0.2 MB each at 128²),
+#: rendered once per worker (:func:`neuralbrdf.evaluation.evaluate.evaluate`'s ``truth_renders``).
+TRUTH_RENDERS: dict = {}
 #: The worker's answer after each cell (the runner then reads ``result.json``, or reports a crash).
 DONE = "done"
 
@@ -284,7 +287,8 @@ def run_cell(cell_dir: Path) -> dict:
             settings = RenderSettings(variant=variant, spp=spec["render"]["spp"],
                                       resolution=spec["render"]["resolution"], seed=0)
             evaluation = evaluate(model, truth, cell_dir / "evaluation", settings, render_images=spec["is_main"],
-                                  strata=tuple(spec["render"]["hemisphere_strata"]), truth_evaluator=truth_evaluator(truth))
+                                  strata=tuple(spec["render"]["hemisphere_strata"]), truth_evaluator=truth_evaluator(truth),
+                                  truth_renders=TRUTH_RENDERS)
             result["error"] = {k: evaluation.get(k) for k in (
                 "hemisphere_logcos_rmse", "hemisphere_rel_rmse", "inplane_glossy_rel_rmse", "inplane_diffuse_rel_rmse",
                 "image_delta_e2000_mean", "image_delta_e2000_p95", "image_psnr", "image_rel_mse") if k in evaluation}
