@@ -255,6 +255,7 @@ def run_study(profile_name: str, out_dir: str | Path, jobs: int = 1, command: st
                 "jobs": jobs, "seeds": sorted({p["seed"] for p in points}), "started": started_at,
                 "cells_run": ran, "cells_cached": len(results) - ran,
                 "cells_time_s": sum(r.get("cell_wall_time_s") or 0.0 for r in results),
+                "cells_cpu_time_s": sum(r.get("cell_cpu_time_s") or 0.0 for r in results),
                 "hemisphere_pairs": (profile.render.hemisphere_strata[0] * profile.render.hemisphere_strata[1]) ** 2},
     }
     study["figures"] = write_figures(profile, results, study, out_dir)
