@@ -212,3 +212,66 @@ def test_export_truth_command_and_its_errors(tmp_path, capsys):
     assert cli(["evaluate", str(tmp_path / "missing.onnx"), "--truth", str(out), "--out-dir", str(tmp_path / "e"),
                 "--no-render"]) == 2
     assert "missing.onnx" in capsys.readouterr().err and not (tmp_path / "e").exists()
+
+
+def test_memo_evaluator_computes_each_input_once():
+    """MemoEvaluator hands out the inner evaluator's values, computes each distinct input once, keeps
+    the most recently used ``entries`` inputs, and its values cannot be modified by a caller."""
+    from neuralbrdf.evaluation.scores import MemoEvaluator, compared_values, hemisphere_pairs
+
+    class Counting:
+        is_spectral = True
+        model = "inner model"
+
+        def __init__(self):
+            self.calls = 0
+
+        def values(self, wi, wo, wavelength=None):
+            self.calls += 1
+            return wi[:, 2] * wo[:, 2] + wavelength / 1000.0
+
+    inner = Counting()
+    memo = MemoEvaluator(inner, entries=2)
+    wi, wo = hemisphere_pairs(0, (2, 3))
+    other_wi, other_wo = hemisphere_pairs(1, (2, 3))
+    first = compared_values(memo, wi, wo, spectral=True)
+    assert inner.calls == 1 and np.array_equal(first, compared_values(Counting(), wi, wo, spectral=True))
+    assert np.array_equal(compared_values(memo, wi, wo, spectral=True), first) and inner.calls == 1
+    compared_values(memo, other_wi, other_wo, spectral=True)
+    assert inner.calls == 2
+    compared_values(memo, wi, wo, spectral=False)  # same queries, another comparison: no new call
+    assert inner.calls == 2
+    wavelength = np.full(len(wi), 500.0)
+    compared = memo.values(wi, wo, wavelength)
+    assert inner.calls == 3 and not compared.flags.writeable
+    memo.values(wi, wo, wavelength + 1.0)  # a third input drops the least recently used one
+    memo.values(wi, wo, wavelength)
+    assert inner.calls == 4
+    compared_values(memo, other_wi, other_wo, spectral=True)
+    assert inner.calls == 5 and memo.model == "inner model"
+
+
+def test_truth_renders_are_kept_per_file_settings_and_seed(tmp_path, monkeypatch):
+    from neuralbrdf.evaluation import evaluate as evaluation
+
+    calls = []
+
+    def fake_render(path, settings, seed):
+        calls.append((path.name, settings.spp, seed))
+        return np.full((2, 2, 3), float(len(calls)), dtype=np.float32)
+
+    monkeypatch.setattr(evaluation, "_render", fake_render)
+    truth = tmp_path / "truth.onnx"
+    truth.write_bytes(b"one")
+    settings = evaluation.RenderSettings(spp=4, resolution=2)
+    kept: dict = {}
+    first = evaluation._render_kept(kept, truth, settings, 0)
+    assert evaluation._render_kept(kept, truth, settings, 0) is first and len(calls) == 1
+    assert not first.flags.writeable
+    evaluation._render_kept(kept, truth, settings, 1)
+    evaluation._render_kept(kept, truth, evaluation.RenderSettings(spp=8, resolution=2), 0)
+    assert len(calls) == 3
+    truth.write_bytes(b"changed")  # another file at the same path is rendered afresh
+    assert evaluation._render_kept(kept, truth, settings, 0)[0, 0, 0] == 4.0
+    evaluation._render_kept(None, truth, settings, 0)  # nothing kept: always rendered
+    assert len(calls) == 5

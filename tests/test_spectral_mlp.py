@@ -220,12 +220,14 @@ def test_a_table_splits_like_its_gcms_raw_file(tmp_path, gcms_session):
 def test_training_batches_cover_the_train_split_once_per_epoch(gcms_session):
     data = MeasurementDataModule(*map(str, gcms_session), batch_size=1000)
     data.setup("fit")
-    batches = list(data.train_dataloader())
+    (batches,) = list(data.train_dataloader())  # one item per epoch: its batches
     assert all(isinstance(b, SpectralSamples) for b in batches)
     assert [len(b.brdf) for b in batches[:-1]] == [1000] * (len(batches) - 1)
     seen = torch.cat([b.brdf for b in batches])
     torch.testing.assert_close(seen.sort().values, data.train_samples.brdf.sort().values)
     assert not torch.equal(seen, data.train_samples.brdf)  # shuffled
+    (again,) = list(data.train_dataloader())
+    assert not torch.equal(torch.cat([b.brdf for b in again]), seen)  # afresh every epoch
     (whole,) = list(data.val_dataloader())
     torch.testing.assert_close(whole.brdf, data.test_samples.brdf)
 
@@ -332,3 +334,35 @@ def test_glossy_metrics_need_every_wavelength_of_every_pair():
     samples = SpectralSamples(*(torch.tensor(v) for v in columns))
     with pytest.raises(ValueError, match="do not fill"):
         glossy_relative_rmse(samples, torch.ones(3), floor=1e-4)
+
+
+def test_training_step_takes_one_adam_step_per_batch_of_the_epoch(gcms_session):
+    """An epoch handed over at once trains exactly like its batches one by one (same order)."""
+    import copy
+
+    from neuralbrdf.losses import exp_weighted_loss
+
+    data = MeasurementDataModule(*map(str, gcms_session), batch_size=500)
+    data.setup("fit")
+    (batches,) = list(data.train_dataloader())
+    batches = batches[:3]
+    module = SpectralMlpModule(gamma=1.0, residual="log")
+    reference = copy.deepcopy(module.network)
+    optimizer = torch.optim.Adam(module.parameters(), lr=0.02)
+    module.optimizers = lambda: optimizer
+    module.manual_backward = lambda loss: loss.backward()
+    module.on_train_epoch_start()
+    mean = module.training_step(batches, 0)
+    reference_optimizer = torch.optim.Adam(reference.parameters(), lr=0.02)
+    losses = []
+    for batch in batches:
+        pred = reference(batch.theta_i_deg, batch.theta_r_deg, batch.wavelength_nm)
+        loss = exp_weighted_loss(pred, batch.brdf, batch.theta_i_deg, batch.theta_r_deg, 1.0, "radians", "log", 1e-3, 0.0)
+        reference_optimizer.zero_grad()
+        loss.backward()
+        reference_optimizer.step()
+        losses.append((loss.item(), len(batch.brdf)))
+    for ours, theirs in zip(module.network.parameters(), reference.parameters()):
+        torch.testing.assert_close(ours, theirs, rtol=0, atol=0)
+    expected = sum(l * n for l, n in losses) / sum(n for _, n in losses)
+    assert mean.item() == pytest.approx(expected, rel=1e-6)

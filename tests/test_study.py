@@ -211,6 +211,68 @@ def test_killed_cell_is_rerun(tmp_path):
     assert ran and result["failure"] == "cell_crashed" and not (folder / "stale.txt").exists()
 
 
+FAKE_CELL = ("import os, sys; from pathlib import Path; import neuralbrdf.study.cell as c; "
+             "c._import_fitting = lambda: None; "
+             "c.run_cell = lambda folder: os._exit(3) if folder.name == 'crash' else "
+             "(folder / 'result.json').write_text('{\"pid\": %d}' % os.getpid()); c.serve()")
+
+
+def test_a_cell_that_kills_its_worker_is_reported_and_the_worker_replaced(tmp_path):
+    """Crash isolation of the persistent workers: the dead worker's cell is ``cell_crashed``, the next
+    cell runs in a new process, and a worker serves several cells."""
+    import sys
+
+    from neuralbrdf.study.runner import CellWorker, run_one
+
+    worker = CellWorker((sys.executable, "-c", FAKE_CELL))
+    try:
+        first, ran = run_one(Cell("gold", "abc", "DS1", 0.0, 0), "ok1", {}, tmp_path, worker)
+        second, _ = run_one(Cell("gold", "abc", "DS1", 0.0, 1), "ok2", {}, tmp_path, worker)
+        assert ran and first["pid"] == second["pid"]  # one process ran both
+        crashed, ran = run_one(Cell("gold", "abc", "DS2", 0.0, 0), "crash", {}, tmp_path, worker)
+        assert ran and crashed["failure"] == "cell_crashed" and "worker process died" in crashed["message"]
+        after, _ = run_one(Cell("gold", "abc", "DS3", 0.0, 0), "ok3", {}, tmp_path, worker)
+        assert after["pid"] != first["pid"]
+    finally:
+        worker.close()
+
+
+def test_worker_logs_each_cell_and_answers_once(tmp_path, monkeypatch):
+    """A cell that raises leaves its traceback, native (file-descriptor) output included, in its own
+    log and no result; the worker answers once per cell and goes on."""
+    import io
+    import os
+
+    from neuralbrdf.study import cell
+
+    for name in ("bad", "good"):
+        (tmp_path / name).mkdir()
+    (tmp_path / "good" / "cell.json").write_text("{}")
+    seen = []
+
+    def fake_run(folder):
+        os.write(1, f"native {folder.name}\n".encode())
+        seen.append(folder.name)
+        json.loads((folder / "cell.json").read_text())
+
+    monkeypatch.setattr(cell, "run_cell", fake_run)
+    monkeypatch.setattr(cell, "_import_fitting", lambda: None)
+    answers_read, answers_write = os.pipe()
+    saved = os.dup(1)
+    os.dup2(answers_write, 1)
+    try:
+        cell.serve(io.StringIO(f"{tmp_path / 'bad'}\n\n{tmp_path / 'good'}\n"))
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved), os.close(answers_write)
+    with os.fdopen(answers_read) as answers:
+        assert answers.read() == cell.DONE + "\n" + cell.DONE + "\n"
+    assert seen == ["bad", "good"]
+    bad = (tmp_path / "bad" / "log.txt").read_text()
+    assert "native bad" in bad and "FileNotFoundError" in bad
+    assert (tmp_path / "good" / "log.txt").read_text() == "native good\n"
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium")
 def test_quick_profile(tmp_path):

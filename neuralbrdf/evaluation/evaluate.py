@@ -26,7 +26,7 @@ import numpy as np
 
 from neuralbrdf.atomic import atomic_paths
 from neuralbrdf.evaluation.images import IMAGE_METRICS, displayed, image_scores
-from neuralbrdf.evaluation.scores import DIRECTION_METRICS, HEMISPHERE_STRATA, OnnxEvaluator, direction_scores
+from neuralbrdf.evaluation.scores import DIRECTION_METRICS, HEMISPHERE_STRATA, Evaluator, OnnxEvaluator, direction_scores
 
 DEFAULT_VARIANT = "llvm_ad_spectral"
 DEFAULT_SPP = 256
@@ -62,6 +62,20 @@ def _render(path: Path, settings: RenderSettings, seed: int) -> np.ndarray:
     if not np.all(np.isfinite(image)):
         raise ValueError(f"the render of {path} is not finite")
     return image
+
+
+def _render_kept(kept: dict | None, path: Path, settings: RenderSettings, seed: int) -> np.ndarray:
+    """:func:`_render`, or its image kept in ``kept`` from an earlier call for the same file (path,
+    size, modification time), settings and seed (read-only: shared by later calls)."""
+    if kept is None:
+        return _render(path, settings, seed)
+    stat = path.stat()
+    key = (str(path.resolve()), stat.st_size, stat.st_mtime_ns, settings, seed)
+    if key not in kept:
+        image = _render(path, settings, seed)
+        image.flags.writeable = False
+        kept[key] = image
+    return kept[key]
 
 
 def _write_png(image: np.ndarray, path: Path) -> None:
@@ -115,12 +129,18 @@ def _json_number(value):
 
 def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path,
              settings: RenderSettings = RenderSettings(), render_images: bool = True,
-             strata: tuple[int, int] = HEMISPHERE_STRATA) -> dict:
+             strata: tuple[int, int] = HEMISPHERE_STRATA, truth_evaluator: Evaluator | None = None,
+             truth_renders: dict | None = None) -> dict:
     """Score ``model_path`` against ``truth_path`` and write ``out_dir`` (module docstring);
-    ``strata``: fewer hemisphere pairs than the default, for quick studies and tests."""
+    ``strata``: fewer hemisphere pairs than the default, for quick studies and tests;
+    ``truth_evaluator``: ``truth_path`` already loaded (a study keeps one per truth,
+    :class:`~neuralbrdf.evaluation.scores.MemoEvaluator`); ``truth_renders``: a dictionary in which
+    the truth's two renders are kept (by file, settings and seed) and found again when the same
+    truth is evaluated with the same settings (a study's models of one material)."""
     model_path, truth_path, out_dir = Path(model_path), Path(truth_path), Path(out_dir)
     started = time.perf_counter()
-    model, truth = OnnxEvaluator(model_path), OnnxEvaluator(truth_path)
+    model = OnnxEvaluator(model_path)
+    truth = OnnxEvaluator(truth_path) if truth_evaluator is None else truth_evaluator
     directions = direction_scores(model, truth, strata=strata)
     timings = {"directions_s": time.perf_counter() - started}
     result = {
@@ -135,8 +155,8 @@ def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path
     if render_images:
         render_started = time.perf_counter()
         model_image = _render(model_path, settings, settings.seed)
-        truth_image = _render(truth_path, settings, settings.seed)
-        truth_again = _render(truth_path, settings, settings.seed + NOISE_SEED_OFFSET)
+        truth_image = _render_kept(truth_renders, truth_path, settings, settings.seed)
+        truth_again = _render_kept(truth_renders, truth_path, settings, settings.seed + NOISE_SEED_OFFSET)
         timings["render_s"] = time.perf_counter() - render_started
         image_metrics, delta_e = image_scores(model_image, truth_image)
         noise, _ = image_scores(truth_again, truth_image)

@@ -18,12 +18,15 @@ Otherwise both sides compare in linear sRGB: a spectral side is converted throug
 :mod:`neuralbrdf.data.colorimetry` (CIE 1931 2°, D65, SPEC §2.3).
 
 Models are :class:`Evaluator` objects: an ``.onnx`` file through onnxruntime
-(:class:`OnnxEvaluator`) or a torch module on directions (:class:`TorchEvaluator`).
+(:class:`OnnxEvaluator`) or a torch module on directions (:class:`TorchEvaluator`);
+:class:`MemoEvaluator` remembers another's values, for a truth scored against many models.
 """
 
 from __future__ import annotations
 
 import copy
+import hashlib
+from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -100,6 +103,41 @@ class TorchEvaluator:
             inputs.append(torch.from_numpy(np.asarray(wavelength, dtype=np.float64)))
         with torch.no_grad():
             return module(*inputs).numpy()
+
+
+class MemoEvaluator:
+    """Another evaluator whose values are remembered per distinct input (keyed by the inputs'
+    bytes), for a truth scored against many models on the same fixed direction pairs; at most
+    ``entries`` inputs are kept, the least recently used dropped first.  The values handed out
+    are read-only arrays (shared between calls)."""
+
+    def __init__(self, inner: Evaluator, entries: int = 8) -> None:
+        self.inner = inner
+        self.is_spectral = inner.is_spectral
+        self.entries = entries
+        self._values: OrderedDict[bytes, np.ndarray] = OrderedDict()
+
+    def __getattr__(self, name):  # the inner evaluator's other attributes (``model`` of an OnnxEvaluator)
+        if name == "inner":
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
+    def values(self, wi, wo, wavelength=None):
+        digest = hashlib.blake2b(digest_size=20)
+        for array in (wi, wo) + ((wavelength,) if self.is_spectral else ()):
+            array = np.ascontiguousarray(array)
+            digest.update(f"{array.dtype.str}{array.shape}".encode())
+            digest.update(array.data)
+        key = digest.digest()
+        if key in self._values:
+            self._values.move_to_end(key)
+            return self._values[key]
+        value = np.asarray(self.inner.values(wi, wo, wavelength))
+        value.flags.writeable = False
+        self._values[key] = value
+        while len(self._values) > self.entries:
+            self._values.popitem(last=False)
+        return value
 
 
 def hemisphere_pairs(seed: int = 0, strata: tuple[int, int] = HEMISPHERE_STRATA) -> tuple[np.ndarray, np.ndarray]:

@@ -8,7 +8,9 @@
   (``configs/spectral_mlp_paper.yaml``); ``configs/spectral_mlp.yaml`` chooses the residual
   that fits the whole in-plane range (README, spectral MLP).
 * **Optimiser** — Adam with a decaying learning rate, both injected from the config
-  (``optimizer`` and ``lr_scheduler``, stepped once per epoch).
+  (``optimizer`` and ``lr_scheduler``, stepped once per epoch); one optimiser step per batch of
+  ``data.batch_size`` samples, taken by :meth:`SpectralMlpModule.training_step` over an epoch's
+  batches (manual optimisation: Lightning's gradient clipping and accumulation do not apply).
 * **Metrics** on the evaluation split (:mod:`neuralbrdf.metrics`, report Eq. 4.3 over the glossy
   region ``|theta_i - theta_r| <= 10°``, entries with ``f_mea`` below ``rel_rmse_floor``
   excluded and counted):
@@ -96,6 +98,7 @@ class SpectralMlpModule(WritesKind, pl.LightningModule):
     ) -> None:
         super().__init__()
         self.save_hyperparameters(ignore=["optimizer", "lr_scheduler"])
+        self.automatic_optimization = False  # training_step steps through an epoch's batches itself
         self.network = SpectralMLP(hidden, hidden_layers, activation, output, angle_range_deg, wavelength_range_nm)
         self.optimizer_factory = optimizer
         self.lr_scheduler_factory = lr_scheduler
@@ -125,10 +128,32 @@ class SpectralMlpModule(WritesKind, pl.LightningModule):
         )
         return pred, loss
 
-    def training_step(self, batch: SpectralSamples, batch_idx: int) -> torch.Tensor:
-        _, loss = self._loss(batch)
-        self.log("train/loss", loss, on_step=False, on_epoch=True, batch_size=len(batch.brdf))
-        return loss
+    def on_train_epoch_start(self) -> None:
+        self._train_loss_sum, self._train_samples = torch.zeros(()), 0
+
+    def training_step(self, batches: list[SpectralSamples] | SpectralSamples, batch_idx: int) -> torch.Tensor:
+        """One optimiser step per batch of ``batches`` (an epoch's, from the data module's
+        :class:`~neuralbrdf.lightning.measurement_data.EpochOfBatches`, or one batch); returns their
+        sample-weighted mean loss.  ``train/loss`` is that mean over the epoch, logged at its end:
+        the training loop's per-item cost and per-step logging were three quarters of the fit
+        (thousands of steps of a 3×10 network)."""
+        optimizer = self.optimizers()
+        total, count = torch.zeros(()), 0
+        for batch in [batches] if isinstance(batches, SpectralSamples) else batches:
+            _, loss = self._loss(batch)
+            optimizer.zero_grad()
+            self.manual_backward(loss)
+            optimizer.step()
+            total, count = total + loss.detach() * len(batch.brdf), count + len(batch.brdf)
+        self._train_loss_sum, self._train_samples = self._train_loss_sum + total, self._train_samples + count
+        return total / max(count, 1)
+
+    def on_train_epoch_end(self) -> None:
+        if self._train_samples:
+            self.log("train/loss", self._train_loss_sum / self._train_samples)
+        scheduler = self.lr_schedulers()
+        if scheduler is not None:
+            scheduler.step()
 
     def _evaluation_step(self, batch: SpectralSamples, split: str) -> None:
         pred, loss = self._loss(batch)

@@ -1,11 +1,18 @@
-"""One study cell, run in its own process: data → fit → export → evaluate → (main cell) cost.
+"""One study cell: data → fit → export → evaluate → (main cell) cost, in a worker process.
 
-    python -m neuralbrdf.study.cell CELL_DIR
+    python -m neuralbrdf.study.cell CELL_DIR      # one cell
+    python -m neuralbrdf.study.cell --serve       # a worker: one CELL_DIR per stdin line
 
 ``CELL_DIR/cell.json`` (written by the runner) holds the cell, the material and variant entries
 of the profile, the truth file and the render/cost settings; this writes ``CELL_DIR/result.json``
 last (atomically), so a cell whose ``result.json`` exists is finished and any other is rerun from
-scratch.  Steps:
+scratch.  A worker (:func:`serve`) imports torch, Lightning, onnxruntime and Mitsuba once (about
+14 CPU-seconds, more than a typical stability cell's own work) and runs cells one after another,
+each with its output (stdout and stderr, file descriptors included) in ``CELL_DIR/log.txt``; it
+answers one line per cell on its own channel, and keeps each material's truth evaluator with its
+values on the fixed direction pairs (:class:`~neuralbrdf.evaluation.scores.MemoEvaluator`: the
+truth's share of the direction metrics, two thirds of them for a spectral truth, is computed
+once per worker) and the truth's two renders (:data:`TRUTH_RENDERS`).  Steps:
 
 1. **Data** (``data/NAME.csv``): a virtual material is measured by the virtual
    goniospectrophotometer (:mod:`neuralbrdf.virtual.instrument`) on the plan with the cell's
@@ -35,8 +42,9 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import io
 import dataclasses
+import functools
+import io
 import json
 import math
 import os
@@ -55,6 +63,13 @@ CHECKPOINTS = {"spectral_mlp": "best.ckpt", "abc": "best.ckpt", "nlb": "fitted.c
 #: Incident angles (degrees) of the per-angle relative RMSE: the DS1 grid.
 PER_ANGLE_THETA_I = np.arange(-60.0, 60.1, 5.0)
 LOSS_COLUMN_WORDS = ("loss",)
+#: Truth evaluators a worker keeps (cells run material by material; each holds ~30 MB of values).
+TRUTHS_KEPT = 2
+#: The truth renders of the main cells (two per material and render settings, ~0.2 MB each at 128²),
+#: rendered once per worker (:func:`neuralbrdf.evaluation.evaluate.evaluate`'s ``truth_renders``).
+TRUTH_RENDERS: dict = {}
+#: The worker's answer after each cell (the runner then reads ``result.json``, or reports a crash).
+DONE = "done"
 
 
 class CellFailure(Exception):
@@ -177,13 +192,27 @@ def export(spec: dict, run_dir: Path, out: Path) -> Path:
 # --------------------------------------------------------------------------- evaluate
 
 
+@functools.lru_cache(maxsize=TRUTHS_KEPT)
+def _truth_evaluator(path: str, size: int, mtime_ns: int):
+    from neuralbrdf.evaluation.scores import MemoEvaluator, OnnxEvaluator
+
+    return MemoEvaluator(OnnxEvaluator(path))
+
+
+def truth_evaluator(truth: Path):
+    """The worker's evaluator of a truth file, its values remembered (module docstring); a file
+    changed on disk is loaded afresh."""
+    stat = Path(truth).stat()
+    return _truth_evaluator(str(Path(truth).resolve()), stat.st_size, stat.st_mtime_ns)
+
+
 def per_angle(model: Path, truth: Path) -> dict:
     """Glossy relative RMSE per incident angle (channel mean) and per angle × channel."""
     from neuralbrdf.evaluation.scores import COMPARISON_WAVELENGTHS_NM, OnnxEvaluator, compared_values, \
         compares_spectra, inplane_pairs
     from neuralbrdf.metrics import relative_rmse_by_theta_i
 
-    m, t = OnnxEvaluator(model), OnnxEvaluator(truth)
+    m, t = OnnxEvaluator(model), truth_evaluator(truth)
     spectral = compares_spectra(m, t)
     theta_i, theta_r, wi, wo = inplane_pairs()
     keep = np.isin(np.round(theta_i, 6), PER_ANGLE_THETA_I)
@@ -237,11 +266,12 @@ def run_cell(cell_dir: Path) -> dict:
     cell = spec["cell"]
     result = {**cell, "is_main": spec["is_main"], "failure": None, "message": None, "cost": {}, "error": {},
               "per_angle": None, "renders": None}
-    started = time.perf_counter()
-    steps = result["step_times_s"] = {}
+    started, cpu_started = time.perf_counter(), time.process_time()
+    steps, cpu_steps = result["step_times_s"], result["step_cpu_times_s"] = {}, {}
 
-    def step(name: str) -> None:
+    def step(name: str) -> None:  # wall and CPU seconds of each step (CPU: what it would take on an idle core)
         steps[name] = time.perf_counter() - started - sum(steps.values())
+        cpu_steps[name] = time.process_time() - cpu_started - sum(cpu_steps.values())
 
     try:
         table = write_data(spec, cell_dir / "data" / f"{cell['material']}.csv")
@@ -257,7 +287,8 @@ def run_cell(cell_dir: Path) -> dict:
             settings = RenderSettings(variant=variant, spp=spec["render"]["spp"],
                                       resolution=spec["render"]["resolution"], seed=0)
             evaluation = evaluate(model, truth, cell_dir / "evaluation", settings, render_images=spec["is_main"],
-                                  strata=tuple(spec["render"]["hemisphere_strata"]))
+                                  strata=tuple(spec["render"]["hemisphere_strata"]), truth_evaluator=truth_evaluator(truth),
+                                  truth_renders=TRUTH_RENDERS)
             result["error"] = {k: evaluation.get(k) for k in (
                 "hemisphere_logcos_rmse", "hemisphere_rel_rmse", "inplane_glossy_rel_rmse", "inplane_diffuse_rel_rmse",
                 "image_delta_e2000_mean", "image_delta_e2000_p95", "image_psnr", "image_rel_mse") if k in evaluation}
@@ -275,18 +306,72 @@ def run_cell(cell_dir: Path) -> dict:
     except CellFailure as failure:
         result["failure"], result["message"] = failure.cause, str(failure)
     result["cell_wall_time_s"] = time.perf_counter() - started
+    result["cell_cpu_time_s"] = time.process_time() - cpu_started
     result = _finite(result)
     with atomic_write(cell_dir / "result.json") as handle:
         json.dump(result, handle, indent=1, allow_nan=False)
     return result
 
 
-def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
+@contextlib.contextmanager
+def _output_to(path: Path):
+    """Stdout and stderr into ``path``: Python's streams and the file descriptors 1 and 2 (native libraries)."""
+    sys.stdout.flush(), sys.stderr.flush()
+    saved = os.dup(1), os.dup(2)
+    with path.open("a", buffering=1) as log, contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
+        os.dup2(log.fileno(), 1), os.dup2(log.fileno(), 2)
+        try:
+            yield
+        finally:
+            log.flush()
+            os.dup2(saved[0], 1), os.dup2(saved[1], 2)
+            os.close(saved[0]), os.close(saved[1])
+
+
+def _run_logged(cell_dir: Path) -> None:
+    import torch
+
+    torch.use_deterministic_algorithms(False)  # as in a fresh process: a config sets it for its own fit only
+    with _output_to(cell_dir / "log.txt"):
+        try:
+            run_cell(cell_dir)
+        except Exception:  # no result.json: the runner reports the cell as crashed, with this log
+            traceback.print_exc()
+
+
+def _import_fitting() -> None:
+    """Import what every fit uses before the first cell, so that no cell's fit time includes it."""
+    import neuralbrdf.lightning.run  # noqa: F401
+    from neuralbrdf.lightning import (abc_module, latent_fit_data, latent_fit_module, material_data,  # noqa: F401
+                                      measurement_data, spectral_mlp_module)
+
+
+def serve(requests=None) -> None:
+    """Run the cell of each line of ``requests`` (stdin) and answer :data:`DONE` on the original stdout;
+    anything else the process prints between cells goes to stderr, never into the answers."""
+    requests = sys.stdin if requests is None else requests
+    with os.fdopen(os.dup(1), "w", buffering=1) as answers:
+        os.dup2(2, 1)
+        _import_fitting()
+        for line in requests:
+            if line.strip():
+                _run_logged(Path(line.strip()))
+                answers.write(DONE + "\n")
+
+
+def _single_threaded() -> None:
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import torch
 
     torch.set_num_threads(1)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    _single_threaded()
+    if argv == ["--serve"]:
+        serve()
+        return 0
     try:
         run_cell(Path(argv[0]))
     except Exception:

@@ -26,7 +26,7 @@ from neuralbrdf.study.profile import Profile
 
 MAIN_PLAN, MAIN_NOISE, MAIN_SEED = "DS1", 0.0, 0
 #: Bump when a cell's result format or computation changes: every cell reruns.
-CELL_FORMAT = 2
+CELL_FORMAT = 3
 
 
 @dataclass(frozen=True)

@@ -101,7 +101,8 @@ def write_report(study: dict, out_dir: Path) -> Path:
              "<h1>neuralbrdf study: speed against accuracy, and where methods fail</h1>",
              f"<p>Profile <code>{html.escape(run['profile'])}</code>; command <code>{html.escape(run['command'])}</code>; "
              f"{len(study['points'])} cells ({run['cells_run']} run now, {run['cells_cached']} from the cache), "
-             f"wall time {run['wall_time_s']:.0f} s (the cells took {run['cells_time_s']:.0f} s together when they ran); hemisphere metrics over {run['hemisphere_pairs']} direction pairs. "
+             f"wall time {run['wall_time_s']:.0f} s (the cells took {run['cells_time_s']:.0f} s together when they ran, "
+             f"{run.get('cells_cpu_time_s', 0.0):.0f} s of CPU); hemisphere metrics over {run['hemisphere_pairs']} direction pairs. "
              "Data: <a href=\"study.json\">study.json</a>.</p>",
              "<h2>Best model per material under an error budget</h2>",
              "<p>Cheapest model (render time ÷ Mitsuba roughconductor in the same run) whose mean CIEDE2000 against "

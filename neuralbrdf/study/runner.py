@@ -11,8 +11,10 @@ reported as ``cell_crashed`` (its log in ``cells/KEY/log.txt``) and rerun next t
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import queue
 import shutil
 import subprocess
 import sys
@@ -30,6 +32,52 @@ from neuralbrdf.study.cells import Cell, cell_key, plan_cells
 from neuralbrdf.study.profile import Profile, load_profile
 
 STUDY_FORMAT = 1
+#: Cells a worker process runs before it is replaced by a fresh one.
+CELLS_PER_WORKER = 50
+WORKER_COMMAND = (sys.executable, "-m", "neuralbrdf.study.cell", "--serve")
+
+
+class CellWorker:
+    """One worker process (:func:`neuralbrdf.study.cell.serve`), started on first use and again
+    after it died or ran :data:`CELLS_PER_WORKER` cells."""
+
+    def __init__(self, command: tuple[str, ...] = WORKER_COMMAND) -> None:
+        self.command = command
+        self.process: subprocess.Popen | None = None
+        self.cells = 0
+
+    def _start(self) -> None:
+        self.close()
+        env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONWARNINGS": "ignore"}
+        self.process = subprocess.Popen(self.command, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                        stderr=subprocess.DEVNULL, env=env, text=True, bufsize=1)
+        self.cells = 0
+
+    def run(self, folder: Path) -> bool:
+        """Run the cell in ``folder``; ``False`` when the worker died doing it (it is restarted next time)."""
+        if self.process is None or self.process.poll() is not None or self.cells >= CELLS_PER_WORKER:
+            self._start()
+        self.cells += 1
+        try:
+            self.process.stdin.write(f"{folder.resolve()}\n")
+            self.process.stdin.flush()
+            answered = bool(self.process.stdout.readline())
+        except (BrokenPipeError, OSError):
+            answered = False
+        if not answered:
+            self.close()
+        return answered
+
+    def close(self) -> None:
+        if self.process is not None:
+            with contextlib.suppress(OSError):
+                self.process.stdin.close()
+            try:
+                self.process.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+            self.process = None
 
 
 def truth_path(profile: Profile, material: str, out_dir: Path) -> Path:
@@ -52,8 +100,9 @@ def _cell_spec(cell: Cell, profile: Profile, truth: Path) -> dict:
             "render": asdict(profile.render), "cost": asdict(profile.cost)}
 
 
-def run_one(cell: Cell, key: str, spec: dict, cells_dir: Path) -> tuple[dict, bool]:
-    """``(result, ran)``: the cached result, or the result of running the cell now."""
+def run_one(cell: Cell, key: str, spec: dict, cells_dir: Path, worker: CellWorker | None = None) -> tuple[dict, bool]:
+    """``(result, ran)``: the cached result, or the result of running the cell now in ``worker``
+    (a worker of its own when none is given)."""
     folder = cells_dir / key
     result_path = folder / "result.json"
     if result_path.is_file():
@@ -62,28 +111,46 @@ def run_one(cell: Cell, key: str, spec: dict, cells_dir: Path) -> tuple[dict, bo
         shutil.rmtree(folder)
     folder.mkdir(parents=True)
     (folder / "cell.json").write_text(json.dumps(spec, indent=1))
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONWARNINGS": "ignore"}
-    with (folder / "log.txt").open("w") as log:
-        subprocess.run([sys.executable, "-m", "neuralbrdf.study.cell", str(folder)], stdout=log, stderr=subprocess.STDOUT,
-                       env=env, check=False)
+    own = worker is None
+    worker = CellWorker() if own else worker
+    try:
+        survived = worker.run(folder)
+    finally:
+        if own:
+            worker.close()
     if result_path.is_file():
         return json.loads(result_path.read_text()), True
-    tail = (folder / "log.txt").read_text().strip().splitlines()[-1:] or ["(empty log)"]
+    log = folder / "log.txt"
+    tail = (log.read_text(errors="replace").strip().splitlines() if log.is_file() else [])[-1:] or ["(empty log)"]
+    what = "the cell ended without a result" if survived else "the cell's worker process died"
     return {**asdict(cell), "is_main": cell.is_main, "failure": "cell_crashed",
-            "message": f"the cell process died: {tail[0][:300]} (log: cells/{key}/log.txt)", "cost": {}, "error": {}}, True
+            "message": f"{what}: {tail[0][:300]} (log: cells/{key}/log.txt)", "cost": {}, "error": {}}, True
 
 
 def run_cells(profile: Profile, out_dir: Path, jobs: int, progress: bool = True) -> tuple[list[dict], int]:
     """Every cell's result in :func:`plan_cells` order, and how many ran now."""
     cells = plan_cells(profile)
     truths = {m.name: truth_path(profile, m.name, out_dir) for m in profile.materials}
+    materials = [m.name for m in profile.materials]
     keys = [cell_key(c, profile) for c in cells]
     results: list[dict | None] = [None] * len(cells)
     ran = 0
+    workers: queue.SimpleQueue[CellWorker] = queue.SimpleQueue()
+    for _ in range(jobs):
+        workers.put(CellWorker())
+
+    def run_in_a_worker(cell: Cell, key: str) -> tuple[dict, bool]:
+        worker = workers.get()
+        try:
+            return run_one(cell, key, _cell_spec(cell, profile, truths[cell.material]), out_dir / "cells", worker)
+        finally:
+            workers.put(worker)
+
+    # material by material: a worker's truth evaluator serves the cells that follow (cell.truth_evaluator)
+    order = sorted(range(len(cells)), key=lambda i: (materials.index(cells[i].material), not cells[i].is_main))
     with ThreadPoolExecutor(max_workers=jobs) as pool, tqdm(total=len(cells), unit="cell", desc="study",
                                                             disable=not progress, file=sys.stderr) as bar:
-        futures = {pool.submit(run_one, c, k, _cell_spec(c, profile, truths[c.material]), out_dir / "cells"): i
-                   for i, (c, k) in enumerate(zip(cells, keys))}
+        futures = {pool.submit(run_in_a_worker, cells[i], keys[i]): i for i in order}
         for future in as_completed(futures):
             i = futures[future]
             result, did_run = future.result()
@@ -91,6 +158,8 @@ def run_cells(profile: Profile, out_dir: Path, jobs: int, progress: bool = True)
             ran += did_run
             bar.set_postfix_str(f"{cells[i].material}/{cells[i].variant} {cells[i].condition}", refresh=False)
             bar.update()
+    while not workers.empty():
+        workers.get().close()
     return results, ran
 
 
@@ -186,6 +255,7 @@ def run_study(profile_name: str, out_dir: str | Path, jobs: int = 1, command: st
                 "jobs": jobs, "seeds": sorted({p["seed"] for p in points}), "started": started_at,
                 "cells_run": ran, "cells_cached": len(results) - ran,
                 "cells_time_s": sum(r.get("cell_wall_time_s") or 0.0 for r in results),
+                "cells_cpu_time_s": sum(r.get("cell_cpu_time_s") or 0.0 for r in results),
                 "hemisphere_pairs": (profile.render.hemisphere_strata[0] * profile.render.hemisphere_strata[1]) ** 2},
     }
     study["figures"] = write_figures(profile, results, study, out_dir)
