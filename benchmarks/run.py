@@ -72,6 +72,7 @@ from neuralbrdf.physics.abc import AbcParameters
 from neuralbrdf.models.directional import NlbWithLatent
 from neuralbrdf.models.nlb import NlbNetwork
 from neuralbrdf.render import preview
+from neuralbrdf.shipped import PRETRAINED_COMPACT
 from neuralbrdf.kinds import contract_metadata
 from neuralbrdf.study.cost import bench_throughput, machine
 from neuralbrdf.study.cost import timed as _timed
@@ -105,7 +106,7 @@ TARGETS = {
 }
 #: Löw et al.-like parameters of the ABC throughput model (speed only).
 ABC_BENCH_PARAMETERS = AbcParameters(kd=[0.1, 0.08, 0.05], A=[1.0, 0.8, 0.6], B=200.0, C=1.1, eta=1.5)
-PRETRAINED_NLB = ROOT / "neuralbrdf" / "pretrained" / "nlb_compact.ckpt"
+PRETRAINED_NLB = PRETRAINED_COMPACT
 
 
 @dataclass(frozen=True)

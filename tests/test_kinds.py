@@ -141,7 +141,7 @@ def test_the_shipped_pretrained_networks_name_a_class_that_exists():
 
     import torch
 
-    from neuralbrdf.lightning.latent_fit_module import PRETRAINED_DIR
+    from neuralbrdf.shipped import PRETRAINED_DIR
 
     for path in sorted(PRETRAINED_DIR.glob("*.ckpt")):
         class_path = torch.load(path, map_location="cpu", weights_only=True)["hyper_parameters"]["_class_path"]

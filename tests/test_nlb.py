@@ -24,7 +24,8 @@ from neuralbrdf.data.table import BrdfTable, write_table
 from neuralbrdf.errors import InputError
 from neuralbrdf.geometry import normalize, spherical_pair_to_vectors
 from neuralbrdf.lightning.latent_fit_data import LatentFitData
-from neuralbrdf.lightning.latent_fit_module import PRETRAINED_COMPACT, LatentFitModule, start_candidates
+from neuralbrdf.lightning.latent_fit_module import LatentFitModule, start_candidates
+from neuralbrdf.shipped import PRETRAINED_COMPACT
 from neuralbrdf.kinds.nlb import load_fitted
 from neuralbrdf.lightning.nlb_module import NlbPretrainModule, load_pretrained
 from neuralbrdf.losses import nlb_loss

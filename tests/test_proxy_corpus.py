@@ -73,7 +73,7 @@ def test_proxy_batches_are_the_proxies_values_and_follow_the_analytic_materials(
 
 
 def test_shipped_checkpoint_never_saw_a_held_out_or_report_material():
-    from neuralbrdf.lightning.latent_fit_module import PRETRAINED_COMPACT
+    from neuralbrdf.shipped import PRETRAINED_COMPACT
     from neuralbrdf.lightning.nlb_module import load_pretrained
 
     names = load_pretrained(PRETRAINED_COMPACT).names

@@ -16,7 +16,7 @@ import pytest
 from neuralbrdf.cli.main import main as cli
 from neuralbrdf.errors import InputError
 from neuralbrdf.study import aggregate
-from neuralbrdf.study.cells import Cell, cell_key, plan_cells
+from neuralbrdf.study.cells import Cell, cell_key, plan_cells, cell_settings, pretrained_network
 from neuralbrdf.study.profile import load_profile
 from neuralbrdf.study.report import NUMBER_FORMAT
 
@@ -76,6 +76,27 @@ def test_cells_and_keys(tmp_path):
     changed = load_profile(str(_write(tmp_path, BASE.replace("configs/abc.yaml}", "configs/abc.yaml, args: [-x]}")
                                       + "stability: {variants: [abc]}\n")))
     assert cell_key(cells[0], changed) != cell_key(cells[0], profile)
+
+
+def test_nlb_keys_follow_the_pretrained_networks_contents(tmp_path):
+    import shutil
+
+    from neuralbrdf.shipped import PRETRAINED_COMPACT
+
+    network = tmp_path / "net.ckpt"
+    shutil.copy(PRETRAINED_COMPACT, network)
+    variants = ("variants:\n  - {name: nlb, method: nlb, config: configs/nlb_latent.yaml, args: [--model.checkpoint, NET]}\n"
+                "  - {name: shipped, method: nlb, config: configs/nlb_latent.yaml}\n"
+                "  - {name: by_name, method: nlb, config: configs/nlb_latent.yaml, args: [--model.checkpoint, nlb_compact]}\n")
+    text = BASE.split("variants:")[0] + variants.replace("NET", str(network))
+    profile = load_profile(str(_write(tmp_path, text)))
+    key = {v: cell_key(Cell("gold", v, "DS1", 0.0, 0), profile) for v in ("nlb", "shipped", "by_name")}
+    assert profile.variant("shipped").args == () and pretrained_network(profile.variant("by_name")) == "nlb_compact"
+    settings = {v: cell_settings(Cell("gold", v, "DS1", 0.0, 0), profile)["variant"]["pretrained"] for v in key}
+    assert settings["nlb"] == settings["shipped"] == settings["by_name"]  # the same bytes, three names
+    network.write_bytes(network.read_bytes() + b"retrained")
+    assert cell_key(Cell("gold", "nlb", "DS1", 0.0, 0), profile) != key["nlb"]
+    assert cell_key(Cell("gold", "shipped", "DS1", 0.0, 0), profile) == key["shipped"]
 
 
 def test_pareto_front_against_brute_force():

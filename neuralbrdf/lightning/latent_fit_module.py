@@ -57,7 +57,6 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import asdict
-from pathlib import Path
 
 import numpy as np
 import pytorch_lightning as pl
@@ -71,10 +70,8 @@ from neuralbrdf.lightning.latent_fit_data import EvalSet, FitSamples
 from neuralbrdf.lightning.nlb_module import PretrainedNlb, load_pretrained
 from neuralbrdf.losses import check_loss_domain, log_cosine, nlb_loss
 from neuralbrdf.models.nlb import LatentTable
+from neuralbrdf.shipped import PRETRAINED_COMPACT, resolve_pretrained
 
-#: The shipped pretrained compact network (SPEC §4.2), the default ``checkpoint``.
-PRETRAINED_DIR = Path(__file__).resolve().parents[1] / "pretrained"
-PRETRAINED_COMPACT = PRETRAINED_DIR / "nlb_compact.ckpt"
 #: How the shipped checkpoint is made (for the error message when it is missing).
 PRETRAIN_COMMAND = "python train.py fit --config configs/nlb_pretrain.yaml"
 
@@ -143,9 +140,7 @@ class LatentFitModule(WritesKind, pl.LightningModule):
                              column="model.early_stop_patience")
         if not early_stop_tolerance >= 0:
             raise InputError(f"must be non-negative, got {early_stop_tolerance}", column="model.early_stop_tolerance")
-        path = PRETRAINED_COMPACT if checkpoint is None else Path(checkpoint)
-        if checkpoint is not None and not path.is_file() and (PRETRAINED_DIR / f"{checkpoint}.ckpt").is_file():
-            path = PRETRAINED_DIR / f"{checkpoint}.ckpt"  # a shipped network by name, e.g. nlb_64x4
+        path = resolve_pretrained(checkpoint)
         if checkpoint is None and not path.is_file():
             raise InputError(f"the shipped pretrained NLB checkpoint is missing; make it with `{PRETRAIN_COMMAND}` "
                              "and copy its checkpoints/best.ckpt there, or set model.checkpoint", path=path)

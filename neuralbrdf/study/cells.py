@@ -2,7 +2,8 @@
 
 A cell is one fit and its evaluation: ``(material, variant, plan, noise, seed)``.  Its key hashes
 everything that changes its result — the material's truth and table (file contents), the
-variant's method, config file contents and overrides, plan, noise, seed, and for the *main*
+variant's method, config file contents and overrides (for NLB, the pretrained network's file
+contents too), plan, noise, seed, and for the *main*
 cell of a (material, variant) (DS1, no noise, seed 0: the one that is rendered and timed) the
 render and cost settings — so a finished cell is found again under ``DIR/cells/KEY/`` by a later
 run with the same settings, and a changed config reruns only what it touches.
@@ -22,7 +23,10 @@ from dataclasses import asdict, dataclass
 from functools import lru_cache
 from pathlib import Path
 
-from neuralbrdf.study.profile import Profile
+import yaml
+
+from neuralbrdf.shipped import resolve_pretrained
+from neuralbrdf.study.profile import Profile, VariantSpec
 
 MAIN_PLAN, MAIN_NOISE, MAIN_SEED = "DS1", 0.0, 0
 #: Bump when a cell's result format or computation changes: every cell reruns.
@@ -47,11 +51,31 @@ class Cell:
         return self.plan + (f" {self.noise * 100:g}% noise" if self.noise else "")
 
 
-@lru_cache(maxsize=None)
 def file_digest(path: str) -> str:
+    """SHA-256 of a file's contents (``virtual:NAME`` stands for itself); a file is read again
+    only when its size or modification time changed."""
     if path.startswith("virtual:"):
         return path
+    stat = Path(path).stat()
+    return _digest(path, stat.st_size, stat.st_mtime_ns)
+
+
+@lru_cache(maxsize=None)
+def _digest(path: str, size: int, mtime_ns: int) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def pretrained_network(variant: VariantSpec) -> str | None:
+    """The pretrained network an NLB variant fits on: ``--model.checkpoint`` of its arguments,
+    else its config's ``model.init_args.checkpoint``, else the shipped default (``None``)."""
+    args = list(variant.args)
+    for i, arg in enumerate(args):
+        if arg == "--model.checkpoint" and i + 1 < len(args):
+            return args[i + 1]
+        if arg.startswith("--model.checkpoint="):
+            return arg.split("=", 1)[1]
+    config = yaml.safe_load(Path(variant.config).read_text()) or {}
+    return ((config.get("model") or {}).get("init_args") or {}).get("checkpoint")
 
 
 def cell_settings(cell: Cell, profile: Profile) -> dict:
@@ -66,6 +90,8 @@ def cell_settings(cell: Cell, profile: Profile) -> dict:
         "variant": {"method": variant.method, "config": file_digest(variant.config), "args": list(variant.args),
                     "render_variant": variant.render_variant},
     }
+    if variant.method == "nlb":  # a retrained network changes every NLB result
+        settings["variant"]["pretrained"] = file_digest(str(resolve_pretrained(pretrained_network(variant))))
     settings["hemisphere_strata"] = list(profile.render.hemisphere_strata)
     if cell.is_main:
         settings["render"] = asdict(profile.render)
