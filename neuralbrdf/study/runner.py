@@ -77,6 +77,7 @@ class CellWorker:
             except subprocess.TimeoutExpired:
                 self.process.kill()
                 self.process.wait()
+            self.process.stdout.close()
             self.process = None
 
 
