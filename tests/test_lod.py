@@ -378,6 +378,23 @@ def test_select_refuses_a_scene_without_neural_materials(tmp_path):
         select(scene, tmp_path / "S.xml", QUICK)
 
 
+def test_select_command_reads_its_config_and_refuses_bad_settings(tmp_path, capsys):
+    from neuralbrdf.cli.main import main
+
+    scene = tmp_path / "plain.xml"
+    scene.write_text('<scene version="3.0.0"><shape type="sphere"/></scene>')
+    out = tmp_path / "S.xml"
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(CONFIG.path.read_text().replace("  tolerance: 1.0", "  tolerance: 1.0\n  tolerence: 2"))
+    assert main(["select", str(scene), "--out", str(out), "--config", str(bad)]) == 2
+    assert "select.tolerence" in capsys.readouterr().err
+    assert main(["select", str(scene), "--out", str(out), "--object-tolerance", "0"]) == 2
+    assert "--object-tolerance" in capsys.readouterr().err
+    assert main(["select", str(scene), "--out", str(out), "--tolerance", "0.5"]) == 2  # the config's other values are valid
+    assert "no neuralbrdf material" in capsys.readouterr().err
+    assert not out.exists()
+
+
 # --------------------------------------------------------------------------- render.py --scene
 
 
