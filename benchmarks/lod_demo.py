@@ -15,7 +15,8 @@ Needs the demo models and their ladders (``bash export/lod_models.sh``).  Steps:
    Monte Carlo noise both of those carry); the same per material over the pixels it covers
    (:func:`~neuralbrdf.render.scene_file.material_coverage` at the target resolution);
 3. both timed at ``--timing-spp`` in Dr.Jit's symbolic mode, after one compiling render each,
-   ``--repeats`` interleaved renders, median: target speed-up ≥ 1.5×.
+   ``--repeats`` interleaved renders, the shortest of each (other processes on a shared machine
+   only ever add time): target speed-up ≥ 1.5×.
 
 Writes ``full.png``, ``selected.png``, ``delta_e.png`` (the ΔE2000 map), ``comparison.png``
 and ``lod_demo.json`` (strict JSON) into ``--out-dir``.
@@ -44,7 +45,7 @@ def main(argv=None) -> int:
     parser.add_argument("--resolution", type=int, default=128, help="width of the target renders (default 128)")
     parser.add_argument("--reference-spp", type=int, default=256)
     parser.add_argument("--timing-spp", type=int, default=64)
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--tolerance", type=float, default=None, help="default: select.tolerance of configs/lod.yaml")
     parser.add_argument("--object-tolerance", type=float, default=None,
                         help="default: select.object_tolerance of configs/lod.yaml")
@@ -105,7 +106,8 @@ def main(argv=None) -> int:
     for repeat in range(args.repeats):
         for name, scene in scenes.items():
             times[name].append(render_scene_file(scene, args.timing_spp, 8 + repeat)[1])
-    full_s, selected_s = statistics.median(times["full"]), statistics.median(times["selected"])
+    full_s, selected_s = min(times["full"]), min(times["selected"])
+    medians = {name: statistics.median(t) for name, t in times.items()}
 
     write_images(images["full"], out / "full.png")
     write_images(images["selected"], out / "selected.png")
@@ -134,6 +136,8 @@ def main(argv=None) -> int:
         "full_time_s": full_s,
         "selected_time_s": selected_s,
         "times_s": times,
+        "timing_statistic": "shortest of the interleaved repeats (the median ratio: speedup_of_medians)",
+        "speedup_of_medians": medians["full"] / medians["selected"],
         "speedup": full_s / selected_s,
         "targets": {
             "speedup_at_least_1.5": full_s / selected_s >= 1.5,

@@ -47,7 +47,8 @@ whole-image bound applies to it (it gets its cheapest rung).
    one is exceeded, a material moves to its next more expensive admissible rung: the stand-in
    with the largest on-object error among those over the object tolerance, else the stand-in
    with the largest contribution.  Then the all-full and the selected scene (own proposals) are
-   timed in interleaved renders (median of ``timing_repeats``, Dr.Jit's default symbolic mode,
+   timed in interleaved renders (the shortest of ``timing_repeats``: on a shared machine other
+   processes only ever add time; Dr.Jit's default symbolic mode,
    after one compiling render each).
 
 The error renders run in Dr.Jit's wavefront mode: a scene with one material swapped then reuses
@@ -64,7 +65,6 @@ from __future__ import annotations
 import itertools
 import json
 import os
-import statistics
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -150,13 +150,18 @@ def film_aspect(scene: SceneFile) -> float:
 
 
 class _Renderer:
-    """Renders choices ``{material: Rung}`` of the scene at the selection resolution."""
+    """Renders choices ``{material: Rung}`` of the scene at the selection resolution.  Error renders
+    (wavefront mode) are remembered by scene text, sample count and seed: the same combination
+    at the same seed (e.g. the verification of a single stand-in, measured alone in step 2) is the
+    same image and is not rendered twice."""
 
     def __init__(self, scene: SceneFile, settings: SelectSettings) -> None:
         self.base = scene.copy()
         width = settings.resolution
         self.base.set_resolution(width, max(1, round(width * film_aspect(scene))))
         self.renders = 0
+        self.reused = 0
+        self._images: dict[tuple, tuple[np.ndarray, float]] = {}
 
     def scene(self, choice: dict[str, Rung], parents: dict[str, Path] | None = None) -> SceneFile:
         """The scene with ``choice``; with ``parents``, stand-ins sample with their parent's proposal."""
@@ -171,10 +176,17 @@ class _Renderer:
 
     def render(self, choice: dict[str, Rung], spp: int, seed: int, parents: dict[str, Path] | None = None,
                wavefront: bool = True) -> tuple[np.ndarray, float]:
+        scene = self.scene(choice, parents)
+        key = (scene.text(), spp, seed)
+        if wavefront and key in self._images:
+            self.reused += 1
+            return self._images[key]
         self.renders += 1
-        image, seconds = render_scene_file(self.scene(choice, parents), spp, seed, wavefront=wavefront)
+        image, seconds = render_scene_file(scene, spp, seed, wavefront=wavefront)
         if not np.all(np.isfinite(image)):
             raise InputError("a render of the scene is not finite", path=self.base.path)
+        if wavefront:
+            self._images[key] = (image, seconds)
         return image, seconds
 
 
@@ -353,7 +365,7 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
     for _ in range(settings.timing_repeats):
         for name, choice in (("full", full), ("selected", rung_of)):
             times[name].append(renderer.render(choice, spp, settings.seed + 2, wavefront=False)[1])
-    reference_time, selected_time = statistics.median(times["full"]), statistics.median(times["selected"])
+    reference_time, selected_time = min(times["full"]), min(times["selected"])
     phases["timing"] = time.perf_counter() - began - sum(phases.values())
 
     result = {
@@ -399,9 +411,10 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
         },
         "render": {"variant": settings.variant, "width": settings.resolution, "aspect": film_aspect(scene),
                    "spp": spp, "seeds": list(seeds), "timing_repeats": settings.timing_repeats,
-                   "timing_mode": "symbolic", "times_s": times},
+                   "timing_mode": "symbolic", "timing_statistic": "shortest of the repeats", "times_s": times},
         "candidates": options,
         "renders": renderer.renders,
+        "renders_reused": renderer.reused,
         "selection_time_s": time.perf_counter() - began,
         "phase_times_s": phases,
         "settings": asdict(settings),
