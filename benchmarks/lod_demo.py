@@ -111,7 +111,7 @@ def main(argv=None) -> int:
 
     write_images(images["full"], out / "full.png")
     write_images(images["selected"], out / "selected.png")
-    _delta_e_figure(delta_e, images, out, args)
+    _delta_e_figure(delta_e, images, out, args, on_object)
     result = {
         "variant": args.variant,
         "scene": str(scene_path),
@@ -170,7 +170,7 @@ def _preview_gold_scene(out: Path) -> Path:
     return path
 
 
-def _delta_e_figure(delta_e, images, out: Path, args) -> None:
+def _delta_e_figure(delta_e, images, out: Path, args, on_object: dict) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -184,7 +184,8 @@ def _delta_e_figure(delta_e, images, out: Path, args) -> None:
     axes[1].imshow(displayed(images["selected_matched"]))
     axes[1].set_title("selected (matched paths)")
     shown = axes[2].imshow(delta_e, cmap="magma", vmin=0, vmax=max(2.0, float(np.percentile(delta_e, 99))))
-    axes[2].set_title(f"CIEDE2000, mean {delta_e.mean():.2f}")
+    per_object = [o["delta_e2000_mean"] for o in on_object.values() if o["delta_e2000_mean"] is not None]
+    axes[2].set_title(f"CIEDE2000, mean {delta_e.mean():.2f}; on an object at most {max(per_object, default=0):.2f}")
     figure.colorbar(shown, ax=axes[2], shrink=0.8)
     for axis in axes:
         axis.set_axis_off()
