@@ -117,6 +117,7 @@ def main(argv=None) -> int:
         "scene": str(scene_path),
         "chosen": {m["name"]: m["chosen_rung"] for m in selection["materials"]},
         "selection_time_s": selection_s,
+        "selection_cpu_s": selection["selection_cpu_s"],
         "selection": {k: selection[k] for k in ("speedup", "image_delta_e2000_mean", "noise", "render", "renders",
                                                 "phase_times_s", "tolerance_delta_e2000",
                                                 "object_tolerance_delta_e2000")},
@@ -150,7 +151,7 @@ def main(argv=None) -> int:
         "machine": machine(),
     }
     (out / "lod_demo.json").write_text(json.dumps(result, indent=2, allow_nan=False) + "\n")
-    print(json.dumps({k: result[k] for k in ("chosen", "selection_time_s", "image_delta_e2000_mean", "on_object",
+    print(json.dumps({k: result[k] for k in ("chosen", "selection_time_s", "selection_cpu_s", "image_delta_e2000_mean", "on_object",
                                              "image_delta_e2000_mean_own_proposals", "reference_noise_delta_e2000_mean",
                                              "speedup", "targets")}, indent=2))
     return 0

@@ -266,7 +266,7 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
     """Run the selection (module docstring), write ``out_xml`` and the JSON beside it; return the JSON."""
     from neuralbrdf.render.preview import set_variant
 
-    began = time.perf_counter()
+    began, began_cpu = time.perf_counter(), time.process_time()
     settings.check()
     out_xml = Path(out_xml)
     if out_xml.suffix.lower() != ".xml":
@@ -416,6 +416,9 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
         "renders": renderer.renders,
         "renders_reused": renderer.reused,
         "selection_time_s": time.perf_counter() - began,
+        # CPU seconds of all the process's threads: on an idle machine the wall time is at most about this
+        # (CPU-bound work), whatever other processes did to selection_time_s.
+        "selection_cpu_s": time.process_time() - began_cpu,
         "phase_times_s": phases,
         "settings": asdict(settings),
     }
