@@ -5,7 +5,7 @@
 
 Needs the demo models and their ladders (``bash export/lod_models.sh``).  Steps:
 
-1. ``neuralbrdf select`` on the scene (settings of ``configs/lod.yaml``, the variant and
+1. ``neuralbrdf select`` on the scene (settings of ``configs/lod/default.yaml``, the variant and
    tolerances from the options), timed: target ≤ 3 min on 2 cores;
 2. the all-full scene and ``SELECTED.xml`` rendered at ``--resolution`` with
    ``--reference-spp``: the selected scene with each stand-in sampling like its parent (matched
@@ -46,9 +46,9 @@ def main(argv=None) -> int:
     parser.add_argument("--reference-spp", type=int, default=256)
     parser.add_argument("--timing-spp", type=int, default=64)
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--tolerance", type=float, default=None, help="default: select.tolerance of configs/lod.yaml")
+    parser.add_argument("--tolerance", type=float, default=None, help="default: select.tolerance of configs/lod/default.yaml")
     parser.add_argument("--object-tolerance", type=float, default=None,
-                        help="default: select.object_tolerance of configs/lod.yaml")
+                        help="default: select.object_tolerance of configs/lod/default.yaml")
     parser.add_argument("--preview-gold", action="store_true",
                         help="the material-preview scene with only the gold (close-up) instead of lod_demo.xml")
     args = parser.parse_args(argv)

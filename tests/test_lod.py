@@ -34,7 +34,7 @@ from neuralbrdf.lod.select import best_combination, on_object_mean, select
 from neuralbrdf.kinds import load_model
 from neuralbrdf.render.scene_file import SceneFile, material_coverage
 
-CONFIG = load_lod_config()  # the shipped configs/lod.yaml
+CONFIG = load_lod_config()  # the shipped configs/lod/default.yaml
 FAST = dataclasses.replace(
     CONFIG.ladder,
     students=((1, 4),),
@@ -176,7 +176,8 @@ def test_on_object_mean_weights_pixels_by_coverage():
 
 
 def test_the_shipped_config_holds_every_setting_and_refuses_bad_keys(tmp_path):
-    assert CONFIG.path.name == "lod.yaml" and CONFIG.select.object_tolerance is None
+    assert CONFIG.path.parts[-2:] == ("lod", "default.yaml") and CONFIG.select.object_tolerance is None
+    assert load_lod_config("default") == CONFIG
     assert CONFIG.select.object_bound == CONFIG.select.tolerance
     text = CONFIG.path.read_text()
     cases = {

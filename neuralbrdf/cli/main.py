@@ -191,8 +191,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("model", help="model file (.onnx)")
     p.add_argument("--out-dir", default=None, help="output folder (default: MODEL.ladder beside the model, where "
                    "'neuralbrdf select' looks first)")
-    p.add_argument("--config", default="lod", help="level-of-detail settings, section 'ladder' (default: the shipped "
-                   "configs/lod.yaml)")
+    p.add_argument("--config", default="default", help="level-of-detail settings, section 'ladder' (default: the shipped "
+                   "configs/lod/default.yaml)")
 
     p = add(
         "select",
@@ -207,8 +207,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("scene", help="Mitsuba scene file with neuralbrdf BSDFs")
     p.add_argument("--out", required=True, help="output scene SELECTED.xml (SELECTED.json beside it)")
-    p.add_argument("--config", default="lod", help="level-of-detail settings, section 'select' (default: the shipped "
-                   "configs/lod.yaml); the options below override its values")
+    p.add_argument("--config", default="default", help="level-of-detail settings, section 'select' (default: the shipped "
+                   "configs/lod/default.yaml); the options below override its values")
     p.add_argument("--tolerance", type=float, default=None, help="bound on the whole image's mean CIEDE2000 (config: select.tolerance)")
     p.add_argument("--object-tolerance", type=float, default=None,
                    help="bound on each material's mean CIEDE2000 over the pixels it covers (config: "

@@ -1,4 +1,4 @@
-"""The level-of-detail settings (SPEC §11) from one YAML file, by default the shipped ``configs/lod.yaml``.
+"""The level-of-detail settings (SPEC §11) from one YAML file, by default the shipped ``configs/lod/default.yaml``.
 
 Two sections: ``ladder`` (:class:`~neuralbrdf.lod.ladder.LadderSettings`, with the students'
 training in ``ladder.distill``: :class:`~neuralbrdf.lod.distill.DistillSettings`) and ``select``
@@ -28,8 +28,9 @@ from neuralbrdf.lod.distill import DistillSettings
 from neuralbrdf.lod.ladder import LadderSettings
 from neuralbrdf.lod.select import SelectSettings
 
-#: The shipped config's name (``configs/lod.yaml``).
-DEFAULT_CONFIG = "lod"
+#: The shipped configs' folder (``configs/lod/``, apart from the training configs) and default name.
+CONFIG_FOLDER = "lod"
+DEFAULT_CONFIG = "default"
 SECTIONS = {"ladder": LadderSettings, "select": SelectSettings}
 
 
@@ -42,9 +43,9 @@ class LodConfig:
 
 def load_lod_config(name: str | os.PathLike[str] = DEFAULT_CONFIG) -> LodConfig:
     """The checked settings of ``name`` (a YAML file or a shipped config's name; module docstring)."""
-    path = resolve_config(name)
+    path = resolve_config(name, CONFIG_FOLDER)
     if not Path(path).is_file():
-        raise InputError("no such level-of-detail config; expected a YAML file or a shipped name like 'lod'", path=path)
+        raise InputError("no such level-of-detail config; expected a YAML file or a shipped name like 'default'", path=path)
     try:
         raw = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
     except (yaml.YAMLError, UnicodeDecodeError) as error:

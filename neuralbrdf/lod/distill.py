@@ -43,7 +43,7 @@ LOG_EPSILON_SR = 1e-3
 
 @dataclass(frozen=True)
 class DistillSettings:
-    """Training of a student network (values: ``configs/lod.yaml``, ``ladder.distill``; a few
+    """Training of a student network (values: ``configs/lod/default.yaml``, ``ladder.distill``; a few
     seconds to a minute on one core)."""
 
     n_pairs: int

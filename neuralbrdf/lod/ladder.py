@@ -67,7 +67,7 @@ FULL_RUNG = "full"
 
 @dataclass(frozen=True)
 class LadderSettings:
-    """What :func:`build_ladder` makes and how it measures (values: ``configs/lod.yaml``, section
+    """What :func:`build_ladder` makes and how it measures (values: ``configs/lod/default.yaml``, section
     ``ladder``; :mod:`neuralbrdf.lod.config`)."""
 
     #: ``(hidden_layers, hidden)`` of the distilled students (spectral parents).

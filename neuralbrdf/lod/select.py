@@ -2,7 +2,7 @@
 
 For a Mitsuba scene whose ``neuralbrdf`` BSDFs have cost ladders (:mod:`neuralbrdf.lod.ladder`),
 at a low resolution (``resolution`` wide) and matched seeds.  The settings are
-``configs/lod.yaml``, section ``select`` (:mod:`neuralbrdf.lod.config`).
+``configs/lod/default.yaml``, section ``select`` (:mod:`neuralbrdf.lod.config`).
 
 **Matched paths.**  A stand-in is rendered with its parent's sampling proposal (the plugin's
 ``proposal`` property).  The proposal does not change what a render converges to, only its
@@ -85,7 +85,7 @@ MAX_COMBINATIONS = 200_000
 
 @dataclass(frozen=True)
 class SelectSettings:
-    """What :func:`select` measures and how (values: ``configs/lod.yaml``, section ``select``)."""
+    """What :func:`select` measures and how (values: ``configs/lod/default.yaml``, section ``select``)."""
 
     #: Bound on the whole-image mean CIEDE2000.
     tolerance: float
