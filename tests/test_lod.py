@@ -370,6 +370,7 @@ def test_a_small_object_keeps_its_own_error_within_the_object_tolerance(ladder, 
     assert material["on_object_delta_e2000"] <= 1.0
     assert material["on_object_delta_e2000_selected_scene"] <= 1.0
     assert result["image_delta_e2000_mean"] <= 1.0
+    assert result["verified_within_bounds"]
 
 
 def test_select_refuses_a_scene_without_neural_materials(tmp_path):

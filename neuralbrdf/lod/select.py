@@ -357,6 +357,10 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
         chosen[worst] = min(dearer, key=lambda o: o["relative_cost"]) if dearer else options[worst][0]
     on_object_verified = {name: _largest([e.on_object[name] for e in verified]) for name in chosen}
     verified_whole = [e.whole for e in verified]
+    within_bounds = max(verified_whole) <= settings.tolerance and all(
+        _within(e, bound) for e in on_object_verified.values())
+    if not within_bounds:  # only with every material full: two all-full renders at one seed disagreed
+        log("warning: the selected scene is over a bound with no stand-in left to move up")
     phases["choice_and_verification"] = time.perf_counter() - began - sum(phases.values())
 
     times: dict[str, list[float]] = {"full": [], "selected": []}
@@ -389,6 +393,7 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
         "speedup": reference_time / selected_time,
         "image_delta_e2000_mean": max(verified_whole),
         "image_delta_e2000_mean_per_seed": verified_whole,
+        "verified_within_bounds": within_bounds,
         "noise": {
             "render_seed_to_seed_delta_e2000_mean": render_noise,
             "estimate_seed_to_seed_delta_e2000": estimate_noise,
