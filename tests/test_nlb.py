@@ -318,6 +318,74 @@ def test_latent_fit_starts_each_material_at_its_best_pretrained_code(tmp_path):
         LatentFitModule(str(checkpoint), early_stop_patience=0)
 
 
+def _tables_off_the_codes(module, tmp_path):
+    """Two materials whose tables lie between corpus codes: no candidate fits them exactly."""
+    sources = []
+    for k, (a, b) in enumerate([(1, 4), (3, 5)]):
+        blend = 0.5 * (module.latents.latents[a] + module.latents.latents[b])
+        angles = plan_spherical("DS2")
+        wi, wo = (torch.as_tensor(v, dtype=torch.float32) for v in spherical_pair_to_vectors(*angles))
+        with torch.no_grad():
+            values = module.network(wi, wo, blend).double().numpy()
+        write_table(BrdfTable(*angles, values=values), tmp_path / f"blend{k}.csv")
+        sources.append({"path": str(tmp_path / f"blend{k}.csv")})
+    data = LatentFitData(sources, eval_plan=None)
+    data.setup()
+    return data
+
+
+@pytest.mark.parametrize("domain", ["log_cosine", "linear"])
+def test_material_losses_are_each_materials_own_loss(tmp_path, domain):
+    module = tiny_module()
+    checkpoint = save_checkpoint(module, tmp_path / "tiny.ckpt")
+    data = _tables_off_the_codes(module, tmp_path)
+    fit = LatentFitModule(str(checkpoint), loss_domain=domain)
+    fit.build_latents(data.material_names)
+    samples = data.train_samples
+    codes = module.latents.latents[:3, None].expand(3, 2, -1).detach()
+    with torch.no_grad():
+        losses = fit._material_losses(samples, codes)
+        for s in range(3):
+            for m in range(2):
+                own = samples.material == m
+                expected = nlb_loss(fit.network(samples.wi[own], samples.wo[own], codes[s, m]), samples.f[own],
+                                    samples.wi[own], domain)
+                torch.testing.assert_close(losses[s, m], expected, rtol=1e-5, atol=1e-7)
+
+
+def test_screened_starts_keep_each_materials_lowest_loss_after_screening(tmp_path):
+    module = tiny_module()
+    checkpoint = save_checkpoint(module, tmp_path / "tiny.ckpt")
+    data = _tables_off_the_codes(module, tmp_path)
+    samples = data.train_samples
+    # Without steps that move the codes (lr 0), screening every candidate is the plain best start.
+    single = LatentFitModule(str(checkpoint), init_candidates=2)
+    frozen = LatentFitModule(str(checkpoint), init_candidates=2, init_starts=5, init_screen_steps=1,
+                             optimizer=lambda params: torch.optim.SGD(params, lr=0.0))
+    for fit in (single, frozen):
+        fit.build_latents(data.material_names)
+        fit.choose_starts(samples)
+    torch.testing.assert_close(frozen.latents.latents, single.latents.latents, rtol=0, atol=0)
+    # With steps, each material keeps the start whose loss after screening is lowest.
+    screened = LatentFitModule(str(checkpoint), init_candidates=2, init_starts=3, init_screen_steps=30,
+                               optimizer=lambda params: torch.optim.Adam(params, lr=0.05))
+    screened.build_latents(data.material_names)
+    recorded = []
+    original = screened._material_losses
+    screened._material_losses = lambda *args: recorded.append(original(*args)) or recorded[-1]
+    screened.choose_starts(samples)
+    after_screening = recorded[-1].detach()
+    with torch.no_grad():
+        chosen = original(samples, screened.latents.latents[None])[0]
+        plain = original(samples, single.latents.latents[None])[0]
+    torch.testing.assert_close(chosen, after_screening.min(0).values, rtol=1e-6, atol=1e-8)
+    assert torch.all(chosen < plain)  # screening improved on the plain best start here
+    with pytest.raises(InputError, match="candidates"):
+        LatentFitModule(str(checkpoint), init_starts=2)
+    with pytest.raises(InputError, match="positive integer"):
+        LatentFitModule(str(checkpoint), init_candidates=2, init_starts=0)
+
+
 def test_latent_fit_detects_a_changed_weight(tmp_path):
     fit = LatentFitModule(str(save_checkpoint(tiny_module(), tmp_path / "tiny.ckpt")))
     with torch.no_grad():
