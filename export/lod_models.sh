@@ -9,8 +9,8 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 PYTHON=${1:-.venv/bin/python}
 for m in gold gonio cyan magenta; do
-  OMP_NUM_THREADS=1 "$PYTHON" train.py fit --config configs/spectral_mlp.yaml --data.virtual_material "$m" \
-      --run_dir "out/lod/runs/$m"
+  OMP_NUM_THREADS=1 "$PYTHON" train.py fit --config configs/spectral_mlp.yaml --data.virtual "$m" \
+      --run_dir "out/lod/runs/$m" --trainer.enable_progress_bar false
   "$PYTHON" export/to_onnx.py --ckpt "out/lod/runs/$m/checkpoints/best.ckpt" --out "out/lod/models/$m.onnx"
   OMP_NUM_THREADS=1 "$PYTHON" -m neuralbrdf ladder "out/lod/models/$m.onnx"
 done

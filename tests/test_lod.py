@@ -8,6 +8,7 @@ being good, only on their files, metadata and recorded numbers being right.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from pathlib import Path
@@ -19,24 +20,25 @@ from neuralbrdf.cli import render_command
 from neuralbrdf.errors import InputError
 from neuralbrdf.evaluation.scores import OnnxEvaluator
 from neuralbrdf.evaluation.truth import export_truth
-from neuralbrdf.lod.distill import DistillSettings
+from neuralbrdf.lod.config import load_lod_config
 from neuralbrdf.lod.ladder import (
     COST_KEY,
     ERROR_KEY,
     PARENT_SHA256_KEY,
     RUNG_KEY,
-    LadderSettings,
     build_ladder,
     file_sha256,
     read_ladder,
 )
-from neuralbrdf.lod.select import SelectSettings, best_combination, select
+from neuralbrdf.lod.select import best_combination, on_object_mean, select
 from neuralbrdf.kinds import load_model
-from neuralbrdf.render.scene_file import SceneFile
+from neuralbrdf.render.scene_file import SceneFile, material_coverage
 
-FAST = LadderSettings(
+CONFIG = load_lod_config()  # the shipped configs/lod/default.yaml
+FAST = dataclasses.replace(
+    CONFIG.ladder,
     students=((1, 4),),
-    distill=DistillSettings(n_pairs=4096, steps=150, batch=1024),
+    distill=dataclasses.replace(CONFIG.ladder.distill, n_pairs=4096, steps=150, batch=1024),
     abc_pairs=1024,
     abc_starts=2,
     cost_batches=(2**12, 2**14),
@@ -146,6 +148,52 @@ def test_best_combination_keeps_the_summed_error_within_tolerance():
     assert {n: o["rung"] for n, o in chosen.items()} == {"a": "full", "b": "full"}
 
 
+def test_best_combination_bounds_each_objects_own_error():
+    """A small object: its stand-in changes the whole image by 0.1 but its own pixels by 2.5."""
+    options = {
+        "small": [dict(_option("full", 0.0, 1.0), on_object_delta_e2000=0.0),
+                  dict(_option("mlp", 0.1, 0.2), on_object_delta_e2000=2.5),
+                  dict(_option("abc", 0.05, 0.6), on_object_delta_e2000=0.8)],
+        "hidden": [dict(_option("full", 0.0, 1.0), on_object_delta_e2000=None),  # covers no pixel
+                   dict(_option("mlp", 0.0, 0.2), on_object_delta_e2000=None)],
+    }
+    whole_image_only = best_combination(options, tolerance=1.0, object_tolerance=float("inf"))
+    assert {n: o["rung"] for n, o in whole_image_only.items()} == {"small": "mlp", "hidden": "mlp"}
+    chosen = best_combination(options, tolerance=1.0)  # object tolerance = tolerance
+    assert {n: o["rung"] for n, o in chosen.items()} == {"small": "abc", "hidden": "mlp"}
+    chosen = best_combination(options, tolerance=1.0, object_tolerance=0.5)
+    assert {n: o["rung"] for n, o in chosen.items()} == {"small": "full", "hidden": "mlp"}
+
+
+def test_on_object_mean_weights_pixels_by_coverage():
+    delta = np.array([[4.0, 2.0], [1.0, 7.0]])
+    coverage = np.array([[1.0, 0.5], [0.0, 0.0]])
+    assert on_object_mean(delta, coverage) == pytest.approx((4.0 + 0.5 * 2.0) / 1.5)
+    assert on_object_mean(delta, np.zeros_like(delta)) is None
+
+
+# --------------------------------------------------------------------------- configuration
+
+
+def test_the_shipped_config_holds_every_setting_and_refuses_bad_keys(tmp_path):
+    assert CONFIG.path.parts[-2:] == ("lod", "default.yaml") and CONFIG.select.object_tolerance is None
+    assert load_lod_config("default") == CONFIG
+    assert CONFIG.select.object_bound == CONFIG.select.tolerance
+    text = CONFIG.path.read_text()
+    cases = {
+        "unknown": (text.replace("  spp: 32", "  spp: 32\n  spp_typo: 3"), "select.spp_typo"),
+        "missing": (text.replace("  coverage_subpixels: 4", ""), "select.coverage_subpixels"),
+        "type": (text.replace("    steps: 3000", "    steps: many"), "ladder.distill.steps"),
+        "bool": (text.replace("  seed: 0  ", "  seed: true  "), "select.seed"),
+    }
+    for name, (edited, key) in cases.items():
+        assert edited != text, name
+        path = tmp_path / f"{name}.yaml"
+        path.write_text(edited)
+        with pytest.raises(InputError, match=key.replace(".", r"\.")):
+            load_lod_config(path)
+
+
 # --------------------------------------------------------------------------- scenes
 
 SCENE = """<scene version="3.0.0">
@@ -173,25 +221,95 @@ SCENE = """<scene version="3.0.0">
 """
 
 
-def _scene(folder: Path, model: Path, visible: bool) -> Path:
-    """The gold sphere filling the view (``visible``) or behind the camera (covering no pixel), its
-    model named relative to the scene file."""
+#: Where the gold sphere (radius 1) is: filling the view, behind the camera (covering no pixel), far.
+PLACEMENTS = {"close": ("0, 0, 0", 45), "hidden": ("0, 0, 9", 30), "far": ("0, 0, -8", 45)}
+
+
+def _scene(folder: Path, model: Path, placement: str) -> Path:
+    """The gold sphere at ``placement`` (:data:`PLACEMENTS`), its model named relative to the scene file."""
     folder.mkdir(parents=True, exist_ok=True)
     relative = os.path.relpath(model, folder)
-    center = "0, 0, 0" if visible else "0, 0, 9"
+    center, fov = PLACEMENTS[placement]
     path = folder / "scene.xml"
-    path.write_text(SCENE.format(fov=45 if visible else 30, model=relative, center=center))
+    path.write_text(SCENE.format(fov=fov, model=relative, center=center))
     return path
 
 
-QUICK = dict(variant="llvm_ad_rgb", resolution=24, spp=4, max_spp=8, timing_repeats=1)
+def test_coverage_is_the_spheres_disc(ladder, tmp_path):
+    """Pixel centres (one ray per pixel) inside the sphere's silhouette, computed from the pinhole
+    geometry: the ray through a pixel centre hits the unit sphere 4 away iff its angle to the axis is
+    below asin(1/4).  Behind the camera the sphere covers nothing."""
+    from neuralbrdf.render.preview import set_variant
+
+    parent, _, _ = ladder
+    set_variant("llvm_ad_rgb")
+    coverage = material_coverage(SceneFile(_scene(tmp_path / "c", parent, "close")), subpixels=1)["gold"]
+    height, width = coverage.shape
+    tan_half = np.tan(np.radians(45 / 2))  # Mitsuba's fov is horizontal by default
+    u = (2 * (np.arange(width) + 0.5) / width - 1) * tan_half
+    v = (2 * (np.arange(height) + 0.5) / height - 1) * tan_half * height / width
+    tan_angle = np.hypot(u[None, :], v[:, None])
+    inside = tan_angle < np.tan(np.arcsin(1 / 4))
+    assert inside.sum() > 300
+    assert np.sum(inside != (coverage > 0.5)) <= 2  # pixel centres on the rim: rounding either way
+    assert set(np.unique(coverage)) <= {0.0, 1.0}
+    fine = material_coverage(SceneFile(_scene(tmp_path / "c", parent, "close")), subpixels=4)["gold"]
+    assert fine.sum() == pytest.approx(inside.sum(), rel=0.03)
+    hidden = material_coverage(SceneFile(_scene(tmp_path / "h", parent, "hidden")))["gold"]
+    assert hidden.shape == (48, 64) and hidden.sum() == 0
+
+
+def test_coverage_lies_where_the_render_shows_the_object(ladder, tmp_path):
+    """Orientation and material matching: an off-centre sphere whose BSDF is nested without an id
+    (named after its shape), and a second shape with a plain diffuse BSDF.  Rendered pixels the
+    material does not cover show the constant background or the diffuse shape; covered ones the
+    glossy gold, which is nowhere the grey background."""
+    from neuralbrdf.render.preview import set_variant
+    from neuralbrdf.render.scene_file import render_scene_file
+
+    parent, _, _ = ladder
+    lights = SCENE[SCENE.index('    <shape type="rectangle">'):SCENE.index("</scene>")]
+    path = tmp_path / "offcentre.xml"
+    path.write_text(f"""<scene version="3.0.0">
+    <integrator type="path"><integer name="max_depth" value="3"/></integrator>
+    <sensor type="perspective">
+        <float name="fov" value="45"/>
+        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="64"/><integer name="height" value="48"/>
+            <rfilter type="box"/></film>
+    </sensor>
+    <shape type="sphere" id="ball">
+        <point name="center" value="1.1, 0.55, 0"/><float name="radius" value="0.6"/>
+        <bsdf type="neuralbrdf"><string name="filename" value="{parent}"/></bsdf>
+    </shape>
+    <shape type="sphere">
+        <point name="center" value="-1.2, -0.5, 0"/><float name="radius" value="0.5"/><bsdf type="diffuse"/>
+    </shape>
+{lights}</scene>
+""")
+    scene = SceneFile(path)
+    assert [m.name for m in scene.materials()] == ["ball"]
+    set_variant("llvm_ad_rgb")
+    coverage = material_coverage(scene)["ball"]
+    image, _ = render_scene_file(scene, spp=4)
+    height, width = coverage.shape
+    covered = coverage == 1.0
+    assert 0.03 < covered.mean() < 0.3
+    rows, cols = np.nonzero(covered)
+    assert cols.mean() > width / 2 and rows.mean() < height / 2  # right and up, like the sphere's centre
+    background = np.all(np.abs(image - 0.3) < 1e-4, axis=2)
+    assert not np.any(background & covered)
+    assert np.mean(background[coverage == 0.0]) > 0.6  # the rest: mostly background, the diffuse ball
+
+
+QUICK = dataclasses.replace(CONFIG.select, variant="llvm_ad_rgb", resolution=24, spp=4, max_spp=8, timing_repeats=1)
 
 
 def test_an_object_covering_no_pixel_gets_its_cheapest_rung(ladder, tmp_path):
     parent, folder, document = ladder
-    scene = _scene(parent.parent / "hidden", parent, visible=False)
+    scene = _scene(parent.parent / "hidden", parent, "hidden")
     out = tmp_path / "SELECTED.xml"
-    result = select(scene, out, SelectSettings(tolerance=0.5, **QUICK), log=lambda *_: None)
+    result = select(scene, out, dataclasses.replace(QUICK, tolerance=0.5), log=lambda *_: None)
     cheapest = min(document["rungs"], key=lambda r: r["relative_cost"])
     (material,) = result["materials"]
     assert material["chosen_rung"] == cheapest["name"]
@@ -220,10 +338,10 @@ def test_an_object_covering_no_pixel_gets_its_cheapest_rung(ladder, tmp_path):
 
 def test_a_close_up_keeps_the_full_model_under_a_tight_tolerance(ladder, tmp_path):
     parent, _, _ = ladder
-    scene = _scene(parent.parent / "close", parent, visible=True)
+    scene = _scene(parent.parent / "close", parent, "close")
     # spectral variant: the candidates are the stand-in files (in RGB variants the parent with a looser
     # sRGB rule keeps the sampler and the paths, and may legitimately stay within a tight tolerance)
-    settings = SelectSettings(tolerance=0.05, **{**QUICK, "variant": "llvm_ad_spectral"})
+    settings = dataclasses.replace(QUICK, tolerance=0.05, variant="llvm_ad_spectral")
     result = select(scene, tmp_path / "SELECTED.xml", settings, log=lambda *_: None)
     (material,) = result["materials"]
     assert material["chosen_rung"] == "full"
@@ -235,11 +353,63 @@ def test_a_close_up_keeps_the_full_model_under_a_tight_tolerance(ladder, tmp_pat
     assert noise["estimate_noise_within_fraction_of_tolerance"] == (noise["estimate_seed_to_seed_delta_e2000"] <= 0.0125)
 
 
+def _cheap_ladder(folder: Path, target: Path) -> Path:
+    """A copy of the ladder with every stand-in far cheaper than its parent (relative costs 0.1,
+    0.2, ...): the fast fixture's measured costs (one round of small batches) are noise, and a
+    stand-in measured as dearer than its parent would never be chosen by any rule."""
+    import shutil
+
+    shutil.copytree(folder, target)
+    document = json.loads((target / "ladder.json").read_text())
+    for k, rung in enumerate(r for r in document["rungs"] if r["name"] != "full"):
+        rung["relative_cost"] = 0.1 * (k + 1)
+    (target / "ladder.json").write_text(json.dumps(document))
+    return target
+
+
+def test_a_small_object_keeps_its_own_error_within_the_object_tolerance(ladder, tmp_path):
+    """The far sphere covers a few per cent of the frame, so the whole-image mean dilutes its error:
+    the rule before the per-object bound (whole image only) takes a stand-in that is visibly wrong
+    on the sphere; with both bounds at 0.5 ΔE the choice must hold on the sphere's own pixels."""
+    parent, folder, _ = ladder
+    scene = _scene(parent.parent / "far", parent, "far")
+    ladders = [_cheap_ladder(folder, tmp_path / "ladder")]
+    settings = dataclasses.replace(QUICK, variant="llvm_ad_spectral", resolution=32, tolerance=0.5)
+    result = select(scene, tmp_path / "SELECTED.xml", settings, ladders, log=lambda *_: None)
+    (material,) = result["materials"]
+    assert 0 < material["coverage_pixels"] < 0.1 * 32 * 24
+    whole_image_only = best_combination(result["candidates"], 0.5, object_tolerance=float("inf"))["gold"]
+    assert whole_image_only["rung"] != "full"
+    assert whole_image_only["error_contribution"] <= 0.5 < whole_image_only["on_object_delta_e2000"]
+    assert material["chosen_rung"] != whole_image_only["rung"]
+    assert material["on_object_delta_e2000"] <= 0.5
+    assert material["on_object_delta_e2000_selected_scene"] <= 0.5
+    assert result["image_delta_e2000_mean"] <= 0.5
+    assert result["verified_within_bounds"]
+
+
 def test_select_refuses_a_scene_without_neural_materials(tmp_path):
     scene = tmp_path / "plain.xml"
     scene.write_text('<scene version="3.0.0"><shape type="sphere"/></scene>')
     with pytest.raises(InputError, match="no neuralbrdf material"):
-        select(scene, tmp_path / "S.xml", SelectSettings(**QUICK))
+        select(scene, tmp_path / "S.xml", QUICK)
+
+
+def test_select_command_reads_its_config_and_refuses_bad_settings(tmp_path, capsys):
+    from neuralbrdf.cli.main import main
+
+    scene = tmp_path / "plain.xml"
+    scene.write_text('<scene version="3.0.0"><shape type="sphere"/></scene>')
+    out = tmp_path / "S.xml"
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(CONFIG.path.read_text().replace("  tolerance: 1.0", "  tolerance: 1.0\n  tolerence: 2"))
+    assert main(["select", str(scene), "--out", str(out), "--config", str(bad)]) == 2
+    assert "select.tolerence" in capsys.readouterr().err
+    assert main(["select", str(scene), "--out", str(out), "--object-tolerance", "0"]) == 2
+    assert "--object-tolerance" in capsys.readouterr().err
+    assert main(["select", str(scene), "--out", str(out), "--tolerance", "0.5"]) == 2  # the config's other values are valid
+    assert "no neuralbrdf material" in capsys.readouterr().err
+    assert not out.exists()
 
 
 # --------------------------------------------------------------------------- render.py --scene
@@ -247,7 +417,7 @@ def test_select_refuses_a_scene_without_neural_materials(tmp_path):
 
 def test_render_command_renders_a_user_scene(ladder, tmp_path):
     parent, _, _ = ladder
-    scene = _scene(parent.parent / "user", parent, visible=True)
+    scene = _scene(parent.parent / "user", parent, "close")
     out = tmp_path / "scene.png"
     code = render_command.main(["--scene", str(scene), "--out", str(out), "--variant", "llvm_ad_rgb", "--resolution", "16",
                         "--spp", "2", "--quiet"])

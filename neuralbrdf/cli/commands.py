@@ -126,11 +126,13 @@ def evaluate(args) -> None:
 
 
 def ladder(args) -> None:
+    from neuralbrdf.lod.config import load_lod_config
     from neuralbrdf.lod.ladder import build_ladder
     from neuralbrdf.lod.select import default_ladder_dir
 
+    settings = load_lod_config(args.config).ladder
     out_dir = Path(args.out_dir) if args.out_dir else default_ladder_dir(Path(args.model))
-    document = build_ladder(args.model, out_dir)
+    document = build_ladder(args.model, out_dir, settings)
     print(f"{'rung':<10} {'kind':<13} {'log-cos RMSE':>12} {'ns/query':>9} {'cost':>6}")
     for rung in document["rungs"]:
         print(f"{rung['name']:<10} {rung['kind']:<13} {rung['hemisphere_logcos_rmse']:>12.4f} "
@@ -140,19 +142,26 @@ def ladder(args) -> None:
     print(f"-> {out_dir}/ladder.json")
 
 
+#: ``neuralbrdf select`` options that override ``select.*`` of the config (``None``: not given).
+SELECT_OVERRIDES = ("tolerance", "object_tolerance", "variant", "resolution", "spp", "max_spp", "seed")
+
+
 def select(args) -> None:
-    from neuralbrdf.lod.select import SelectSettings
+    import dataclasses
+
+    from neuralbrdf.lod.config import load_lod_config
     from neuralbrdf.lod.select import select as run_selection
 
-    for name in ("resolution", "spp", "max_spp"):
-        if getattr(args, name) < 1:
-            raise InputError(f"--{name.replace('_', '-')} must be a positive integer, got {getattr(args, name)}")
-    settings = SelectSettings(tolerance=args.tolerance, variant=args.variant, resolution=args.resolution,
-                              spp=args.spp, max_spp=max(args.max_spp, args.spp), seed=args.seed)
+    settings = load_lod_config(args.config).select
+    settings = dataclasses.replace(settings, **{name: getattr(args, name) for name in SELECT_OVERRIDES
+                                                if getattr(args, name) is not None})
+    settings = dataclasses.replace(settings, max_spp=max(settings.max_spp, settings.spp))
     result = run_selection(args.scene, args.out, settings, [Path(d) for d in args.ladder])
+    print(f"{'material':<12} {'rung':<12} {'dE2000 image':>12} {'on object':>9} {'cost':>6}")
     for material in result["materials"]:
-        print(f"{material['name']:<12} {material['chosen_rung']:<10} dE2000 {material['error_contribution']:.3f} "
-              f"cost {material['cost']:.3f}")
+        on_object = material["on_object_delta_e2000_selected_scene"]
+        print(f"{material['name']:<12} {material['chosen_rung']:<12} {material['error_contribution']:>12.3f} "
+              f"{'-' if on_object is None else f'{on_object:.3f}':>9} {material['cost']:>6.3f}")
     print(f"speed-up {result['speedup']:.2f}x ({result['reference_time_s']:.2f} s -> {result['selected_time_s']:.2f} s), "
           f"mean dE2000 {result['image_delta_e2000_mean']:.3f} at {result['noise']['spp']} spp (render noise "
           f"{result['noise']['render_seed_to_seed_delta_e2000_mean']:.3f}, estimate noise "

@@ -191,6 +191,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("model", help="model file (.onnx)")
     p.add_argument("--out-dir", default=None, help="output folder (default: MODEL.ladder beside the model, where "
                    "'neuralbrdf select' looks first)")
+    p.add_argument("--config", default="default", help="level-of-detail settings, section 'ladder' (default: the shipped "
+                   "configs/lod/default.yaml)")
 
     p = add(
         "select",
@@ -198,19 +200,25 @@ def build_parser() -> argparse.ArgumentParser:
         "pick per neuralbrdf material of a scene the cheapest ladder rung within an image tolerance",
         "For every neuralbrdf BSDF of SCENE.xml, render the scene at low resolution with that material swapped for each "
         "rung of its ladder (matched seeds, the others full) and compare with the all-full render (mean CIEDE2000); "
-        "pick the cheapest combination whose summed contributions stay within --tolerance and verify it. The sample "
-        "count is raised until the seed-to-seed noise is at most a quarter of the tolerance. Writes OUT (the scene "
+        "pick the cheapest combination whose summed contributions stay within --tolerance, using only rungs whose mean "
+        "CIEDE2000 over the material's own pixels stays within --object-tolerance, and verify it. The sample "
+        "count is raised until the seed-to-seed noise of these errors is at most select.noise_fraction of their bounds. Writes OUT (the scene "
         "pointing at the chosen rung files) and OUT with suffix .json.",
     )
     p.add_argument("scene", help="Mitsuba scene file with neuralbrdf BSDFs")
-    p.add_argument("--tolerance", type=float, default=1.0, help="mean CIEDE2000 of the whole image (default 1.0)")
     p.add_argument("--out", required=True, help="output scene SELECTED.xml (SELECTED.json beside it)")
+    p.add_argument("--config", default="default", help="level-of-detail settings, section 'select' (default: the shipped "
+                   "configs/lod/default.yaml); the options below override its values")
+    p.add_argument("--tolerance", type=float, default=None, help="bound on the whole image's mean CIEDE2000 (config: select.tolerance)")
+    p.add_argument("--object-tolerance", type=float, default=None,
+                   help="bound on each material's mean CIEDE2000 over the pixels it covers (config: "
+                   "select.object_tolerance; null there: --tolerance)")
     p.add_argument("--ladder", nargs="+", default=[], help="ladder folders (default: MODEL.ladder beside each model)")
-    p.add_argument("--variant", default="llvm_ad_spectral", help="Mitsuba variant (default llvm_ad_spectral)")
-    p.add_argument("--resolution", type=int, default=96, help="width of the selection renders (default 96)")
-    p.add_argument("--spp", type=int, default=32, help="starting samples per pixel (default 32; raised for noise)")
-    p.add_argument("--max-spp", type=int, default=1024, help="largest samples per pixel (default 1024)")
-    p.add_argument("--seed", type=int, default=0, help="render seed (default 0)")
+    p.add_argument("--variant", default=None, help="Mitsuba variant (config: select.variant)")
+    p.add_argument("--resolution", type=int, default=None, help="width of the selection renders (config: select.resolution)")
+    p.add_argument("--spp", type=int, default=None, help="starting samples per pixel, raised for noise (config: select.spp)")
+    p.add_argument("--max-spp", type=int, default=None, help="largest samples per pixel (config: select.max_spp)")
+    p.add_argument("--seed", type=int, default=None, help="first render seed (config: select.seed)")
 
     p = add(
         "regenerate-default-data",

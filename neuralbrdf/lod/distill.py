@@ -43,14 +43,16 @@ LOG_EPSILON_SR = 1e-3
 
 @dataclass(frozen=True)
 class DistillSettings:
-    """Training of a student network (defaults: a few seconds to a minute on one core)."""
+    """Training of a student network (values: ``configs/lod/default.yaml``, ``ladder.distill``; a few
+    seconds to a minute on one core)."""
 
-    n_pairs: int = 65536
-    steps: int = 3000
-    batch: int = 4096
-    lr: float = 0.02
-    final_lr_fraction: float = 0.02
-    seed: int = 0
+    n_pairs: int
+    steps: int
+    batch: int
+    lr: float
+    #: The learning rate decays exponentially to ``lr × final_lr_fraction`` over the steps.
+    final_lr_fraction: float
+    seed: int
 
 
 def _cosine_hemisphere(rng, count: int) -> np.ndarray:
@@ -113,7 +115,7 @@ def distill_spectral_mlp(
     hidden: int,
     hidden_layers: int,
     wavelength_range_nm: tuple[float, float],
-    settings: DistillSettings = DistillSettings(),
+    settings: DistillSettings,
 ) -> SpectralMlpOnDirections:
     """A ``hidden_layers × hidden`` spectral MLP fitted to a spectral teacher (module docstring)."""
     if samples.wavelength is None:

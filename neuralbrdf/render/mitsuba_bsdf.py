@@ -539,19 +539,32 @@ def _remember(key: tuple, value) -> None:
     _LOAD_TIME_CACHE[key] = value
 
 
-def _load_time_work(path: Path, rgb_tolerance: float) -> tuple[OnnxModel, LobeMixture, ReducedQuadrature | None]:
-    """The validated model, its fitted sampling proposal and (spectral model, RGB variant) its sRGB
-    rule, computed once per unchanged file, variant and tolerance: a scene loaded again — the
-    selector of :mod:`neuralbrdf.lod.select` loads one scene many times — skips the probing."""
-    spectral_to_rgb = not mi.is_spectral
-    key = ("work", _file_identity(path), spectral_to_rgb, rgb_tolerance)
+def _load_time_work(path: Path, rgb_tolerance: float,
+                    proposal: Path | None = None) -> tuple[OnnxModel, LobeMixture, ReducedQuadrature | None]:
+    """The validated model, the fitted sampling proposal (of the ``proposal`` file if given, else
+    of the model itself) and (spectral model, RGB variant) its sRGB rule.  Each is computed once
+    per unchanged file — the proposal per file alone (it depends on neither variant nor
+    tolerance), the rule per file and tolerance — so a scene loaded again (the selector of
+    :mod:`neuralbrdf.lod.select` loads one scene many times, with stand-ins sampling like their
+    parent) skips the probing, and a model sampled with another file's proposal never fits its own."""
+    model = validated_model(path)
+    mixture = _fitted_proposal(proposal or path)
+    rgb_rule = None
+    if model.is_spectral and not mi.is_spectral:
+        key = ("rgb_rule", _file_identity(path), rgb_tolerance)
+        if key not in _LOAD_TIME_CACHE:
+            _remember(key, fit_rgb_rule(model, _session(path), rgb_tolerance))
+        rgb_rule = _LOAD_TIME_CACHE[key]
+    return model, mixture, rgb_rule
+
+
+def _fitted_proposal(path: Path) -> LobeMixture:
+    """The sampling proposal of the model file ``path`` (its kind's), fitted to onnxruntime probes."""
+    key = ("proposal", _file_identity(path))
     if key not in _LOAD_TIME_CACHE:
         model = validated_model(path)
-        session = _session(path)
-        probe = _probe_function(model, session)
-        mixture = fit_proposal(kinds.get(model.kind).proposal, probe, model.details)
-        rgb_rule = fit_rgb_rule(model, session, rgb_tolerance) if model.is_spectral and spectral_to_rgb else None
-        _remember(key, (model, mixture, rgb_rule))
+        probe = _probe_function(model, _session(path))
+        _remember(key, fit_proposal(kinds.get(model.kind).proposal, probe, model.details))
     return _LOAD_TIME_CACHE[key]
 
 
@@ -566,10 +579,7 @@ def _bsdf_class(variant: str) -> type:
         def __init__(self, props: mi.Properties) -> None:
             mi.BSDF.__init__(self, props)
             path, backend, rgb_tolerance = _read_properties(props)
-            self.model, self.mixture, self.rgb_rule = _load_time_work(path, rgb_tolerance)
-            proposal = _proposal_path(props)
-            if proposal is not None:
-                self.mixture = _load_time_work(proposal, rgb_tolerance)[1]
+            self.model, self.mixture, self.rgb_rule = _load_time_work(path, rgb_tolerance, _proposal_path(props))
             if backend == "onnxruntime":
                 self.backend = _OnnxRuntimeBackend(self.model, _session(path))
             else:

@@ -10,6 +10,8 @@ A user's scene names the plugin like any Mitsuba BSDF (see ``export/README.md``)
 :class:`SceneFile` holds the parsed XML so that commands can change it before Mitsuba loads it:
 point a ``neuralbrdf`` BSDF at another model file (the selector's rungs), set plugin properties
 (``backend``, ``rgb_tolerance``), the film resolution or the integrator's ``max_depth``.
+:func:`material_coverage` says which pixels each material covers (the level-of-detail
+selector's per-object error, SPEC §11).
 :meth:`SceneFile.load` loads the edited text with the scene's folder first on Mitsuba's file
 resolver (as ``mi.load_file`` does), so relative paths in it — meshes, textures, included files,
 model files — resolve as they would from the file itself.
@@ -221,3 +223,47 @@ def render_scene_file(scene_file: SceneFile, spp: int, seed: int = 0, spp_per_pa
     start = time.perf_counter()
     image = preview.render_passes(scene, spp, per_pass, seed, wavefront, progress)
     return image, time.perf_counter() - start
+
+
+#: Id given to a nested ``neuralbrdf`` BSDF without one while :func:`material_coverage` loads the scene.
+_COVERAGE_TAG = "__neuralbrdf_coverage_{}"
+
+
+def material_coverage(scene_file: SceneFile, subpixels: int = 4) -> dict[str, np.ndarray]:
+    """Per ``neuralbrdf`` material, the fraction of each pixel (``[H, W]`` in [0, 1], the film of
+    the scene's first sensor, rows top to bottom like a rendered image) that the camera sees on a
+    shape with that material: ``subpixels``² camera rays per pixel on a regular grid (pixel
+    centres of the sub-cells, the sensor's time and aperture centre), intersected with the scene
+    in the current variant; a ray counts for the material of the first shape it hits.  Only what
+    the camera sees directly counts, not a material's reflection in another object.  Shapes are
+    matched to materials by the BSDF's id (a nested BSDF without one gets a temporary id)."""
+    import mitsuba as mi
+
+    if subpixels < 1:
+        raise InputError(f"subpixels must be a positive integer, got {subpixels}")
+    tagged = scene_file.copy()
+    ids = {}
+    for k, material in enumerate(tagged.materials()):
+        if material.element.get("id") is None:
+            material.element.set("id", _COVERAGE_TAG.format(k))
+        ids[material.element.get("id")] = material.name
+    scene = tagged.load()
+    sensor = scene.sensors()[0]
+    width, height = (int(v) for v in sensor.film().crop_size())
+    n = subpixels
+    index = np.arange(width * height * n * n)
+    pixel, cell = index // (n * n), index % (n * n)
+    x = (pixel % width + (cell % n + 0.5) / n) / width
+    y = (pixel // width + (cell // n + 0.5) / n) / height
+    rays, _ = sensor.sample_ray(mi.Float(0.0), mi.Float(0.5), mi.Point2f(mi.Float(x), mi.Float(y)),
+                                mi.Point2f(0.5, 0.5))
+    hit_shape = scene.ray_intersect(rays).shape
+    coverage = {name: np.zeros((height, width)) for name in ids.values()}
+    for shape in scene.shapes():
+        bsdf = shape.bsdf()
+        name = ids.get(bsdf.id()) if bsdf is not None else None
+        if name is None:
+            continue
+        hits = np.asarray(hit_shape == mi.ShapePtr(shape), dtype=bool)
+        coverage[name] += hits.reshape(height, width, n * n).mean(axis=2)
+    return coverage
