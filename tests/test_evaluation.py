@@ -275,3 +275,41 @@ def test_truth_renders_are_kept_per_file_settings_and_seed(tmp_path, monkeypatch
     assert evaluation._render_kept(kept, truth, settings, 0)[0, 0, 0] == 4.0
     evaluation._render_kept(None, truth, settings, 0)  # nothing kept: always rendered
     assert len(calls) == 5
+
+
+def test_the_model_is_rendered_with_the_truths_proposal(truth_files, tmp_path, monkeypatch):
+    from neuralbrdf.evaluation import evaluate as evaluation
+
+    calls = []
+
+    def fake_render(path, settings, seed, proposal=None):
+        calls.append((path.name, seed, proposal and proposal.name))
+        return np.full((2, 2, 3), 0.5, dtype=np.float32)
+
+    monkeypatch.setattr(evaluation, "_render", fake_render)
+    evaluation.evaluate(truth_files["gold"], truth_files["cyan"], tmp_path / "eval",
+                        evaluation.RenderSettings(spp=2, resolution=2), strata=QUICK_STRATA)
+    assert calls[0] == ("gold.onnx", 0, "cyan.onnx")  # the model: the truth's proposal, matched paths
+    assert [c[2] for c in calls[1:]] == [None, None]  # the truth: its own, at two seeds
+
+
+def test_a_model_sampled_with_another_files_proposal_renders_the_same_expectation(truth_files):
+    from neuralbrdf.errors import InputError
+    from neuralbrdf.evaluation.images import image_scores
+    from neuralbrdf.render.preview import NEURAL_MATERIAL_MATCHED, Material, render
+
+    matched = Material(model=truth_files["gold"], proposal=truth_files["cyan"])
+    assert matched.scene_parameters()["material"] == NEURAL_MATERIAL_MATCHED
+    assert matched.scene_parameters()["proposal"] == str(truth_files["cyan"].resolve())
+    with pytest.raises(InputError, match="proposal"):
+        Material(reference_bsdf="diffuse", proposal=truth_files["cyan"])
+    own = render(Material(model=truth_files["gold"]), "llvm_ad_rgb", 64, 24, 0)
+    other = render(matched, "llvm_ad_rgb", 64, 24, 0)
+    again = render(Material(model=truth_files["gold"]), "llvm_ad_rgb", 64, 24, 1)
+    # Another proposal changes the paths (not the same image) but not what they converge to:
+    # its difference from the own-proposal render is of the size of two seeds' difference.
+    assert not np.array_equal(own, other)
+    changed, _ = image_scores(other, own)
+    noise, _ = image_scores(again, own)
+    assert abs(float(other.mean()) / float(own.mean()) - 1.0) < 0.03
+    assert changed["image_delta_e2000_mean"] < 2.0 * noise["image_delta_e2000_mean"]

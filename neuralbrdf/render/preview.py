@@ -49,6 +49,8 @@ from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE
 SCENE_DIR = Path(__file__).resolve().parent / "scenes"
 SCENE_FILE = SCENE_DIR / "material_preview.xml"
 NEURAL_MATERIAL = "materials/neuralbrdf.xml"
+#: The same, sampled with another model file's proposal (:attr:`Material.proposal`).
+NEURAL_MATERIAL_MATCHED = "materials/neuralbrdf_matched.xml"
 #: Built-in Mitsuba materials selectable with ``--reference-bsdf``: name -> scene file.
 REFERENCE_BSDFS = {"roughconductor": "materials/roughconductor.xml", "diffuse": "materials/diffuse.xml"}
 BACKENDS = ("drjit", "onnxruntime")
@@ -124,18 +126,23 @@ def set_variant(variant: str) -> None:
 
 @dataclass(frozen=True)
 class Material:
-    """What the sphere carries: a model file through a backend, or a built-in reference BSDF."""
+    """What the sphere carries: a model file through a backend, or a built-in reference BSDF;
+    ``proposal``: another model file whose sampling proposal the model uses (the plugin's
+    ``proposal`` property: same expectation, paths matched to that file's renders)."""
 
     model: Path | None = None
     backend: str = "drjit"
     reference_bsdf: str | None = None
     rgb_tolerance: float = DEFAULT_RMS_TOLERANCE
+    proposal: Path | None = None
 
     def __post_init__(self) -> None:
         if (self.model is None) == (self.reference_bsdf is None):
             raise InputError("give either a model file or a reference BSDF")
         if self.backend not in BACKENDS:
             raise InputError(f"unknown backend {self.backend!r}; expected one of {', '.join(BACKENDS)}")
+        if self.proposal is not None and self.model is None:
+            raise InputError("a sampling proposal needs a model file")
         if self.reference_bsdf is not None and self.reference_bsdf not in REFERENCE_BSDFS:
             raise InputError(
                 f"unknown reference BSDF {self.reference_bsdf!r}; expected one of {', '.join(REFERENCE_BSDFS)}"
@@ -148,12 +155,15 @@ class Material:
     def scene_parameters(self) -> dict[str, str]:
         if self.reference_bsdf is not None:
             return {"material": REFERENCE_BSDFS[self.reference_bsdf]}
-        return {
+        parameters = {
             "material": NEURAL_MATERIAL,
             "model": str(Path(self.model).resolve()),
             "backend": self.backend,
             "rgb_tolerance": repr(float(self.rgb_tolerance)),
         }
+        if self.proposal is not None:
+            parameters.update(material=NEURAL_MATERIAL_MATCHED, proposal=str(Path(self.proposal).resolve()))
+        return parameters
 
     def describe(self) -> str:
         if self.reference_bsdf is not None:

@@ -30,7 +30,7 @@ from neuralbrdf.study.profile import Profile, VariantSpec
 
 MAIN_PLAN, MAIN_NOISE, MAIN_SEED = "DS1", 0.0, 0
 #: Bump when a cell's result format or computation changes: every cell reruns.
-CELL_FORMAT = 3
+CELL_FORMAT = 4
 
 
 @dataclass(frozen=True)
