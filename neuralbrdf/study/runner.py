@@ -28,6 +28,7 @@ from tqdm import tqdm
 
 from neuralbrdf.atomic import atomic_write
 from neuralbrdf.study import aggregate, charts
+from neuralbrdf.study.cell import WORKER_THREADS
 from neuralbrdf.study.cells import Cell, cell_key, plan_cells
 from neuralbrdf.study.profile import Profile, load_profile
 
@@ -253,7 +254,8 @@ def run_study(profile_name: str, out_dir: str | Path, jobs: int = 1, command: st
         "sentences": aggregate.method_sentences(points, failure_rows),
         "machine": machine(),
         "run": {"profile": _shown_path(profile.path), "command": command or f"neuralbrdf study --profile {profile_name}",
-                "jobs": jobs, "seeds": sorted({p["seed"] for p in points}), "started": started_at,
+                "jobs": jobs, "threads_per_job": WORKER_THREADS,
+                "seeds": sorted({p["seed"] for p in points}), "started": started_at,
                 "cells_run": ran, "cells_cached": len(results) - ran,
                 "cells_time_s": sum(r.get("cell_wall_time_s") or 0.0 for r in results),
                 "cells_cpu_time_s": sum(r.get("cell_cpu_time_s") or 0.0 for r in results),
