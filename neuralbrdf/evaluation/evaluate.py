@@ -9,7 +9,8 @@ renders are reported as ``noise`` — the noise of one render.  Model and truth 
 and their paths: the model samples directions with the *truth's* proposal (the plugin's
 ``proposal`` property, which leaves the image's expectation unchanged), so the two renders trace
 the same paths and most of the noise is common to both and cancels in their difference (the
-demo's gold model: ΔE mean 0.33 against a noise level of 1.9).  Without it, a model whose own
+demo's gold model: ΔE mean 0.33 against a noise level of 1.9).  The renders run on one Dr.Jit
+thread: with more, a render of a fixed seed sometimes came out as another image.  Without it, a model whose own
 proposal differs from the truth's traced other paths and its ΔE was about the noise level
 whatever its accuracy (the quick study's NLB nylon: ΔE 4.85 at a noise of 4.3, 8 spp).
 
@@ -59,10 +60,20 @@ class RenderSettings:
 
 
 def _render(path: Path, settings: RenderSettings, seed: int, proposal: Path | None = None) -> np.ndarray:
+    """One render of the preview scene with one Dr.Jit thread: with more, a render of a fixed seed
+    came out as one of two different images (even Mitsuba's own ``roughconductor``), and model and
+    truth would no longer share their paths."""
+    import drjit as dr
+
     from neuralbrdf.render.preview import Material, render
 
-    image = render(Material(model=path, backend=settings.backend, proposal=proposal), settings.variant, settings.spp,
-                   settings.resolution, seed)
+    threads = dr.thread_count()
+    dr.set_thread_count(1)
+    try:
+        image = render(Material(model=path, backend=settings.backend, proposal=proposal), settings.variant,
+                       settings.spp, settings.resolution, seed)
+    finally:
+        dr.set_thread_count(threads)
     if not np.all(np.isfinite(image)):
         raise ValueError(f"the render of {path} is not finite")
     return image
