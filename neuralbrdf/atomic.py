@@ -71,6 +71,13 @@ def note_input(path: str | os.PathLike[str]) -> None:
     inputs.setdefault((info.st_dev, info.st_ino), str(path))
 
 
+def file_version(path: str | os.PathLike[str]) -> tuple[str, int, int, int]:
+    """``(resolved path, size, modification time ns, inode)``: a cache key for what a file holds
+    now — another file written at the same path (atomically: a new inode) gives another key."""
+    info = os.stat(path)
+    return str(Path(path).resolve()), info.st_size, info.st_mtime_ns, info.st_ino
+
+
 # --------------------------------------------------------------------------- checks
 
 

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from neuralbrdf.atomic import atomic_paths
+from neuralbrdf.atomic import atomic_paths, file_version
 from neuralbrdf.evaluation.images import IMAGE_METRICS, displayed, image_scores
 from neuralbrdf.evaluation.scores import DIRECTION_METRICS, HEMISPHERE_STRATA, Evaluator, OnnxEvaluator, direction_scores
 
@@ -81,11 +81,10 @@ def _render(path: Path, settings: RenderSettings, seed: int, proposal: Path | No
 
 def _render_kept(kept: dict | None, path: Path, settings: RenderSettings, seed: int) -> np.ndarray:
     """:func:`_render`, or its image kept in ``kept`` from an earlier call for the same file (path,
-    size, modification time), settings and seed (read-only: shared by later calls)."""
+    size, modification time, inode: :func:`~neuralbrdf.atomic.file_version`), settings and seed (read-only: shared by later calls)."""
     if kept is None:
         return _render(path, settings, seed)
-    stat = path.stat()
-    key = (str(path.resolve()), stat.st_size, stat.st_mtime_ns, settings, seed)
+    key = (file_version(path), settings, seed)
     if key not in kept:
         image = _render(path, settings, seed)
         image.flags.writeable = False

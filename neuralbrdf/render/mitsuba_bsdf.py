@@ -89,6 +89,7 @@ import onnxruntime
 
 from neuralbrdf.data.colorimetry import XYZ_TO_LINEAR_SRGB, xyz_weights
 from neuralbrdf import kinds
+from neuralbrdf.atomic import file_version
 from neuralbrdf.errors import InputError
 from neuralbrdf.limits import DRJIT_MAX_MULTIPLY_ADDS
 from neuralbrdf.render.drjit_onnx import DrJitGraph
@@ -520,8 +521,7 @@ _LOAD_TIME_CACHE_SIZE = 64
 def _file_identity(path: Path) -> tuple:
     if not path.is_file():
         raise InputError("no such ONNX model file", path=path)
-    status = path.stat()
-    return str(path.resolve()), status.st_size, status.st_mtime_ns, status.st_ino
+    return file_version(path)
 
 
 def validated_model(path: Path) -> OnnxModel:

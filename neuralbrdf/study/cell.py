@@ -55,7 +55,7 @@ from pathlib import Path
 
 import numpy as np
 
-from neuralbrdf.atomic import atomic_write
+from neuralbrdf.atomic import atomic_write, file_version
 
 #: Reference seed offset: the Munsell N9 is measured with its own noise stream.
 REFERENCE_SEED_OFFSET = 1
@@ -193,17 +193,16 @@ def export(spec: dict, run_dir: Path, out: Path) -> Path:
 
 
 @functools.lru_cache(maxsize=TRUTHS_KEPT)
-def _truth_evaluator(path: str, size: int, mtime_ns: int):
+def _truth_evaluator(version: tuple):
     from neuralbrdf.evaluation.scores import MemoEvaluator, OnnxEvaluator
 
-    return MemoEvaluator(OnnxEvaluator(path))
+    return MemoEvaluator(OnnxEvaluator(version[0]))
 
 
 def truth_evaluator(truth: Path):
     """The worker's evaluator of a truth file, its values remembered (module docstring); a file
     changed on disk is loaded afresh."""
-    stat = Path(truth).stat()
-    return _truth_evaluator(str(Path(truth).resolve()), stat.st_size, stat.st_mtime_ns)
+    return _truth_evaluator(file_version(truth))
 
 
 def per_angle(model: Path, truth: Path) -> dict:

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import yaml
 
+from neuralbrdf.atomic import file_version
 from neuralbrdf.shipped import resolve_pretrained
 from neuralbrdf.study.profile import Profile, VariantSpec
 
@@ -53,16 +54,15 @@ class Cell:
 
 def file_digest(path: str) -> str:
     """SHA-256 of a file's contents (``virtual:NAME`` stands for itself); a file is read again
-    only when its size or modification time changed."""
+    only when it changed (:func:`~neuralbrdf.atomic.file_version`)."""
     if path.startswith("virtual:"):
         return path
-    stat = Path(path).stat()
-    return _digest(path, stat.st_size, stat.st_mtime_ns)
+    return _digest(file_version(path))
 
 
 @lru_cache(maxsize=None)
-def _digest(path: str, size: int, mtime_ns: int) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+def _digest(version: tuple) -> str:
+    return hashlib.sha256(Path(version[0]).read_bytes()).hexdigest()
 
 
 def pretrained_network(variant: VariantSpec) -> str | None:
