@@ -16,7 +16,7 @@ import pytest
 from neuralbrdf.cli.main import main as cli
 from neuralbrdf.errors import InputError
 from neuralbrdf.study import aggregate
-from neuralbrdf.study.cells import Cell, cell_key, plan_cells, cell_settings, pretrained_network
+from neuralbrdf.study.cells import Cell, cell_key, cell_settings, is_rendered, plan_cells, pretrained_network
 from neuralbrdf.study.profile import load_profile
 from neuralbrdf.study.report import NUMBER_FORMAT
 
@@ -76,6 +76,29 @@ def test_cells_and_keys(tmp_path):
     changed = load_profile(str(_write(tmp_path, BASE.replace("configs/abc.yaml}", "configs/abc.yaml, args: [-x]}")
                                       + "stability: {variants: [abc]}\n")))
     assert cell_key(cells[0], changed) != cell_key(cells[0], profile)
+
+
+def test_sweep_only_variants_are_neither_rendered_nor_timed(tmp_path):
+    text = BASE + ("  - {name: g3, method: abc, config: configs/abc.yaml, group: g, label: three, speed_accuracy: false}\n"
+                   "stability: {seeds: [0, 1]}\n")
+    profile = load_profile(str(_write(tmp_path, text)))
+    cells = plan_cells(profile)
+    main, sweep = Cell("gold", "abc", "DS1", 0.0, 0), Cell("gold", "g3", "DS1", 0.0, 0)
+    assert {main, sweep, Cell("gold", "g3", "DS1", 0.0, 1)} == set(cells)
+    assert is_rendered(main, profile) and "render" in cell_settings(main, profile)
+    assert sweep.is_main and not is_rendered(sweep, profile)
+    assert "render" not in cell_settings(sweep, profile) and "cost" not in cell_settings(sweep, profile)
+    with pytest.raises(InputError, match=r"variants\[1\].speed_accuracy"):
+        load_profile(str(_write(tmp_path, text.replace("speed_accuracy: false", "speed_accuracy: no-ish"))))
+
+
+def test_a_variant_fits_only_the_materials_it_names(tmp_path):
+    text = BASE.replace("variants:", '  - {name: cyan, truth: "virtual:cyan"}\nvariants:') + (
+        "  - {name: mlp, method: spectral_mlp, config: configs/spectral_mlp.yaml, materials: [cyan]}\n")
+    cells = plan_cells(load_profile(str(_write(tmp_path, text))))
+    assert [(c.material, c.variant) for c in cells] == [("gold", "abc"), ("cyan", "abc"), ("cyan", "mlp")]
+    with pytest.raises(InputError, match=r"variants\[1\].materials\[0\].*no material named 'cyn'"):
+        load_profile(str(_write(tmp_path, text.replace("[cyan]}", "[cyn]}"))))
 
 
 def test_nlb_keys_follow_the_pretrained_networks_contents(tmp_path):
@@ -228,8 +251,9 @@ def test_killed_cell_is_rerun(tmp_path):
     (folder / "result.json").write_text(json.dumps({"cached": True}))
     assert run_one(cell, "k", {}, tmp_path) == ({"cached": True}, False)
     (folder / "result.json").unlink()
-    result, ran = run_one(cell, "k", {"not": "a cell"}, tmp_path)
+    result, ran = run_one(cell, "k", {"is_main": True, "not": "a cell"}, tmp_path)
     assert ran and result["failure"] == "cell_crashed" and not (folder / "stale.txt").exists()
+    assert result["is_main"]  # as the spec said: a crashed main cell still marks its (material, variant)
 
 
 FAKE_CELL = ("import os, sys; from pathlib import Path; import neuralbrdf.study.cell as c; "
@@ -250,7 +274,7 @@ def test_a_cell_that_kills_its_worker_is_reported_and_the_worker_replaced(tmp_pa
         first, ran = run_one(Cell("gold", "abc", "DS1", 0.0, 0), "ok1", {}, tmp_path, worker)
         second, _ = run_one(Cell("gold", "abc", "DS1", 0.0, 1), "ok2", {}, tmp_path, worker)
         assert ran and first["pid"] == second["pid"]  # one process ran both
-        crashed, ran = run_one(Cell("gold", "abc", "DS2", 0.0, 0), "crash", {}, tmp_path, worker)
+        crashed, ran = run_one(Cell("gold", "abc", "DS2", 0.0, 0), "crash", {"is_main": False}, tmp_path, worker)
         assert ran and crashed["failure"] == "cell_crashed" and "worker process died" in crashed["message"]
         after, _ = run_one(Cell("gold", "abc", "DS3", 0.0, 0), "ok3", {}, tmp_path, worker)
         assert after["pid"] != first["pid"]

@@ -4,8 +4,8 @@ A cell is one fit and its evaluation: ``(material, variant, plan, noise, seed)``
 everything that changes its result — the material's truth and table (file contents), the
 variant's method, config file contents and overrides (for NLB, the pretrained network's file
 contents too), plan, noise, seed, and for the *main*
-cell of a (material, variant) (DS1, no noise, seed 0: the one that is rendered and timed) the
-render and cost settings — so a finished cell is found again under ``DIR/cells/KEY/`` by a later
+cell of a (material, variant) (DS1, no noise, seed 0: the one that is rendered and timed, unless the
+variant is a sweep only — ``speed_accuracy: false``) the render and cost settings — so a finished cell is found again under ``DIR/cells/KEY/`` by a later
 run with the same settings, and a changed config reruns only what it touches.
 
 :func:`plan_cells` expands a profile: every variant on every material it applies to (the
@@ -78,6 +78,11 @@ def pretrained_network(variant: VariantSpec) -> str | None:
     return ((config.get("model") or {}).get("init_args") or {}).get("checkpoint")
 
 
+def is_rendered(cell: Cell, profile: Profile) -> bool:
+    """Whether ``cell`` is rendered and timed: the main condition of a speed–accuracy variant."""
+    return cell.is_main and profile.variant(cell.variant).speed_accuracy
+
+
 def cell_settings(cell: Cell, profile: Profile) -> dict:
     """Everything a cell's result depends on (module docstring), as plain JSON values."""
     material = next(m for m in profile.materials if m.name == cell.material)
@@ -93,7 +98,7 @@ def cell_settings(cell: Cell, profile: Profile) -> dict:
     if variant.method == "nlb":  # a retrained network changes every NLB result
         settings["variant"]["pretrained"] = file_digest(str(resolve_pretrained(pretrained_network(variant))))
     settings["hemisphere_strata"] = list(profile.render.hemisphere_strata)
-    if cell.is_main:
+    if is_rendered(cell, profile):
         settings["render"] = asdict(profile.render)
         settings["cost"] = asdict(profile.cost)
     return settings
@@ -106,9 +111,13 @@ def cell_key(cell: Cell, profile: Profile) -> str:
 
 
 def applies(profile: Profile, material_name: str, variant_name: str) -> bool:
-    """Whether a variant can fit a material (the spectral MLP needs spectral samples)."""
+    """Whether a variant fits a material: one of its ``materials`` if it names them, and for the
+    spectral MLP one with spectral samples."""
     material = next(m for m in profile.materials if m.name == material_name)
-    return profile.variant(variant_name).method != "spectral_mlp" or material.is_spectral
+    variant = profile.variant(variant_name)
+    if variant.materials is not None and material_name not in variant.materials:
+        return False
+    return variant.method != "spectral_mlp" or material.is_spectral
 
 
 def plan_cells(profile: Profile) -> list[Cell]:

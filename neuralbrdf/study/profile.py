@@ -24,6 +24,10 @@ starting with ``../shared`` are relative to the repository root, others to the p
 data are passed and which checkpoint is exported); ``render_variant`` renders a model in another
 Mitsuba variant (a spectral model in ``llvm_ad_rgb`` uses the reduced-wavelength rule).  Variants
 with a ``group`` are also run at every stability seed (DS1, no noise) and box-plotted by ``label``.
+``speed_accuracy: false`` makes a variant a sweep only: its DS1 noise-free seed-0 cell is neither
+rendered nor timed, so it is no point of the speed–accuracy charts (the γ variants of the full
+profile: the same 3×10 network as ``spectral_mlp``, so the same cost).  ``materials: [NAME, …]``
+fits a variant to those materials only (default: every material it applies to).
 Every error names the profile file and the key (``materials[1].truth``).
 """
 
@@ -92,6 +96,8 @@ class VariantSpec:
     render_variant: str | None = None
     group: str | None = None
     label: str | None = None
+    speed_accuracy: bool = True
+    materials: tuple[str, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -204,17 +210,30 @@ def load_profile(name_or_path: str) -> Profile:
     variants = []
     for i, entry in enumerate(r.sequence(raw["variants"], "variants")):
         key = f"variants[{i}]"
-        entry = r.mapping(entry, key, ("name", "method", "config", "args", "render_variant", "group", "label"),
+        entry = r.mapping(entry, key, ("name", "method", "config", "args", "render_variant", "group", "label",
+                                        "speed_accuracy", "materials"),
                           ("name", "method", "config"))
         if entry["method"] not in METHODS:
             r.fail(f"{key}.method", f"expected one of {', '.join(METHODS)}, got {entry['method']!r}")
         args = entry.get("args", [])
         if not isinstance(args, list) or not all(isinstance(a, (str, int, float)) for a in args):
             r.fail(f"{key}.args", "expected a list of command-line words")
+        speed_accuracy = entry.get("speed_accuracy", True)
+        if not isinstance(speed_accuracy, bool):
+            r.fail(f"{key}.speed_accuracy", f"expected true or false, got {speed_accuracy!r}")
+        only = entry.get("materials")
+        if only is not None:
+            known = [m.name for m in materials]
+            if not isinstance(only, list) or not only:
+                r.fail(f"{key}.materials", f"expected a list of material names, got {only!r}")
+            for j, name in enumerate(only):
+                if name not in known:
+                    r.fail(f"{key}.materials[{j}]", f"no material named {name!r} (the profile has {', '.join(known)})")
+            only = tuple(only)
         variants.append(VariantSpec(
             r.string(entry["name"], f"{key}.name"), entry["method"], r.file(entry["config"], f"{key}.config"),
             tuple(str(a) for a in args), entry.get("render_variant"), entry.get("group"),
-            entry.get("label") or entry["name"]))
+            entry.get("label") or entry["name"], speed_accuracy, only))
     for names, what in (([m.name for m in materials], "materials"), ([v.name for v in variants], "variants")):
         duplicated = sorted({n for n in names if names.count(n) > 1})
         if duplicated:

@@ -29,7 +29,7 @@ from tqdm import tqdm
 from neuralbrdf.atomic import atomic_write
 from neuralbrdf.study import aggregate, charts
 from neuralbrdf.study.cell import WORKER_THREADS
-from neuralbrdf.study.cells import Cell, cell_key, plan_cells
+from neuralbrdf.study.cells import Cell, cell_key, is_rendered, plan_cells
 from neuralbrdf.study.profile import Profile, load_profile
 
 STUDY_FORMAT = 1
@@ -97,7 +97,7 @@ def truth_path(profile: Profile, material: str, out_dir: Path) -> Path:
 
 def _cell_spec(cell: Cell, profile: Profile, truth: Path) -> dict:
     material = next(m for m in profile.materials if m.name == cell.material)
-    return {"cell": asdict(cell), "is_main": cell.is_main, "material": asdict(material),
+    return {"cell": asdict(cell), "is_main": is_rendered(cell, profile), "material": asdict(material),
             "variant": asdict(profile.variant(cell.variant)), "truth": str(truth),
             "render": asdict(profile.render), "cost": asdict(profile.cost)}
 
@@ -125,7 +125,7 @@ def run_one(cell: Cell, key: str, spec: dict, cells_dir: Path, worker: CellWorke
     log = folder / "log.txt"
     tail = (log.read_text(errors="replace").strip().splitlines() if log.is_file() else [])[-1:] or ["(empty log)"]
     what = "the cell ended without a result" if survived else "the cell's worker process died"
-    return {**asdict(cell), "is_main": cell.is_main, "failure": "cell_crashed",
+    return {**asdict(cell), "is_main": spec["is_main"], "failure": "cell_crashed",
             "message": f"{what}: {tail[0][:300]} (log: cells/{key}/log.txt)", "cost": {}, "error": {}}, True
 
 
@@ -204,20 +204,24 @@ def write_figures(profile: Profile, results: list[dict], study: dict, out_dir: P
     groups = dict.fromkeys(v.group for v in profile.variants if v.group)
     for g, group in enumerate(groups):
         members = [v for v in profile.variants if v.group == group]
-        labelled = [dict(p, model=next(v.label for v in members if v.name == p["model"])) for p in points
-                    if p["model"] in {v.name for v in members} and p["plan"] == "DS1" and p["noise"] == 0.0]
+        runs = [p for p in points if p["model"] in {v.name for v in members} and p["plan"] == "DS1" and p["noise"] == 0.0]
+        # boxes over the same materials only (a member may fit more materials than the others)
+        shared = set.intersection(*({p["material"] for p in runs if p["model"] == v.name} for v in members))
+        labelled = [dict(p, model=next(v.label for v in members if v.name == p["model"])) for p in runs
+                    if p["material"] in shared]
         labels = [v.label for v in members]
-        figs["stability"][f"group {group}"] = _group_figure(labelled, labels, group,
+        names = [m.name for m in profile.materials if m.name in shared]
+        figs["stability"][f"group {group}"] = _group_figure(labelled, labels, group, names,
                                                            figures_dir / f"stability_group{g}.png")
     if study["failures"]:
         figs["failure_map"] = charts.failure_map(study["failures"], figures_dir / "failure_map.png")
     return figs
 
 
-def _group_figure(labelled: list[dict], labels: list[str], group: str, path: Path) -> str:
+def _group_figure(labelled: list[dict], labels: list[str], group: str, materials: list[str], path: Path) -> str:
     points = [dict(p, condition=p["model"], model=group) for p in labelled]
     return charts.box_by_condition(points, [group], labels, lambda p: p["condition"], str,
-                                   f"{group}: error over seeds and materials (DS1, no noise)", path)
+                                   f"{group}: error over seeds on {', '.join(materials)} (DS1, no noise)", path)
 
 
 def _shown_path(path: Path) -> str:
