@@ -237,6 +237,19 @@ def write_abc_like(path: Path, params: AbcMetadata) -> Path:
     return export_module(AbcLike(params), path, metadata, spectral=False)
 
 
+def write_table(path: Path, spectral: bool, nodes=(6, 5, 4, 5), seed: int = 3) -> Path:
+    """A ``table`` model with random node values (the interpreter's table reads, every corner)."""
+    from neuralbrdf.kinds.table import NODES_KEY, nodes_text
+    from neuralbrdf.models.baked_table import BakedTable
+
+    shape = tuple(nodes) if spectral else (*nodes[:3], 3)
+    values = torch.rand(shape, generator=torch.Generator().manual_seed(seed)) + 0.1
+    wavelength_range = (400.0, 700.0) if spectral else None
+    metadata = contract_metadata("table", "fixture-table", "tests/onnx_fixtures.py", wavelength_range_nm=wavelength_range,
+                                 kind_metadata={NODES_KEY: nodes_text(shape if spectral else shape[:3])})
+    return export_module(BakedTable(values, wavelength_range), path, metadata, spectral=spectral)
+
+
 # --------------------------------------------------------------------------- onnx.helper graphs
 
 

@@ -62,6 +62,8 @@ def files(tmp_path_factory):
         "spectral_lambert": fx.write_spectral_lambert(d / "spectral_lambert.onnx"),
         "ggx": fx.write_ggx_glossy(d / "ggx.onnx", alpha=0.15),
         "abc": fx.write_abc_like(d / "abc.onnx", AbcMetadata((0.1, 0.2, 0.3), (1.0, 0.8, 0.6), 60.0, 1.3, 1.5)),
+        "table": fx.write_table(d / "table.onnx", spectral=False),
+        "table_spectral": fx.write_table(d / "table_spectral.onnx", spectral=True),
     }
 
 
@@ -69,7 +71,8 @@ def files(tmp_path_factory):
 # come out of cancellation in the last layer (there float32 rounding is amplified in both).
 @pytest.mark.parametrize(
     "name",
-    ["op_zoo", "op_zoo_spectral", "nlb_like", "inplane_spectral", "lambert", "spectral_lambert"],
+    ["op_zoo", "op_zoo_spectral", "nlb_like", "inplane_spectral", "lambert", "spectral_lambert", "table",
+     "table_spectral"],
 )
 def test_parity_with_onnxruntime(files, name):
     ours, reference, _ = run_both(files[name])

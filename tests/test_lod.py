@@ -45,6 +45,7 @@ FAST = dataclasses.replace(
     cost_rounds=1,
     error_strata=(8, 10),
     rgb_tolerances=(3e-2,),
+    tables=((12, 8, 4, 8),),
 )
 
 
@@ -60,7 +61,7 @@ def ladder(tmp_path_factory):
 def test_rungs_obey_the_contract_and_record_parent_and_cost(ladder):
     parent, folder, document = ladder
     names = [r["name"] for r in document["rungs"]]
-    assert {"full", "abc", "mlp_1x4"} <= set(names), document["failed"]
+    assert {"full", "abc", "mlp_1x4", "table_12x8x4x8"} <= set(names), document["failed"]
     sha = file_sha256(parent)
     assert document["parent"]["sha256"] == sha
     for rung in document["rungs"]:
@@ -106,7 +107,7 @@ def _independent_logcos_rmse(model_path: Path, parent_path: Path, n: int = 20000
     return float(np.sqrt(np.mean(residual**2)))
 
 
-@pytest.mark.parametrize("rung", ["abc", "mlp_1x4"])
+@pytest.mark.parametrize("rung", ["abc", "mlp_1x4", "table_12x8x4x8"])
 def test_recorded_parent_error_is_reproduced_independently(ladder, rung):
     parent, folder, document = ladder
     recorded = next(r for r in document["rungs"] if r["name"] == rung)["hemisphere_logcos_rmse"]
@@ -124,7 +125,10 @@ def test_a_failed_fit_is_listed_not_written(tmp_path):
     assert [f["name"] for f in document["failed"]] == ["abc"]
     assert "specular" in document["failed"][0]["cause"]
     assert not (tmp_path / "out" / "abc.onnx").exists()
-    assert [r["name"] for r in document["rungs"]] == ["full"]  # an RGB parent gets no spectral students
+    # an RGB parent gets no spectral students; its table (RGB: no wavelength axis) reproduces a Lambertian
+    assert sorted(r["name"] for r in document["rungs"]) == ["full", "table_12x8x4"]
+    table = next(r for r in document["rungs"] if r["name"] == "table_12x8x4")
+    assert table["kind"] == "table" and table["hemisphere_logcos_rmse"] < 1e-6
 
 
 # --------------------------------------------------------------------------- choosing
@@ -410,6 +414,24 @@ def test_select_command_reads_its_config_and_refuses_bad_settings(tmp_path, caps
     assert main(["select", str(scene), "--out", str(out), "--tolerance", "0.5"]) == 2  # the config's other values are valid
     assert "no neuralbrdf material" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_ladder_command_takes_tables_and_students_from_its_options(tmp_path, capsys):
+    from neuralbrdf.cli.main import main
+    from onnx_fixtures import write_lambert
+
+    parent = write_lambert(tmp_path / "lambert.onnx")
+    fast = tmp_path / "fast.yaml"
+    fast.write_text(CONFIG.path.read_text().replace("cost_batches: [1048576, 4194304]", "cost_batches: [4096, 16384]")
+                    .replace("cost_rounds: 9", "cost_rounds: 1").replace("abc_starts: 8", "abc_starts: 1"))
+    out = tmp_path / "out"
+    assert main(["ladder", str(parent), "--out-dir", str(out), "--tables", "4x3"]) == 2
+    assert "--tables '4x3'" in capsys.readouterr().err and not out.exists()
+    assert main(["ladder", str(parent), "--out-dir", str(out), "--config", str(fast), "--tables", "4x3x2x5",
+                 "--students"]) == 0
+    document = json.loads((out / "ladder.json").read_text())
+    assert document["settings"]["tables"] == [[4, 3, 2, 5]] and document["settings"]["students"] == []
+    assert sorted(r["name"] for r in document["rungs"]) == ["full", "table_4x3x2"]
 
 
 # --------------------------------------------------------------------------- render.py --scene

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -125,17 +126,32 @@ def evaluate(args) -> None:
     print(f"-> {args.out_dir}/evaluation.json" + ("" if args.no_render else ", model.png, truth.png, error_map.png, comparison.png"))
 
 
+def _counts(text: str, length: int, option: str) -> tuple[int, ...]:
+    """``"32x16x8x16"`` as ``(32, 16, 8, 16)``: ``length`` positive integers, else :class:`InputError`."""
+    try:
+        counts = tuple(int(part) for part in text.lower().split("x"))
+    except ValueError:
+        counts = ()
+    if len(counts) != length or min(counts) < 1:
+        raise InputError(f"{option} {text!r}: expected {length} positive integers joined by 'x'", column=option)
+    return counts
+
+
 def ladder(args) -> None:
     from neuralbrdf.lod.config import load_lod_config
     from neuralbrdf.lod.ladder import build_ladder
     from neuralbrdf.lod.select import default_ladder_dir
 
     settings = load_lod_config(args.config).ladder
+    if args.tables is not None:
+        settings = dataclasses.replace(settings, tables=tuple(_counts(t, 4, "--tables") for t in args.tables))
+    if args.students is not None:
+        settings = dataclasses.replace(settings, students=tuple(_counts(t, 2, "--students") for t in args.students))
     out_dir = Path(args.out_dir) if args.out_dir else default_ladder_dir(Path(args.model))
     document = build_ladder(args.model, out_dir, settings)
-    print(f"{'rung':<10} {'kind':<13} {'log-cos RMSE':>12} {'ns/query':>9} {'cost':>6}")
+    print(f"{'rung':<18} {'kind':<13} {'log-cos RMSE':>12} {'ns/query':>9} {'cost':>6}")
     for rung in document["rungs"]:
-        print(f"{rung['name']:<10} {rung['kind']:<13} {rung['hemisphere_logcos_rmse']:>12.4f} "
+        print(f"{rung['name']:<18} {rung['kind']:<13} {rung['hemisphere_logcos_rmse']:>12.4f} "
               f"{rung['drjit_ns_per_query']:>9.2f} {rung['relative_cost']:>6.3f}")
     for failure in document["failed"]:
         print(f"{failure['name']}: not written ({failure['cause']})")
@@ -147,8 +163,6 @@ SELECT_OVERRIDES = ("tolerance", "object_tolerance", "variant", "resolution", "s
 
 
 def select(args) -> None:
-    import dataclasses
-
     from neuralbrdf.lod.config import load_lod_config
     from neuralbrdf.lod.select import select as run_selection
 

@@ -182,8 +182,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = add(
         "ladder",
         commands.ladder,
-        "make cheaper stand-ins of a model file (ABC fit, distilled networks) with their error and cost",
-        "Make the cost ladder of MODEL.onnx (SPEC §11): an ABC fit to the model's own dense samples and, for spectral "
+        "make cheaper stand-ins of a model file (ABC fit, baked tables, distilled networks) with their error and cost",
+        "Make the cost ladder of MODEL.onnx (SPEC §11): an ABC fit to the model's own dense samples, the model baked "
+        "into tables over Rusinkiewicz angles (and wavelength) and, for spectral "
         "models, smaller spectral MLPs distilled from it, each a model file under the same contract recording its "
         "hemisphere log-cos RMSE against the parent and its measured Dr.Jit cost per query. Writes DIR/RUNG.onnx and "
         "DIR/ladder.json (together or not at all).",
@@ -193,6 +194,12 @@ def build_parser() -> argparse.ArgumentParser:
                    "'neuralbrdf select' looks first)")
     p.add_argument("--config", default="default", help="level-of-detail settings, section 'ladder' (default: the shipped "
                    "configs/lod/default.yaml)")
+    p.add_argument("--tables", nargs="*", default=None, metavar="HxDxPxL",
+                   help="node counts of the baked tables (theta_h x theta_d x phi_d x lambda; lambda ignored for RGB "
+                        "models), e.g. 32x16x8x16; none: no table rungs (default: the config's ladder.tables)")
+    p.add_argument("--students", nargs="*", default=None, metavar="LxH",
+                   help="distilled spectral MLPs, hidden layers x units, e.g. 2x8 1x4; none: no students (default: "
+                        "the config's ladder.students)")
 
     p = add(
         "select",

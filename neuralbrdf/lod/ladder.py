@@ -10,6 +10,10 @@ colour variants and the sampler render it unchanged:
 * ``mlp_LxH`` — spectral parents only: smaller spectral MLPs (``L`` hidden layers of ``H`` units)
   distilled from the parent (:func:`~neuralbrdf.lod.distill.distill_spectral_mlp`); kind
   ``spectral_mlp``;
+* ``table_HxDxP[xL]`` — every parent: the parent baked into a table over Rusinkiewicz angles (and
+  wavelength) read by multilinear interpolation (:func:`~neuralbrdf.lod.bake.bake_table`; kind
+  ``table``), at each node count of the settings' ``tables``: a fixed cost of a few dozen
+  operations and 8–16 table reads per query, whatever the parent costs (the cheap rung of an NLB);
 * ``full_rgbT`` — spectral parents in RGB variants only: the parent file itself with the
   plugin's reduced spectrum → sRGB rule (:mod:`~neuralbrdf.render.spectral_quadrature`) fitted
   to the looser held-out tolerance ``T`` (property ``rgb_tolerance``, default 1e-3): fewer
@@ -50,6 +54,7 @@ from neuralbrdf.evaluation.scores import HEMISPHERE_STRATA, OnnxEvaluator, hemis
 from neuralbrdf.fitting.abc_fit import fit_abc
 from neuralbrdf.kinds import Exportable, contract_metadata, load_model
 from neuralbrdf.kinds import abc as abc_kind
+from neuralbrdf.lod.bake import bake_table
 from neuralbrdf.lod.distill import ABC_WAVELENGTHS_NM, DistillSettings, abc_table, distill_spectral_mlp, teacher_samples
 from neuralbrdf.onnx_export import write_model
 
@@ -77,6 +82,8 @@ class LadderSettings:
     abc_starts: int
     cost_batches: tuple[int, int]
     cost_rounds: int
+    #: Node counts ``(θh, θd, φd, λ)`` of the baked-table rungs (``λ`` ignored for RGB parents).
+    tables: tuple[tuple[int, int, int, int], ...]
     #: Held-out rms relative errors of the reduced spectrum → sRGB rule offered as RGB-variant rungs.
     rgb_tolerances: tuple[float, ...]
     seed: int
@@ -116,6 +123,14 @@ def _candidates(parent: OnnxEvaluator, settings: LadderSettings):
     out = [("abc", f"ABC fit (SPEC §4.1) to {settings.abc_pairs} x "
                    f"{len(ABC_WAVELENGTHS_NM) if parent.is_spectral else 3} samples of {name}",
             lambda provenance: _abc_rung(parent, settings, provenance))]
+    for nodes in settings.tables:
+        nodes = nodes if parent.is_spectral else nodes[:3]
+        out.append((
+            "table_" + "x".join(str(n) for n in nodes),
+            f"{name} baked into a {' x '.join(str(n) for n in nodes)} table over (θh, θd, φd"
+            f"{', λ' if parent.is_spectral else ''}), multilinear interpolation",
+            lambda provenance, nodes=nodes: bake_table(parent, nodes, parent.model.material, provenance),
+        ))
     if parent.is_spectral:
         samples = []
 

@@ -41,8 +41,10 @@ Relu, LeakyRelu, Tanh, Sigmoid, Softplus, Exp, Log, Sqrt, Abs, Pow (constant exp
 Min, Clip, Where, Greater, Less, GreaterOrEqual, LessOrEqual, Equal, And, Or, Not, Concat,
 Slice, Gather, Split (constant indices, not along the batch axis), Unsqueeze, Squeeze, Reshape,
 Flatten (keeping the batch axis first), Expand, Shape, ConstantOfShape, Identity, Cast (float and
-bool), Constant, Acos, Asin, Atan, Cos, Sin, ReduceSum, ReduceMean, ReduceL2 (not over the batch
-axis).  Anything else is an :class:`~neuralbrdf.errors.InputError` at construction, naming the
+bool), Constant, Acos, Asin, Atan, Cos, Sin, Floor, ReduceSum, ReduceMean, ReduceL2 (not over the batch
+axis).  Table lookups (:mod:`neuralbrdf.models.baked_table`): a per-sample float tensor ``Cast`` to
+INT32/INT64 becomes index columns, and ``Gather`` of a constant ``[K]`` or ``[K, C]`` table at
+per-sample indices ``[N]`` is one ``dr.gather`` per column from a buffer uploaded once.  Anything else is an :class:`~neuralbrdf.errors.InputError` at construction, naming the
 operator and the node; so are shape errors, found by a trial evaluation on one sample.
 
 Elementwise semantics follow onnxruntime's CPU kernels where they differ from the textbook
@@ -287,6 +289,7 @@ _UNARY: dict[str, tuple[Callable, Callable]] = {
     "Exp": (np.exp, dr.exp),
     "Log": (np.log, dr.log),
     "Sqrt": (np.sqrt, dr.sqrt),
+    "Floor": (np.floor, lambda x: float(math.floor(x)) if isinstance(x, (int, float)) else dr.floor(x)),
     "Reciprocal": (np.reciprocal, lambda x: _truediv(1.0, x)),
     "Acos": (np.arccos, dr.acos),
     "Asin": (np.arcsin, dr.asin),
@@ -402,8 +405,23 @@ def _op_cast(ins, at, ctx):
         if x.is_bool:
             return [x]
         return [_Batch(_map_cells(lambda c: c != 0, x.cells), True)]
+    if to in _INDEX_TYPES and not x.is_bool:
+        return [_Batch(_map_cells(_to_index, x.cells), False)]
     name = onnx.TensorProto.DataType.Name(to)
-    raise _NodeError(f"Cast of a per-sample tensor to {name} is not supported (only FLOAT and BOOL)")
+    raise _NodeError(f"Cast of a per-sample tensor to {name} is not supported (only FLOAT, BOOL and, for "
+                     "Gather indices, INT32/INT64)")
+
+
+#: Integer types a per-sample float tensor may be cast to: table indices, read by :func:`_op_gather`.
+_INDEX_TYPES = (onnx.TensorProto.INT32, onnx.TensorProto.INT64)
+
+
+def _to_index(x):
+    """A float column as table indices (truncated toward zero, as ONNX ``Cast``): ``UInt32``
+    columns (Dr.Jit's gather index type; the graphs that cast clamp their indices to >= 0)."""
+    if isinstance(x, (int, float)):
+        return int(x)
+    return dr.uint32_array_t(type(x))(x)
 
 
 # --------------------------------------------------------------------------- constants, shapes
@@ -624,8 +642,52 @@ def _op_slice(ins, at, ctx):
     return [_Batch(x.cells[tuple(index[1:])], x.is_bool)]
 
 
+class _TableColumn:
+    """One column of a constant table read with per-sample indices; its Dr.Jit array is made once
+    per array type (uploaded once per scene load, not per trace)."""
+
+    __slots__ = ("values", "arrays")
+
+    def __init__(self, values: np.ndarray) -> None:
+        self.values = np.ascontiguousarray(values, dtype=np.float32)
+        self.arrays: dict[type, Any] = {}
+
+    def array(self, float_type: type):
+        if float_type not in self.arrays:
+            self.arrays[float_type] = float_type(self.values)
+        return self.arrays[float_type]
+
+
+def _read_table(column: _TableColumn, index):
+    if isinstance(index, int):
+        return float(column.values[index])
+    float_type = dr.float32_array_t(type(index))
+    return dr.gather(float_type, column.array(float_type), index)
+
+
+def _op_gather_per_sample(table, indices: _Batch, axis: int, ctx: _RunContext):
+    """``Gather`` of a constant ``table`` ``[K, *inner]`` along axis 0 at per-sample indices ``[N]``:
+    one Dr.Jit gather per inner column."""
+    table = np.asarray(table)
+    if axis != 0 or indices.cells.ndim != 0 or table.ndim not in (1, 2) or indices.is_bool:
+        raise _NodeError("Gather with per-sample indices reads a constant [K] or [K, C] table along axis 0 "
+                         f"at indices [N]; got a table of shape {list(table.shape)}, axis {axis}, indices of "
+                         f"rank {indices.rank}")
+    columns = [table] if table.ndim == 1 else [table[:, j] for j in range(table.shape[1])]
+    cells = _empty_cells(() if table.ndim == 1 else (table.shape[1],))
+    for j, column in enumerate(columns):
+        # one buffer per table column, however many nodes read it (a table's 2^D corners)
+        key = (id(table), j)
+        if key not in ctx.tables:
+            ctx.tables[key] = _TableColumn(column)
+        cells[() if table.ndim == 1 else j] = apply(_read_table, ctx.tables[key], indices.cells[()])
+    return [_Batch(cells, False)]
+
+
 def _op_gather(ins, at, ctx):
     x = ins[0]
+    if _is_batch(ins[1]) and not _is_batch(x):
+        return _op_gather_per_sample(x, ins[1], int(at.get("axis", 0)), ctx)
     indices = _require_const(ins[1], "Gather indices").astype(np.int64)
     axis = int(at.get("axis", 0))
     if not _is_batch(x):
@@ -832,11 +894,12 @@ SUPPORTED_OPS = frozenset(_OPS)
 
 
 class _RunContext:
-    __slots__ = ("node", "multiply_adds")
+    __slots__ = ("node", "multiply_adds", "tables")
 
     def __init__(self) -> None:
         self.node = None
         self.multiply_adds = 0
+        self.tables: dict[tuple[int, int], _TableColumn] = {}  # (id of a constant table, column)
 
 
 def _attributes(node: onnx.NodeProto) -> dict[str, Any]:
