@@ -9,7 +9,9 @@
   the cause ``error_above_2x_ds1``.
 * **Pareto fronts** — among main cells without failure, the models no other beats on both
   render ratio and ``image_delta_e2000_mean`` (and on both fit time and ΔE), per material; pooled
-  over materials on each model's median render ratio and median ΔE over the materials it fits.
+  on each model's median render ratio and median ΔE over the materials *every* model has a point
+  on (a model fitted to fewer materials, e.g. the spectral MLP without the RGB MERL proxies, would
+  otherwise be compared on easier or harder ones).
 * **Budgets** — per material and ΔE budget, the model of lowest render ratio within it.
 """
 
@@ -74,10 +76,14 @@ def _usable(p: dict, cost_key: str) -> bool:
 
 
 def pooled_points(points: list[dict], cost_key: str) -> list[dict]:
-    """Per model: median cost and median ΔE over the materials where its main cell succeeded."""
+    """Per model: median cost and median ΔE over the materials on which every model's main cell
+    succeeded (module docstring); none when no material is shared by all."""
+    usable = [p for p in points if _usable(p, cost_key)]
+    models = dict.fromkeys(p["model"] for p in usable)
+    shared = set.intersection(*({p["material"] for p in usable if p["model"] == m} for m in models)) if models else set()
     by_model: dict[str, list[dict]] = defaultdict(list)
-    for p in points:
-        if _usable(p, cost_key):
+    for p in usable:
+        if p["material"] in shared:
             by_model[p["model"]].append(p)
     return [{"model": model, "method": ps[0]["method"], "materials": [p["material"] for p in ps],
              cost_key: statistics.median(p["cost"][cost_key] for p in ps),

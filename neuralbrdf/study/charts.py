@@ -94,7 +94,9 @@ def box_by_condition(points: list[dict], models: list[str], conditions: list, co
                 box.set_facecolor(colour)
                 box.set_alpha(0.6)
             ax.plot([], [], color=colour, lw=6, alpha=0.6, label=model)
-    ax.set_xticks(range(len(conditions)), [label_of(c) for c in conditions])
+    labels = [label_of(c) for c in conditions]
+    crowded = sum(len(label) for label in labels) > 8 * len(labels)  # long labels would run into each other
+    ax.set_xticks(range(len(conditions)), labels, rotation=25 if crowded else 0, ha="right" if crowded else "center")
     ax.set_yscale("log")
     ax.set_ylabel("hemisphere log-cos RMSE vs truth")
     ax.set_title(title + (f" ({missing} cells without an error: failed before evaluation)" if missing else ""),
@@ -169,7 +171,8 @@ def per_channel_boxes(results: list[dict], material: str, path: Path) -> str:
 
 def renders_grid(rows: list[tuple[str, Path]], material: str, path: Path) -> str:
     """Truth | model | ΔE map per model: each main cell's ``comparison.png`` (``neuralbrdf evaluate``)."""
-    fig, axes = plt.subplots(len(rows), 1, figsize=(10, 3.2 * len(rows)), squeeze=False)
+    # 7 in at DPI: each 128-pixel render of a comparison shows at about its own size
+    fig, axes = plt.subplots(len(rows), 1, figsize=(7, 2.3 * len(rows)), squeeze=False)
     for (model, folder), ax in zip(rows, axes[:, 0]):
         ax.imshow(plt.imread(folder / "comparison.png"))
         ax.set_title(f"{material} / {model}", fontsize=9)

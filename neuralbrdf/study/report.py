@@ -92,6 +92,19 @@ def _pareto_text(study: dict) -> str:
     return "<ul>" + "".join(items) + "</ul>"
 
 
+def _history(run: dict) -> str:
+    """The runs that made this folder's cells (``runs.jsonl``), when there was more than this one."""
+    history = run.get("history") or []
+    if len(history) < 2:
+        return ""
+    rows = "".join(f"<tr><td>{html.escape(h['started'])}</td><td>{h['cells_run']}</td><td>{h['cells_cached']}</td>"
+                   f"<td>{NUMBER_FORMAT.format(h['wall_time_s'])}</td><td><code>{html.escape(h['command'])}</code></td></tr>"
+                   for h in history)
+    return ("<p>Runs into this folder (<code>runs.jsonl</code>): a run that found its cells cached only "
+            "redrew the report.</p><table><tr><th>started</th><th>cells run</th><th>cached</th><th>wall time (s)</th>"
+            f"<th>command</th></tr>{rows}</table>")
+
+
 def write_report(study: dict, out_dir: Path) -> Path:
     """Write ``out_dir/index.html`` from ``study`` (the content of ``study.json``)."""
     figs = study["figures"]
@@ -104,6 +117,7 @@ def write_report(study: dict, out_dir: Path) -> Path:
              f"wall time {run['wall_time_s']:.0f} s (the cells took {run['cells_time_s']:.0f} s together when they ran, "
              f"{run.get('cells_cpu_time_s', 0.0):.0f} s of CPU); hemisphere metrics over {run['hemisphere_pairs']} direction pairs. "
              "Data: <a href=\"study.json\">study.json</a>.</p>",
+             _history(run),
              "<h2>Best model per material under an error budget</h2>",
              "<p>Cheapest model (render time ÷ Mitsuba roughconductor in the same run) whose mean CIEDE2000 against "
              "the truth render is within the budget (main cells: DS1, no noise, seed 0).</p>",

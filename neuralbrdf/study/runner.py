@@ -173,9 +173,12 @@ def write_figures(profile: Profile, results: list[dict], study: dict, out_dir: P
         for q in front[cost_key]["pooled_points"]:
             pooled_entries.setdefault(q["model"], {"model": q["model"], "method": q["method"]})[cost_key] = q[cost_key]
             pooled_entries[q["model"]][aggregate.ACCURACY_METRIC] = q[aggregate.ACCURACY_METRIC]
+    pooled_materials = {m for q in front["render_ratio"]["pooled_points"] for m in q["materials"]}
+    shared = [m.name for m in profile.materials if m.name in pooled_materials]
     figs = {"speed_accuracy_pooled": charts.speed_accuracy(
         list(pooled_entries.values()), {k: front[k]["pooled"] for k in front},
-        "pooled over materials: each model's median over the materials it fits", figures_dir / "speed_accuracy_pooled.png"),
+        f"pooled: each model's median over {', '.join(shared) or 'no shared material'}",
+        figures_dir / "speed_accuracy_pooled.png"),
         "speed_accuracy": {}, "stability": {}, "rel_rmse_vs_angle": {}, "per_channel": {}, "renders": {}}
     for m in profile.materials:
         entries = [{"model": p["model"], "method": p["method"], **p["cost"],
@@ -234,6 +237,21 @@ def _shown_path(path: Path) -> str:
         return str(path)
 
 
+#: One line per ``neuralbrdf study`` run into a folder (JSON Lines): how its cells came about.
+RUNS_LOG = "runs.jsonl"
+_RUN_FIELDS = ("started", "command", "jobs", "cells_run", "cells_cached", "wall_time_s", "cells_cpu_time_s")
+
+
+def _record_run(out_dir: Path, run: dict) -> list[dict]:
+    """Append this run to ``out_dir/runs.jsonl`` and return every run recorded there: a report made
+    from cached cells still shows the run that computed them (its wall time, above all)."""
+    log = out_dir / RUNS_LOG
+    entry = {key: run[key] for key in _RUN_FIELDS}
+    with log.open("a", encoding="utf-8") as handle:
+        handle.write(json.dumps(entry) + "\n")
+    return [json.loads(line) for line in log.read_text(encoding="utf-8").splitlines() if line.strip()]
+
+
 def run_study(profile_name: str, out_dir: str | Path, jobs: int = 1, command: str | None = None,
               progress: bool = True) -> dict:
     """Run (or resume) the study of ``profile_name`` into ``out_dir``; the content of ``study.json``."""
@@ -267,6 +285,7 @@ def run_study(profile_name: str, out_dir: str | Path, jobs: int = 1, command: st
     }
     study["figures"] = write_figures(profile, results, study, out_dir)
     study["run"]["wall_time_s"] = time.perf_counter() - started
+    study["run"]["history"] = _record_run(out_dir, study["run"])
     with atomic_write(out_dir / "study.json", encoding="utf-8") as handle:
         json.dump(study, handle, indent=1, allow_nan=False)
     from neuralbrdf.study.report import write_report
