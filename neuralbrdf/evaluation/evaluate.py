@@ -63,17 +63,11 @@ def _render(path: Path, settings: RenderSettings, seed: int, proposal: Path | No
     """One render of the preview scene with one Dr.Jit thread: with more, a render of a fixed seed
     came out as one of two different images (even Mitsuba's own ``roughconductor``), and model and
     truth would no longer share their paths."""
-    import drjit as dr
+    from neuralbrdf.render.preview import Material, one_drjit_thread, render
 
-    from neuralbrdf.render.preview import Material, render
-
-    threads = dr.thread_count()
-    dr.set_thread_count(1)
-    try:
+    with one_drjit_thread():
         image = render(Material(model=path, backend=settings.backend, proposal=proposal), settings.variant,
                        settings.spp, settings.resolution, seed)
-    finally:
-        dr.set_thread_count(threads)
     if not np.all(np.isfinite(image)):
         raise ValueError(f"the render of {path} is not finite")
     return image

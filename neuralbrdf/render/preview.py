@@ -86,6 +86,20 @@ def dr_mode(wavefront: bool) -> Iterator[None]:
         dr.set_flag(dr.JitFlag.SymbolicCalls, saved[1])
 
 
+@contextlib.contextmanager
+def one_drjit_thread() -> Iterator[None]:
+    """Dr.Jit on one thread inside, its thread count restored afterwards.  For renders compared at
+    matched seeds: with two threads a render of a fixed seed sometimes came out as the other of two
+    images (even with Mitsuba's own ``roughconductor``; README, *The study*), so two renders meant to
+    trace the same paths did not."""
+    threads = dr.thread_count()
+    dr.set_thread_count(1)
+    try:
+        yield
+    finally:
+        dr.set_thread_count(threads)
+
+
 #: Oldest LLVM whose shared library Mitsuba's ``llvm_*`` variants can render with: older ones
 #: fail while compiling render kernels ("LLVM ERROR: Cannot select ... fmaximum", abort).
 MIN_LLVM_VERSION = (19, 0, 0)
