@@ -168,6 +168,9 @@ def test_threshold_failures_and_budgets():
     assert aggregate.pareto(points)["render_ratio"]["per_material"]["m"] == ["z", "x"]
     sentences = aggregate.method_sentences(points, aggregate.failures(points))
     assert "DS4" in sentences["x"] and "no failure" in sentences["z"]
+    assert "6 in-plane pairs instead of DS1's 1001" in sentences["x"]  # why: what DS4 takes from the fit
+    assert aggregate.condition_change("DS1 10% noise") == "10% relative noise on every sample"
+    assert set(aggregate.CAUSE_MEANING) == set(aggregate.CAUSES)
 
 
 def _lookup(study: dict, path: str):

@@ -19,6 +19,9 @@ from __future__ import annotations
 
 import statistics
 from collections import Counter, defaultdict
+from functools import lru_cache
+
+from neuralbrdf.data.plans import in_plane_plan
 
 THRESHOLD_FACTOR = 2.0
 THRESHOLD_METRIC = "hemisphere_logcos_rmse"
@@ -142,6 +145,37 @@ def budgets(points: list[dict]) -> list[dict]:
     return rows
 
 
+@lru_cache(maxsize=None)
+def _pairs(plan: str) -> int:
+    return len(in_plane_plan(plan)[0])
+
+
+#: What each failure cause means for the fit.
+CAUSE_MEANING = {"non_finite_loss": "training diverged", "optimizer_failure": "the optimiser gave up",
+                 "fit_refused": "the fit refused its data", "error_above_2x_ds1": "the fit is wrong where the data are silent",
+                 "export_refused": "the exported graph failed its check", "evaluation_error": "evaluation failed",
+                 "cell_crashed": "the cell crashed"}
+
+
+def _meaning(cause: str, condition: str) -> str:
+    if cause != "error_above_2x_ds1":
+        return CAUSE_MEANING[cause]
+    plan, _, noise = condition.partition(" ")
+    return " and ".join(([] if plan == "DS1" else ["too few samples pin down too little of the lobe"])
+                        + (["the fit follows the noise"] if noise else []))
+
+
+def condition_change(condition: str) -> str:
+    """What a condition (``DS4``, ``DS1 10% noise``) takes from a fit, against DS1 without noise."""
+    plan, _, noise = condition.partition(" ")
+    changes = []
+    if plan != "DS1":
+        changes.append(f"{_pairs(plan)} in-plane pairs instead of DS1's {_pairs('DS1')}")
+    if noise:
+        changes.append(f"{noise.removesuffix(' noise')} relative noise on every sample")
+    return " and ".join(changes) or "the reference condition"
+
+
 def method_sentences(points: list[dict], failure_rows: list[dict]) -> dict[str, str]:
     """One sentence per model on where it breaks and why (from the failure map)."""
     sentences = {}
@@ -156,7 +190,9 @@ def method_sentences(points: list[dict], failure_rows: list[dict]) -> dict[str, 
         parts = []
         for r in broken:
             causes = ", ".join(f"{cause.replace('_', ' ')} ×{n}" for cause, n in sorted(r["causes"].items()))
-            parts.append(f"{r['condition']} ({r['failed']}/{r['cells']}: {causes})")
+            meaning = "; ".join(dict.fromkeys(_meaning(c, r["condition"]) for c in r["causes"]))
+            parts.append(f"{r['condition']} ({r['failed']}/{r['cells']}: {causes}) — {condition_change(r['condition'])}: "
+                         f"{meaning}")
         example = next((p["message"] for p in points if p["model"] == model and p["failure"] and p["message"]), "")
         sentences[model] = (f"{model}: breaks in {failed} of {total} cells — " + "; ".join(parts)
                             + (f". Example: {example}" if example else "."))
