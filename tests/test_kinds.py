@@ -24,7 +24,7 @@ KIND = Kind(name="toy", summary="a kind added as one file")
 
 
 def test_the_shipped_kinds_are_registered_with_what_the_library_needs():
-    assert kinds.names() == ["abc", "nlb", "reference", "spectral_mlp"]
+    assert kinds.names() == ["abc", "nlb", "reference", "spectral_mlp", "table"]
     for name in kinds.names():
         kind = kinds.get(name)
         assert kind.name == name and kind.summary
