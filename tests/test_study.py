@@ -171,6 +171,10 @@ def test_threshold_failures_and_budgets():
     assert "6 in-plane pairs instead of DS1's 1001" in sentences["x"]  # why: what DS4 takes from the fit
     assert aggregate.condition_change("DS1 10% noise") == "10% relative noise on every sample"
     assert set(aggregate.CAUSE_MEANING) == set(aggregate.CAUSES)
+    # a seed that fails at DS1 without noise: no condition to blame, the general meaning
+    rows = [{"model": "g", "condition": "DS1", "cells": 10, "failed": 1, "causes": {"error_above_2x_ds1": 1}}]
+    sentence = aggregate.method_sentences([{"model": "g", "failure": "error_above_2x_ds1", "message": None}], rows)["g"]
+    assert "the reference condition: this seed's fit is far from the others'" in sentence
 
 
 def _lookup(study: dict, path: str):

@@ -152,17 +152,19 @@ def _pairs(plan: str) -> int:
 
 #: What each failure cause means for the fit.
 CAUSE_MEANING = {"non_finite_loss": "training diverged", "optimizer_failure": "the optimiser gave up",
-                 "fit_refused": "the fit refused its data", "error_above_2x_ds1": "the fit is wrong where the data are silent",
+                 "fit_refused": "the fit refused its data", "error_above_2x_ds1": "this seed's fit is far from the others'",
                  "export_refused": "the exported graph failed its check", "evaluation_error": "evaluation failed",
                  "cell_crashed": "the cell crashed"}
 
 
 def _meaning(cause: str, condition: str) -> str:
-    if cause != "error_above_2x_ds1":
-        return CAUSE_MEANING[cause]
+    """:data:`CAUSE_MEANING`, for an error above the threshold said by what the condition changed
+    (fewer samples, noise); at DS1 without noise (a seed far from the others) the general meaning."""
     plan, _, noise = condition.partition(" ")
-    return " and ".join(([] if plan == "DS1" else ["too few samples pin down too little of the lobe"])
-                        + (["the fit follows the noise"] if noise else []))
+    reasons = [] if cause != "error_above_2x_ds1" else (
+        ([] if plan == "DS1" else ["too few samples pin down too little of the lobe"])
+        + (["the fit follows the noise"] if noise else []))
+    return " and ".join(reasons) or CAUSE_MEANING[cause]
 
 
 def condition_change(condition: str) -> str:
