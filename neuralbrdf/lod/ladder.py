@@ -50,10 +50,11 @@ import onnx
 
 from neuralbrdf.atomic import atomic_paths
 from neuralbrdf.errors import InputError
-from neuralbrdf.evaluation.scores import HEMISPHERE_STRATA, OnnxEvaluator, hemisphere_scores
+from neuralbrdf.evaluation.scores import HEMISPHERE_STRATA, MemoEvaluator, OnnxEvaluator, hemisphere_scores
 from neuralbrdf.fitting.abc_fit import fit_abc
 from neuralbrdf.kinds import Exportable, contract_metadata, load_model
 from neuralbrdf.kinds import abc as abc_kind
+from neuralbrdf.kinds.table import nodes_text
 from neuralbrdf.lod.bake import bake_table
 from neuralbrdf.lod.distill import ABC_WAVELENGTHS_NM, DistillSettings, abc_table, distill_spectral_mlp, teacher_samples
 from neuralbrdf.onnx_export import write_model
@@ -127,7 +128,7 @@ def _candidates(parent: OnnxEvaluator, settings: LadderSettings):
         nodes = nodes if parent.is_spectral else nodes[:3]
         out.append((
             "table_" + "x".join(str(n) for n in nodes),
-            f"{name} baked into a {' x '.join(str(n) for n in nodes)} table over (θh, θd, φd"
+            f"{name} baked into a {nodes_text(nodes)} table over (θh, θd, φd"
             f"{', λ' if parent.is_spectral else ''}), multilinear interpolation",
             lambda provenance, nodes=nodes: bake_table(parent, nodes, parent.model.material, provenance),
         ))
@@ -182,27 +183,6 @@ def drjit_costs(protos: dict[str, onnx.ModelProto], spectral: bool, batches: tup
             for name in graphs}
 
 
-class MemoisedEvaluator:
-    """An evaluator that remembers its last few results by the bytes of their inputs: the parent is
-    compared with every rung on the same hemisphere pairs, and evaluated on them once."""
-
-    def __init__(self, evaluator, size: int = 8) -> None:
-        self.evaluator, self.size = evaluator, size
-        self.is_spectral = evaluator.is_spectral
-        self.cache: dict[str, np.ndarray] = {}
-
-    def values(self, wi, wo, wavelength=None):
-        digest = hashlib.sha256()
-        for array in (wi, wo, wavelength):
-            digest.update(b"-" if array is None else np.ascontiguousarray(array).tobytes())
-        key = digest.hexdigest()
-        if key not in self.cache:
-            if len(self.cache) >= self.size:
-                del self.cache[next(iter(self.cache))]
-            self.cache[key] = self.evaluator.values(wi, wo, wavelength)
-        return self.cache[key]
-
-
 def parent_error(rung: Path, parent, strata: tuple[int, int] = HEMISPHERE_STRATA) -> float:
     """``hemisphere_logcos_rmse`` of the model file ``rung`` against the parent (module docstring)."""
     return float(hemisphere_scores(OnnxEvaluator(rung), parent, strata=strata)["hemisphere_logcos_rmse"])
@@ -224,7 +204,7 @@ def build_ladder(model_path: str | Path, out_dir: str | Path, settings: LadderSe
     (module docstring); returns the JSON document."""
     model_path, out_dir = Path(model_path).resolve(), Path(out_dir)
     parent = OnnxEvaluator(model_path)
-    reference = MemoisedEvaluator(parent)
+    reference = MemoEvaluator(parent)  # the parent on the same hemisphere pairs for every rung: once
     sha = file_sha256(model_path)
     rungs, failed, built = [], [], {}
     began = time.perf_counter()
