@@ -78,12 +78,16 @@ def _usable(p: dict, cost_key: str) -> bool:
             and p["error"].get(ACCURACY_METRIC) is not None)
 
 
+def shared_materials(points: list[dict], models) -> set[str]:
+    """The materials on which every one of ``models`` has a point (none for no models)."""
+    return set.intersection(*({p["material"] for p in points if p["model"] == m} for m in models)) if models else set()
+
+
 def pooled_points(points: list[dict], cost_key: str) -> list[dict]:
     """Per model: median cost and median ΔE over the materials on which every model's main cell
     succeeded (module docstring); none when no material is shared by all."""
     usable = [p for p in points if _usable(p, cost_key)]
-    models = dict.fromkeys(p["model"] for p in usable)
-    shared = set.intersection(*({p["material"] for p in usable if p["model"] == m} for m in models)) if models else set()
+    shared = shared_materials(usable, dict.fromkeys(p["model"] for p in usable))
     by_model: dict[str, list[dict]] = defaultdict(list)
     for p in usable:
         if p["material"] in shared:

@@ -209,7 +209,7 @@ def write_figures(profile: Profile, results: list[dict], study: dict, out_dir: P
         members = [v for v in profile.variants if v.group == group]
         runs = [p for p in points if p["model"] in {v.name for v in members} and p["plan"] == "DS1" and p["noise"] == 0.0]
         # boxes over the same materials only (a member may fit more materials than the others)
-        shared = set.intersection(*({p["material"] for p in runs if p["model"] == v.name} for v in members))
+        shared = aggregate.shared_materials(runs, [v.name for v in members])
         labelled = [dict(p, model=next(v.label for v in members if v.name == p["model"])) for p in runs
                     if p["material"] in shared]
         labels = [v.label for v in members]
