@@ -242,12 +242,18 @@ def best_combination(options: dict[str, list[dict]], tolerance: float, object_to
     return dict(zip(names, best))
 
 
+def _over_bounds(errors: list[ImageError], names, settings: SelectSettings) -> tuple[dict, bool, list[str]]:
+    """Of a verification at several seeds: each material's largest on-object error, whether the
+    whole-image bound is exceeded at some seed, and the materials over the object bound."""
+    on_object = {name: _largest([e.on_object[name] for e in errors]) for name in names}
+    whole_over = max(e.whole for e in errors) > settings.tolerance
+    return on_object, whole_over, [n for n, e in on_object.items() if not _within(e, settings.object_bound)]
+
+
 def _worst_over(chosen: dict[str, dict], errors: list[ImageError], settings: SelectSettings) -> str | None:
     """The stand-in to move up after a failed verification (module docstring, step 4), ``None``
     when both bounds hold or no stand-in is left."""
-    on_object = {name: _largest([e.on_object[name] for e in errors]) for name in chosen}
-    whole_over = max(e.whole for e in errors) > settings.tolerance
-    objects_over = [n for n, e in on_object.items() if not _within(e, settings.object_bound)]
+    on_object, whole_over, objects_over = _over_bounds(errors, chosen, settings)
     if not whole_over and not objects_over:
         return None
     stand_ins = [n for n in chosen if chosen[n]["rung"] != FULL_RUNG]
@@ -291,7 +297,12 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
     coverage = material_coverage(renderer.base, settings.coverage_subpixels)
     seeds = (settings.seed, settings.seed + 1)
     bound = settings.object_bound
-    phases = {"setup_and_coverage": time.perf_counter() - began}
+    phases: dict[str, float] = {}
+
+    def phase_done(name: str) -> None:  # wall seconds since the previous phase ended
+        phases[name] = time.perf_counter() - began - sum(phases.values())
+
+    phase_done("setup_and_coverage")
 
     # 1. noise
     spp = settings.spp
@@ -314,7 +325,7 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
         spp = min(settings.max_spp, 2 * spp)
     reference = fulls[0][0]
     reference_s = min(seconds for _, seconds in fulls)  # the first render of a scene also compiles kernels
-    phases["noise"] = time.perf_counter() - began - sum(phases.values())
+    phase_done("noise")
 
     # 2. each rung's effect
     options: dict[str, list[dict]] = {}
@@ -340,7 +351,7 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
             log(f"{material.name} -> {rung.name}: dE2000 {error.whole:.3f} (on the object "
                 f"{'-' if on_object is None else f'{on_object:.3f}'}), {seconds:.2f} s (full {reference_s:.2f} s)")
 
-    phases["rungs"] = time.perf_counter() - began - sum(phases.values())
+    phase_done("rungs")
 
     # 3. choice, 4. verification
     chosen = best_combination(options, settings.tolerance, bound)
@@ -356,13 +367,12 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
         dearer = [o for o in options[worst] if o["relative_cost"] > chosen[worst]["relative_cost"]
                   and _within(o["on_object_delta_e2000"], bound)]
         chosen[worst] = min(dearer, key=lambda o: o["relative_cost"]) if dearer else options[worst][0]
-    on_object_verified = {name: _largest([e.on_object[name] for e in verified]) for name in chosen}
+    on_object_verified, whole_over, objects_over = _over_bounds(verified, chosen, settings)
+    within_bounds = not whole_over and not objects_over
     verified_whole = [e.whole for e in verified]
-    within_bounds = max(verified_whole) <= settings.tolerance and all(
-        _within(e, bound) for e in on_object_verified.values())
     if not within_bounds:  # only with every material full: two all-full renders at one seed disagreed
         log("warning: the selected scene is over a bound with no stand-in left to move up")
-    phases["choice_and_verification"] = time.perf_counter() - began - sum(phases.values())
+    phase_done("choice_and_verification")
 
     times: dict[str, list[float]] = {"full": [], "selected": []}
     for name, choice in (("full", full), ("selected", rung_of)):
@@ -371,7 +381,7 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
         for name, choice in (("full", full), ("selected", rung_of)):
             times[name].append(renderer.render(choice, spp, settings.seed + 2, wavefront=False)[1])
     reference_time, selected_time = min(times["full"]), min(times["selected"])
-    phases["timing"] = time.perf_counter() - began - sum(phases.values())
+    phase_done("timing")
 
     result = {
         "scene": str(scene.path),
