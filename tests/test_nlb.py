@@ -30,7 +30,9 @@ from neuralbrdf.kinds.nlb import load_fitted
 from neuralbrdf.lightning.nlb_module import NlbPretrainModule, load_pretrained
 from neuralbrdf.losses import nlb_loss
 from neuralbrdf.lightning.run import main as train_main
-from neuralbrdf.models.nlb import COMPACT, LOG1P_F_MAX, PAPER, PRE_ACTIVATION_MIN, LatentTable, NlbNetwork
+from neuralbrdf.models.nlb import (
+    COMPACT, LOG1P_F_MAX, PAPER, PRE_ACTIVATION_MIN, LatentTable, NlbNetwork, resize_latent,
+)
 from neuralbrdf.virtual.instrument import default_data_path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -231,6 +233,44 @@ def test_warm_start_copies_the_network_and_the_latents_of_the_same_material(tmp_
     wider = NlbPretrainModule(n_materials=3, latent_dim=4, width=8, depth=2, warm_start=str(checkpoint))
     with pytest.raises(InputError, match="warm start"):
         wider._warm_start(["analytic:0"])
+
+
+def test_resize_latent_keeps_the_function_where_it_can():
+    module = tiny_module(n_materials=12)
+    network, latents = module.network, module.latents.latents.detach()
+    wi, wo = all_pairs(hemisphere_directions(5, 4), hemisphere_directions(5, 4))
+    # Larger: padded latents give exactly the old outputs, and the new columns are not zero
+    # (else the padded values would never receive a gradient).
+    wider, padded = resize_latent(network, latents, 7, torch.Generator().manual_seed(1))
+    assert padded.shape == (12, 7) and torch.all(padded[:, 4:] == 0)
+    assert wider.input_layer.weight[:, -3:].abs().min() > 0
+    torch.testing.assert_close(wider(wi, wo, padded[5]), network(wi, wo, latents[5]), rtol=0, atol=0)
+    # Same size: a rotation of the latents, the outputs equal up to rounding.
+    rotated, codes = resize_latent(network, latents, 4)
+    torch.testing.assert_close(rotated(wi, wo, codes[3]), network(wi, wo, latents[3]), rtol=1e-5, atol=1e-6)
+    # Smaller: the new network on a new code equals the old one on the code's projection onto
+    # the leading principal directions, computed here independently with numpy.
+    smaller, short = resize_latent(network, latents, 2)
+    centred = latents.numpy() - latents.numpy().mean(0)
+    _, _, vh = np.linalg.svd(centred, full_matrices=False)
+    projected = latents.numpy().mean(0) + centred @ vh[:2].T @ vh[:2]
+    expected = network(wi, wo, torch.as_tensor(projected[3], dtype=torch.float32))
+    torch.testing.assert_close(smaller(wi, wo, short[3]), expected, rtol=1e-5, atol=1e-6)
+    assert not torch.allclose(smaller(wi, wo, short[3]), network(wi, wo, latents[3]), atol=1e-4)
+    with pytest.raises(InputError, match="latents must be"):
+        resize_latent(network, latents[:, :3], 2)
+
+
+def test_warm_start_at_another_latent_size(tmp_path):
+    previous = tiny_module()
+    checkpoint = save_checkpoint(previous, tmp_path / "tiny.ckpt")
+    module = NlbPretrainModule(n_materials=2, latent_dim=6, width=16, depth=2, warm_start=str(checkpoint))
+    module._warm_start(["analytic:2", "analytic:0"])
+    wi, wo = all_pairs(hemisphere_directions(5, 4), hemisphere_directions(5, 4))
+    old = previous.latents.latents.detach()
+    for row, source in enumerate((2, 0)):
+        torch.testing.assert_close(module.network(wi, wo, module.latents.latents[row].detach()),
+                                   previous.network(wi, wo, old[source]), rtol=0, atol=0)
 
 
 def test_load_pretrained_rejects_bad_files(tmp_path):

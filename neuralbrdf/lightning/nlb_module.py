@@ -25,7 +25,7 @@ exporters use it.
 from __future__ import annotations
 
 import os
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import pytorch_lightning as pl
@@ -38,7 +38,7 @@ from neuralbrdf.checkpoints import check_weights_match, read_checkpoint
 from neuralbrdf.lightning.corpus_data import CorpusSamples
 from neuralbrdf.lightning.common import scheduled_optimizer
 from neuralbrdf.losses import check_loss_domain, nlb_loss
-from neuralbrdf.models.nlb import COMPACT, LatentTable, NlbConfig, NlbNetwork
+from neuralbrdf.models.nlb import COMPACT, LatentTable, NlbConfig, NlbNetwork, resize_latent
 
 class NlbPretrainModule(pl.LightningModule):
     """Joint training of the NLB network and the corpus latents (module docstring).
@@ -59,6 +59,9 @@ class NlbPretrainModule(pl.LightningModule):
         A pretraining checkpoint of the same architecture to continue from: its network
         weights, and its latents for the materials of the same name (unnamed checkpoints:
         the first rows, the analytic materials); the other latents start at its centroid.
+        A checkpoint that differs only in ``latent_dim`` is first re-expressed at this
+        module's latent size (:func:`~neuralbrdf.models.nlb.resize_latent`: principal
+        components when smaller, zero padding when larger).
     optimizer, lr_scheduler:
         Factories from the config; the scheduler steps once per epoch.
     """
@@ -94,9 +97,13 @@ class NlbPretrainModule(pl.LightningModule):
         """Copy the network and the matching latents of ``hparams.warm_start`` (class docstring)."""
         path = self.hparams.warm_start
         previous = load_pretrained(path)
-        if previous.network.config != self.network.config:
+        if replace(previous.network.config, latent_dim=self.network.latent_dim) != self.network.config:
             raise InputError(f"warm start from a {previous.network.config} network into a {self.network.config} one",
                              path=path)
+        if previous.network.latent_dim != self.network.latent_dim:
+            generator = torch.Generator().manual_seed(0)
+            network, latents = resize_latent(previous.network, previous.latents, self.network.latent_dim, generator)
+            previous = PretrainedNlb(network, latents, previous.source, previous.names)
         self.network.load_state_dict(previous.network.state_dict())
         known = previous.names or tuple(f"analytic:{i}" for i in range(len(previous.latents)))
         rows = {name: i for i, name in enumerate(known)}

@@ -42,7 +42,7 @@ Choices of this implementation:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, replace
 
 import torch
 from torch import nn
@@ -234,3 +234,48 @@ class LatentTable(nn.Module):
         if self.names is None or name not in self.names:
             raise InputError(f"no latent named {name!r}; known: {list(self.names or ())}")
         return self.latents[self.names.index(name)]
+
+
+def resize_latent(
+    network: NlbNetwork, latents: torch.Tensor, latent_dim: int, generator: torch.Generator | None = None
+) -> tuple[NlbNetwork, torch.Tensor]:
+    """The same network and corpus ``latents`` ``[M, d]`` re-expressed with ``latent_dim`` values.
+
+    Only the input layer's latent columns ``W_V`` change, so that a warm start can continue a
+    pretrained network at another latent size (the study's latent-size sweep):
+
+    * **Smaller** (principal-component truncation): with the latents' mean ``μ`` and their
+      ``latent_dim`` leading principal directions ``P`` ``[d, latent_dim]``, the new latents are
+      ``(V - μ) P`` and the layer takes ``W_V P`` and the bias ``b + W_V μ``.  The network's
+      output on a new latent equals the old output on ``μ + P Pᵀ (V - μ)``, the projection of
+      the old latent — exact when the latents span no more than ``latent_dim`` directions.
+    * **Larger** (padding): the new latents are the old ones followed by zeros, so every output
+      is unchanged; the new columns of ``W_V`` get the layer's default random initialisation
+      (``generator``), so that the padded latent values receive gradients when training goes on.
+    """
+    old_dim = network.latent_dim
+    config = replace(network.config, latent_dim=latent_dim)
+    if latents.ndim != 2 or latents.shape[1] != old_dim:
+        raise InputError(f"latents must be [materials, {old_dim}], got {tuple(latents.shape)}")
+    resized = NlbNetwork(**asdict(config))
+    resized.load_state_dict({k: v for k, v in network.state_dict().items() if not k.startswith("input_layer.")},
+                            strict=False)
+    n = config.direction_features
+    weight, bias = network.input_layer.weight.detach(), network.input_layer.bias.detach()
+    w_latent = weight[:, n:]
+    latents = latents.detach().to(weight.dtype)
+    with torch.no_grad():
+        if latent_dim <= old_dim:
+            mean = latents.mean(0)
+            _, _, vh = torch.linalg.svd(latents - mean, full_matrices=False)
+            basis = vh[:latent_dim].T  # [old_dim, latent_dim]
+            new_latents = (latents - mean) @ basis
+            resized.input_layer.weight.copy_(torch.cat([weight[:, :n], w_latent @ basis], dim=1))
+            resized.input_layer.bias.copy_(bias + w_latent @ mean)
+        else:
+            bound = 1.0 / math.sqrt(n + old_dim)
+            extra = (torch.rand(weight.shape[0], latent_dim - old_dim, generator=generator) * 2 - 1) * bound
+            new_latents = torch.cat([latents, latents.new_zeros(len(latents), latent_dim - old_dim)], dim=1)
+            resized.input_layer.weight.copy_(torch.cat([weight, extra.to(weight.dtype)], dim=1))
+            resized.input_layer.bias.copy_(bias)
+    return resized.train(network.training), new_latents
