@@ -27,7 +27,7 @@ from neuralbrdf.lightning.latent_fit_data import LatentFitData
 from neuralbrdf.lightning.latent_fit_module import LatentFitModule, start_candidates
 from neuralbrdf.shipped import PRETRAINED_COMPACT
 from neuralbrdf.kinds.nlb import load_fitted
-from neuralbrdf.lightning.nlb_module import NlbPretrainModule, load_pretrained
+from neuralbrdf.lightning.nlb_module import NlbPretrainModule, load_pretrained, save_pretrained
 from neuralbrdf.losses import nlb_loss
 from neuralbrdf.lightning.run import main as train_main
 from neuralbrdf.models.nlb import (
@@ -218,6 +218,20 @@ def test_load_pretrained_round_trip(tmp_path):
     wi, wo = all_pairs(hemisphere_directions(5, 4), hemisphere_directions(5, 4))
     latent = module.latents.latents[2].detach()
     torch.testing.assert_close(pretrained.network(wi, wo, latent), module.network(wi, wo, latent), rtol=0, atol=0)
+
+
+def test_save_pretrained_keeps_what_loading_and_warm_starts_need(tmp_path):
+    module = tiny_module()
+    pretrained = load_pretrained(save_checkpoint(module, tmp_path / "tiny.ckpt"))
+    pretrained = type(pretrained)(pretrained.network, pretrained.latents, pretrained.source,
+                                  tuple(f"analytic:{i}" for i in range(6)))
+    saved = load_pretrained(save_pretrained(pretrained, tmp_path / "shipped.ckpt"))
+    assert saved.names == pretrained.names and saved.network.config == pretrained.network.config
+    torch.testing.assert_close(saved.latents, pretrained.latents, rtol=0, atol=0)
+    for key, value in pretrained.network.state_dict().items():
+        assert torch.equal(saved.network.state_dict()[key], value)
+    assert set(torch.load(tmp_path / "shipped.ckpt", weights_only=True)) == {"state_dict", "hyper_parameters",
+                                                                             "material_names"}
 
 
 def test_warm_start_copies_the_network_and_the_latents_of_the_same_material(tmp_path):

@@ -19,7 +19,8 @@ per-process mean squares are averaged, weighted by count).
 
 :func:`load_pretrained` reads a checkpoint of this module back as a plain network and latent
 table, which is how the latent fit (:mod:`neuralbrdf.lightning.latent_fit_module`) and the
-exporters use it.
+exporters use it; :func:`save_pretrained` writes one without the training state (the optimiser's
+moments triple a checkpoint's size), which is how the shipped files are made.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ import torch
 from pytorch_lightning.cli import LRSchedulerCallable, OptimizerCallable
 
 from neuralbrdf import metrics
+from neuralbrdf.atomic import atomic_path
 from neuralbrdf.errors import InputError
 from neuralbrdf.checkpoints import check_weights_match, read_checkpoint
 from neuralbrdf.lightning.corpus_data import CorpusSamples
@@ -208,3 +210,18 @@ def load_pretrained(path: str | os.PathLike[str]) -> PretrainedNlb:
     if names and len(names) != len(latents):
         raise InputError(f"{len(names)} material names for {len(latents)} latents", path=path)
     return PretrainedNlb(network, latents, str(path), names)
+
+
+def save_pretrained(pretrained: PretrainedNlb, path: str | os.PathLike[str]) -> Path:
+    """Write ``pretrained`` as a checkpoint that :func:`load_pretrained` and a warm start read:
+    the weights, the architecture and the latents' names, no optimiser or loop state.
+    Written atomically (a failed write leaves no file)."""
+    path = Path(path)
+    config = asdict(pretrained.network.config)
+    state = {f"network.{k}": v.detach().clone() for k, v in pretrained.network.state_dict().items()}
+    state["latents.latents"] = pretrained.latents.detach().clone()
+    checkpoint = {"state_dict": state, "hyper_parameters": {**config, "n_materials": len(pretrained.latents)},
+                  "material_names": list(pretrained.names)}
+    with atomic_path(path) as temporary:
+        torch.save(checkpoint, temporary)
+    return path
