@@ -133,6 +133,33 @@ def test_pooled_points_use_only_the_materials_every_model_fits():
     assert aggregate.pooled_points(points + [main("nylon", "nlb", 3.0, 1.0)], "render_ratio") == []
 
 
+def test_group_tables_take_medians_over_seeds_on_shared_materials():
+    from neuralbrdf.study.report import _group_tables
+
+    def point(material, model, seed, value, plan="DS1"):
+        return {"material": material, "model": model, "plan": plan, "noise": 0.0, "seed": seed,
+                "error": {"hemisphere_logcos_rmse": value}}
+
+    points = [point("gold", "a", s, v) for s, v in enumerate((0.1, 0.3, 0.2))]
+    points += [point("gold", "b", s, v) for s, v in enumerate((0.5, 0.4))]
+    points += [point("cyan", "a", 0, 0.7), point("cyan", "b", 0, 0.9),
+               point("nylon", "a", 0, 0.01),  # b has no nylon: left out of both rows
+               point("gold", "a", 3, 9.0, plan="DS4")]  # not DS1: left out
+    [table] = aggregate.groups(points, {"size": [("one", "a"), ("two", "b")]})
+    assert table["group"] == "size" and table["materials"] == ["cyan", "gold"]
+    a, b = table["members"]
+    assert (a["label"], a["model"], b["label"]) == ("one", "a", "two")
+    assert [v["median"] for v in a["per_material"]] == [0.7, 0.2]
+    assert [v["median"] for v in b["per_material"]] == [0.9, pytest.approx(0.45)]
+    assert a["median"] == pytest.approx(0.45) and b["median"] == pytest.approx(0.675)
+    assert (a["cells"], b["cells"]) == (4, 3)
+    study = {"groups": [table]}
+    shown = re.findall(r'data-json="([^"]+)">([^<]+)<', _group_tables(study))
+    assert len(shown) == 2 * 4
+    for path, value in shown:
+        assert value == NUMBER_FORMAT.format(_lookup(study, path))
+
+
 def test_pareto_front_against_brute_force():
     items = [("a", 1.0, 5.0), ("b", 2.0, 3.0), ("c", 3.0, 3.5), ("d", 0.5, 9.0), ("e", 4.0, 1.0), ("f", 4.0, 1.0)]
     assert aggregate.pareto_front(items) == ["d", "a", "b", "e", "f"]

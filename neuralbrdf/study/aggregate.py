@@ -13,6 +13,9 @@
   on (a model fitted to fewer materials, e.g. the spectral MLP without the RGB MERL proxies, would
   otherwise be compared on easier or harder ones).
 * **Budgets** — per material and ΔE budget, the model of lowest render ratio within it.
+* **Groups** — per group of variants (γ and angle unit, latent size), each member's median
+  :data:`THRESHOLD_METRIC` over seeds per material (DS1, no noise), on the materials every member
+  fits.
 """
 
 from __future__ import annotations
@@ -133,6 +136,28 @@ def failures(points: list[dict]) -> list[dict]:
                      "median_error": statistics.median(values) if values else None,
                      "seed_std_error": statistics.stdev(values) if len(values) > 1 else None})
     return rows
+
+
+def groups(points: list[dict], members: dict[str, list[tuple[str, str]]]) -> list[dict]:
+    """Per group (``members``: group name → ``(label, model)`` pairs): the materials every member has
+    a DS1 noise-free point on, and per member the median :data:`THRESHOLD_METRIC` over seeds per
+    material (``per_material``, in the order of ``materials``), the median of those medians
+    (``median``) and the number of cells with a value."""
+    tables = []
+    for group, pairs in members.items():
+        runs = [p for p in points if p["plan"] == "DS1" and p["noise"] == 0.0
+                and p["error"].get(THRESHOLD_METRIC) is not None]
+        materials = sorted(shared_materials(runs, [model for _, model in pairs]))
+        rows = []
+        for label, model in pairs:
+            per_material = [{"material": m, "median": statistics.median(
+                p["error"][THRESHOLD_METRIC] for p in runs if p["model"] == model and p["material"] == m)}
+                for m in materials]
+            rows.append({"label": label, "model": model, "per_material": per_material,
+                         "median": statistics.median(v["median"] for v in per_material) if materials else None,
+                         "cells": sum(p["model"] == model and p["material"] in materials for p in runs)})
+        tables.append({"group": group, "materials": materials, "members": rows})
+    return tables
 
 
 def budgets(points: list[dict]) -> list[dict]:

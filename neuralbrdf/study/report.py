@@ -82,6 +82,22 @@ def _failure_table(study: dict) -> str:
     return "<table>" + "".join(rows) + "</table>"
 
 
+def _group_tables(study: dict) -> str:
+    """Per variant group: each member's median hemisphere log-cos RMSE over seeds, per material."""
+    parts = []
+    for g, table in enumerate(study.get("groups", [])):
+        head = "".join(f"<th>{html.escape(m)}</th>" for m in table["materials"])
+        rows = [f"<tr><th>{html.escape(table['group'])}</th><th>variant</th>{head}<th>median</th><th>cells</th></tr>"]
+        for r, row in enumerate(table["members"]):
+            path = f"groups.{g}.members.{r}"
+            rows.append("<tr>" + text(row["label"]) + text(row["model"])
+                        + "".join(number(v["median"], f"{path}.per_material.{i}.median")
+                                  for i, v in enumerate(row["per_material"]))
+                        + number(row["median"], f"{path}.median") + number(row["cells"], f"{path}.cells") + "</tr>")
+        parts.append("<table>" + "".join(rows) + "</table>")
+    return "".join(parts)
+
+
 def _pareto_text(study: dict) -> str:
     items = []
     for cost_key, label in (("render_ratio", "render cost"), ("fit_time_s", "fit time")):
@@ -129,6 +145,9 @@ def write_report(study: dict, out_dir: Path) -> Path:
               "<p>Hemisphere log-cosine RMSE against the truth over seeds (and materials) per sampling plan "
               "(report Figs. 6.5/6.6/6.11/6.12) and per relative measurement noise.</p>"]
     parts += [figure(name, key) for key, name in figs["stability"].items()]
+    if study.get("groups"):
+        parts += ["<p>Variant groups: median hemisphere log-cos RMSE over seeds per material (DS1, no noise; "
+                  "the materials every member fits).</p>", _group_tables(study)]
     parts += ["<h2>Failure map</h2>", "<ul>" + "".join(f"<li>{html.escape(s)}</li>" for s in study["sentences"].values())
               + "</ul>"]
     if figs.get("failure_map"):

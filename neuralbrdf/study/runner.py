@@ -204,21 +204,25 @@ def write_figures(profile: Profile, results: list[dict], study: dict, out_dir: P
         figs["stability"]["noise"] = charts.box_by_condition(
             [p for p in sweep if p["plan"] == "DS1"], stable, noise, lambda p: p["noise"], lambda n: f"{n * 100:g}%",
             "error per relative measurement noise (DS1)", figures_dir / "stability_noise.png")
-    groups = dict.fromkeys(v.group for v in profile.variants if v.group)
-    for g, group in enumerate(groups):
-        members = [v for v in profile.variants if v.group == group]
-        runs = [p for p in points if p["model"] in {v.name for v in members} and p["plan"] == "DS1" and p["noise"] == 0.0]
+    for g, table in enumerate(study["groups"]):
         # boxes over the same materials only (a member may fit more materials than the others)
-        shared = aggregate.shared_materials(runs, [v.name for v in members])
-        labelled = [dict(p, model=next(v.label for v in members if v.name == p["model"])) for p in runs
-                    if p["material"] in shared]
-        labels = [v.label for v in members]
-        names = [m.name for m in profile.materials if m.name in shared]
-        figs["stability"][f"group {group}"] = _group_figure(labelled, labels, group, names,
-                                                           figures_dir / f"stability_group{g}.png")
+        label_of = {row["model"]: row["label"] for row in table["members"]}
+        labelled = [dict(p, model=label_of[p["model"]]) for p in points if p["model"] in label_of
+                    and p["plan"] == "DS1" and p["noise"] == 0.0 and p["material"] in table["materials"]]
+        figs["stability"][f"group {table['group']}"] = _group_figure(
+            labelled, list(label_of.values()), table["group"], table["materials"], figures_dir / f"stability_group{g}.png")
     if study["failures"]:
         figs["failure_map"] = charts.failure_map(study["failures"], figures_dir / "failure_map.png")
     return figs
+
+
+def group_members(profile: Profile) -> dict[str, list[tuple[str, str]]]:
+    """The profile's variant groups in order of appearance: group → ``(label, variant)`` pairs."""
+    members: dict[str, list[tuple[str, str]]] = {}
+    for v in profile.variants:
+        if v.group:
+            members.setdefault(v.group, []).append((v.label, v.name))
+    return members
 
 
 def _group_figure(labelled: list[dict], labels: list[str], group: str, materials: list[str], path: Path) -> str:
@@ -273,6 +277,7 @@ def run_study(profile_name: str, out_dir: str | Path, jobs: int = 1, command: st
         "failures": failure_rows,
         "failure_causes": list(aggregate.CAUSES),
         "summary": aggregate.budgets(points),
+        "groups": aggregate.groups(points, group_members(profile)),
         "sentences": aggregate.method_sentences(points, failure_rows),
         "machine": machine(),
         "run": {"profile": _shown_path(profile.path), "command": command or f"neuralbrdf study --profile {profile_name}",
