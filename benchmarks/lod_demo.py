@@ -87,7 +87,7 @@ def main(argv=None) -> int:
                ("full_other_seed", scenes["full"], 1))
     images = {}
     for name, scene, seed in renders:
-        images[name], _ = render_scene_file(scene, args.reference_spp, seed, matched=True)
+        images[name], _ = render_scene_file(scene, args.reference_spp, seed)
         print(f"{name}: rendered at {args.reference_spp} spp", file=sys.stderr)
     delta_e = delta_e2000_map(images["selected_matched"], images["full"])
     delta_e_own = delta_e2000_map(images["selected"], images["full"])

@@ -9,8 +9,9 @@ renders are reported as ``noise`` — the noise of one render.  Model and truth 
 and their paths: the model samples directions with the *truth's* proposal (the plugin's
 ``proposal`` property, which leaves the image's expectation unchanged), so the two renders trace
 the same paths and most of the noise is common to both and cancels in their difference (the
-demo's gold model: ΔE mean 0.33 against a noise level of 1.9).  The renders run on one Dr.Jit
-thread: with more, a render of a fixed seed sometimes came out as another image.  Without it, a model whose own
+demo's gold model: ΔE mean 0.33 against a noise level of 1.9).  This needs a render of a fixed
+seed to be one image: the preview scene loads its lights in file order
+(:func:`~neuralbrdf.render.preview.load_scene`).  Without the shared proposal, a model whose own
 proposal differs from the truth's traced other paths and its ΔE was about the noise level
 whatever its accuracy (the quick study's NLB nylon: ΔE 4.85 at a noise of 4.3, 8 spp).
 
@@ -60,14 +61,11 @@ class RenderSettings:
 
 
 def _render(path: Path, settings: RenderSettings, seed: int, proposal: Path | None = None) -> np.ndarray:
-    """One render of the preview scene with one Dr.Jit thread: with more, a render of a fixed seed
-    came out as one of two different images (even Mitsuba's own ``roughconductor``), and model and
-    truth would no longer share their paths."""
-    from neuralbrdf.render.preview import Material, one_drjit_thread, render
+    """One render of the preview scene."""
+    from neuralbrdf.render.preview import Material, render
 
-    with one_drjit_thread():
-        image = render(Material(model=path, backend=settings.backend, proposal=proposal), settings.variant,
-                       settings.spp, settings.resolution, seed)
+    image = render(Material(model=path, backend=settings.backend, proposal=proposal), settings.variant,
+                   settings.spp, settings.resolution, seed)
     if not np.all(np.isfinite(image)):
         raise ValueError(f"the render of {path} is not finite")
     return image

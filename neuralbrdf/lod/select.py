@@ -182,8 +182,7 @@ class _Renderer:
             self.reused += 1
             return self._images[key]
         self.renders += 1
-        # error renders (wavefront) are compared at matched seeds: one Dr.Jit thread; timing keeps all
-        image, seconds = render_scene_file(scene, spp, seed, wavefront=wavefront, matched=wavefront)
+        image, seconds = render_scene_file(scene, spp, seed, wavefront=wavefront)
         if not np.all(np.isfinite(image)):
             raise InputError("a render of the scene is not finite", path=self.base.path)
         if wavefront:

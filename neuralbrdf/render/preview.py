@@ -86,20 +86,6 @@ def dr_mode(wavefront: bool) -> Iterator[None]:
         dr.set_flag(dr.JitFlag.SymbolicCalls, saved[1])
 
 
-@contextlib.contextmanager
-def one_drjit_thread() -> Iterator[None]:
-    """Dr.Jit on one thread inside, its thread count restored afterwards.  For renders compared at
-    matched seeds: with two threads a render of a fixed seed sometimes came out as the other of two
-    images (even with Mitsuba's own ``roughconductor``; README, *The study*), so two renders meant to
-    trace the same paths did not."""
-    threads = dr.thread_count()
-    dr.set_thread_count(1)
-    try:
-        yield
-    finally:
-        dr.set_thread_count(threads)
-
-
 #: Oldest LLVM whose shared library Mitsuba's ``llvm_*`` variants can render with: older ones
 #: fail while compiling render kernels ("LLVM ERROR: Cannot select ... fmaximum", abort).
 MIN_LLVM_VERSION = (19, 0, 0)
@@ -186,14 +172,20 @@ class Material:
 
 
 def load_scene(material: Material, resolution: int, max_depth: int = DEFAULT_MAX_DEPTH) -> mi.Scene:
-    """The material-preview scene with ``material``, for the current variant."""
+    """The material-preview scene with ``material``, for the current variant.
+
+    Loaded serially and without Mitsuba's object merging (``parallel=False, optimize=False``):
+    with them the two area lights came out in either order, by memory address (2-3 of 30 loads in
+    one process), and a render of a fixed seed drew its light samples from the other light — one
+    of two different images, which broke every comparison at matched seeds."""
     if material.model is not None:
         from neuralbrdf.kinds import load_model
 
         load_model(material.model)  # one clear InputError before Mitsuba wraps it
     try:
         return mi.load_file(
-            str(SCENE_FILE), resolution=str(resolution), max_depth=str(max_depth), **material.scene_parameters()
+            str(SCENE_FILE), parallel=False, optimize=False, resolution=str(resolution), max_depth=str(max_depth),
+            **material.scene_parameters()
         )
     except InputError:
         raise

@@ -174,7 +174,7 @@ class SceneFile:
             validated_model(material.model)  # one clear InputError (naming the file) before Mitsuba wraps it
         with _resolver_first(self.folder):
             try:
-                return mi.load_string(self.text(), **parameters)
+                return mi.load_string(self.text(), parallel=False, optimize=False, **parameters)
             except RuntimeError as error:
                 raise scene_load_error(error, self.path) from None
 
@@ -206,14 +206,11 @@ def uses_wavefront(scene_file: SceneFile) -> bool:
 
 
 def render_scene_file(scene_file: SceneFile, spp: int, seed: int = 0, spp_per_pass: int | None = None,
-                      progress: bool = False, wavefront: bool = False,
-                      matched: bool = False) -> tuple[np.ndarray, float]:
+                      progress: bool = False, wavefront: bool = False) -> tuple[np.ndarray, float]:
     """``(linear RGB image [H, W, 3], seconds)`` of the edited scene in the current variant, rendered
     in passes like the preview (:func:`neuralbrdf.render.preview.render_passes`); the time counts the
     passes only, not loading the scene (which fits the samplers).  Dr.Jit's wavefront mode when
-    ``wavefront`` or when a material uses the onnxruntime backend, else symbolic mode.  ``matched``:
-    on one Dr.Jit thread (:func:`~neuralbrdf.render.preview.one_drjit_thread`), for renders that
-    are compared with another at the same seed — not for timing."""
+    ``wavefront`` or when a material uses the onnxruntime backend, else symbolic mode."""
     from neuralbrdf.render import preview
 
     if spp < 1:
@@ -223,10 +220,9 @@ def render_scene_file(scene_file: SceneFile, spp: int, seed: int = 0, spp_per_pa
     width, height = scene.sensors()[0].film().size()
     per_pass = spp_per_pass or max(1, (preview.PASS_LANES_WAVEFRONT if wavefront else preview.PASS_LANES_SYMBOLIC)
                                    // int(width * height))
-    with preview.one_drjit_thread() if matched else contextlib.nullcontext():
-        start = time.perf_counter()
-        image = preview.render_passes(scene, spp, per_pass, seed, wavefront, progress)
-        return image, time.perf_counter() - start
+    start = time.perf_counter()
+    image = preview.render_passes(scene, spp, per_pass, seed, wavefront, progress)
+    return image, time.perf_counter() - start
 
 
 #: Id given to a nested ``neuralbrdf`` BSDF without one while :func:`material_coverage` loads the scene.

@@ -364,9 +364,7 @@ WORKER_THREADS = {"torch": 1, "drjit": 1}
 
 def _single_threaded() -> None:
     """One thread for torch and for Dr.Jit (:data:`WORKER_THREADS`): ``--jobs`` workers use the
-    cores, and with two Dr.Jit threads a render of a fixed seed came out as one of two different
-    images (4 of 12 renders of the gold preview, 0 of 12 with one thread), which breaks the
-    matched paths of the image error."""
+    cores."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     import drjit
     import torch

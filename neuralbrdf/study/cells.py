@@ -32,6 +32,9 @@ from neuralbrdf.study.profile import Profile, VariantSpec
 MAIN_PLAN, MAIN_NOISE, MAIN_SEED = "DS1", 0.0, 0
 #: Bump when a cell's result format or computation changes: every cell reruns.
 CELL_FORMAT = 4
+#: Bump when the renders change: only rendered cells rerun (2: the preview scene's lights load in
+#: file order, so model and truth share their paths; :func:`neuralbrdf.render.preview.load_scene`).
+RENDER_FORMAT = 2
 
 
 @dataclass(frozen=True)
@@ -99,7 +102,7 @@ def cell_settings(cell: Cell, profile: Profile) -> dict:
         settings["variant"]["pretrained"] = file_digest(str(resolve_pretrained(pretrained_network(variant))))
     settings["hemisphere_strata"] = list(profile.render.hemisphere_strata)
     if is_rendered(cell, profile):
-        settings["render"] = asdict(profile.render)
+        settings["render"] = {**asdict(profile.render), "format": RENDER_FORMAT}
         settings["cost"] = asdict(profile.cost)
     return settings
 
