@@ -18,6 +18,8 @@ from neuralbrdf.study import aggregate
 from neuralbrdf.study.cells import Cell, cell_key, cell_settings, is_rendered, plan_cells, pretrained_network
 from neuralbrdf.study.profile import load_profile
 from neuralbrdf.study.report import NUMBER_FORMAT
+from neuralbrdf.study.runner import group_members
+from neuralbrdf.shipped import resolve_pretrained
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "tests" / "data" / "study_tiny.yaml"
@@ -387,6 +389,11 @@ def test_shipped_profiles_are_valid():
         pytest.skip(f"full.yaml names a config of a branch not merged yet ({error})")
     full = load_profile("full")
     assert len(full.materials) == 9 and {"abc", "nlb_compact", "spectral_mlp"} <= set(full.stability.variants)
+    for variant in full.variants:  # every pretrained network a variant names is shipped
+        if variant.method == "nlb":
+            assert resolve_pretrained(pretrained_network(variant)).is_file(), variant.name
+    latent = next(g for g in group_members(full).items() if g[0] == "NLB latent size")[1]
+    assert [label for label, _ in latent] == ["16 (shipped)", "4", "8", "16", "32"]
 
 
 def test_parameter_count_counts_float_initializers():
