@@ -273,6 +273,9 @@ def test_resize_latent_keeps_the_function_where_it_can():
     assert not torch.allclose(smaller(wi, wo, short[3]), network(wi, wo, latents[3]), atol=1e-4)
     with pytest.raises(InputError, match="latents must be"):
         resize_latent(network, latents[:, :3], 2)
+    # fewer materials than latent values: still a full basis, the function kept on their codes
+    few, codes = resize_latent(network, latents[:3], 4)
+    torch.testing.assert_close(few(wi, wo, codes[1]), network(wi, wo, latents[1]), rtol=1e-5, atol=1e-6)
 
 
 def test_warm_start_at_another_latent_size(tmp_path):
@@ -285,6 +288,16 @@ def test_warm_start_at_another_latent_size(tmp_path):
     for row, source in enumerate((2, 0)):
         torch.testing.assert_close(module.network(wi, wo, module.latents.latents[row].detach()),
                                    previous.network(wi, wo, old[source]), rtol=0, atol=0)
+    # smaller: a known material's code gives the old output at its projection (within the top two
+    # principal directions of the old codes), an unknown one starts at the centroid (code 0)
+    smaller = NlbPretrainModule(n_materials=2, latent_dim=2, width=16, depth=2, warm_start=str(checkpoint))
+    smaller._warm_start(["analytic:2", "merl:new"])
+    centred = old.numpy() - old.numpy().mean(0)
+    _, _, vh = np.linalg.svd(centred, full_matrices=False)
+    projected = torch.as_tensor(old.numpy().mean(0) + centred[2] @ vh[:2].T @ vh[:2], dtype=torch.float32)
+    torch.testing.assert_close(smaller.network(wi, wo, smaller.latents.latents[0].detach()),
+                               previous.network(wi, wo, projected), rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(smaller.latents.latents[1].detach(), torch.zeros(2), rtol=0, atol=1e-6)
 
 
 def test_load_pretrained_rejects_bad_files(tmp_path):

@@ -147,7 +147,7 @@ def test_group_tables_take_medians_over_seeds_on_shared_materials():
     points += [point("cyan", "a", 0, 0.7), point("cyan", "b", 0, 0.9),
                point("nylon", "a", 0, 0.01),  # b has no nylon: left out of both rows
                point("gold", "a", 3, 9.0, plan="DS4")]  # not DS1: left out
-    [table] = aggregate.groups(points, {"size": [("one", "a"), ("two", "b")]})
+    [table] = aggregate.groups(points, {"size": [("one", "a"), ("two", "b")]}, ["nylon", "cyan", "gold"])
     assert table["group"] == "size" and table["materials"] == ["cyan", "gold"]
     a, b = table["members"]
     assert (a["label"], a["model"], b["label"]) == ("one", "a", "two")

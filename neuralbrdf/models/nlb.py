@@ -250,8 +250,9 @@ def resize_latent(
       output on a new latent equals the old output on ``μ + P Pᵀ (V - μ)``, the projection of
       the old latent — exact when the latents span no more than ``latent_dim`` directions.
     * **Larger** (padding): the new latents are the old ones followed by zeros, so every output
-      is unchanged; the new columns of ``W_V`` get the layer's default random initialisation
-      (``generator``), so that the padded latent values receive gradients when training goes on.
+      is unchanged; the new columns of ``W_V`` are uniform in ±1/√(the old layer's fan-in), like
+      a fresh layer's weights (``generator``), so that the padded latent values receive gradients
+      when training goes on.
     """
     old_dim = network.latent_dim
     config = replace(network.config, latent_dim=latent_dim)
@@ -267,15 +268,18 @@ def resize_latent(
     with torch.no_grad():
         if latent_dim <= old_dim:
             mean = latents.mean(0)
-            _, _, vh = torch.linalg.svd(latents - mean, full_matrices=False)
-            basis = vh[:latent_dim].T  # [old_dim, latent_dim]
-            new_latents = (latents - mean) @ basis
+            centred = latents - mean
+            # eigenvectors of the scatter matrix: old_dim of them even for fewer materials than that
+            _, vectors = torch.linalg.eigh(centred.T @ centred)
+            basis = vectors.flip(1)[:, :latent_dim]  # [old_dim, latent_dim], leading directions first
+            new_latents = centred @ basis
             resized.input_layer.weight.copy_(torch.cat([weight[:, :n], w_latent @ basis], dim=1))
             resized.input_layer.bias.copy_(bias + w_latent @ mean)
         else:
             bound = 1.0 / math.sqrt(n + old_dim)
-            extra = (torch.rand(weight.shape[0], latent_dim - old_dim, generator=generator) * 2 - 1) * bound
+            extra = (torch.rand(weight.shape[0], latent_dim - old_dim, generator=generator,
+                                device=weight.device) * 2 - 1) * bound
             new_latents = torch.cat([latents, latents.new_zeros(len(latents), latent_dim - old_dim)], dim=1)
             resized.input_layer.weight.copy_(torch.cat([weight, extra.to(weight.dtype)], dim=1))
             resized.input_layer.bias.copy_(bias)
-    return resized.train(network.training), new_latents
+    return resized.to(weight.device, weight.dtype).train(network.training), new_latents

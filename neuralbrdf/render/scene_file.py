@@ -14,7 +14,11 @@ point a ``neuralbrdf`` BSDF at another model file (the selector's rungs), set pl
 selector's per-object error, SPEC §11).
 :meth:`SceneFile.load` loads the edited text with the scene's folder first on Mitsuba's file
 resolver (as ``mi.load_file`` does), so relative paths in it — meshes, textures, included files,
-model files — resolve as they would from the file itself.
+model files — resolve as they would from the file itself.  It loads in file order
+(``parallel=False, optimize=False``): with Mitsuba's parallel loading and object merging the
+emitters' order followed memory addresses, so a render of a fixed seed could come out as either
+of two images (:func:`neuralbrdf.render.preview.load_scene`); the price is that identical
+shapes are not merged (more memory for heavily instanced scenes).
 
 Materials are named by their ``id`` attribute, else the ``id`` of the shape that holds them, else
 ``neuralbrdf-K`` (K-th in document order).

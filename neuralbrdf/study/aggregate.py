@@ -138,16 +138,16 @@ def failures(points: list[dict]) -> list[dict]:
     return rows
 
 
-def groups(points: list[dict], members: dict[str, list[tuple[str, str]]]) -> list[dict]:
+def groups(points: list[dict], members: dict[str, list[tuple[str, str]]], material_order: list[str]) -> list[dict]:
     """Per group (``members``: group name → ``(label, model)`` pairs): the materials every member has
-    a DS1 noise-free point on, and per member the median :data:`THRESHOLD_METRIC` over seeds per
+    a DS1 noise-free point on (in ``material_order``), and per member the median :data:`THRESHOLD_METRIC` over seeds per
     material (``per_material``, in the order of ``materials``), the median of those medians
     (``median``) and the number of cells with a value."""
     tables = []
+    runs = [p for p in points if p["plan"] == "DS1" and p["noise"] == 0.0 and p["error"].get(THRESHOLD_METRIC) is not None]
     for group, pairs in members.items():
-        runs = [p for p in points if p["plan"] == "DS1" and p["noise"] == 0.0
-                and p["error"].get(THRESHOLD_METRIC) is not None]
-        materials = sorted(shared_materials(runs, [model for _, model in pairs]))
+        shared = shared_materials(runs, [model for _, model in pairs])
+        materials = [m for m in material_order if m in shared]
         rows = []
         for label, model in pairs:
             per_material = [{"material": m, "median": statistics.median(

@@ -277,7 +277,7 @@ def run_study(profile_name: str, out_dir: str | Path, jobs: int = 1, command: st
         "failures": failure_rows,
         "failure_causes": list(aggregate.CAUSES),
         "summary": aggregate.budgets(points),
-        "groups": aggregate.groups(points, group_members(profile)),
+        "groups": aggregate.groups(points, group_members(profile), [m.name for m in profile.materials]),
         "sentences": aggregate.method_sentences(points, failure_rows),
         "machine": machine(),
         "run": {"profile": _shown_path(profile.path), "command": command or f"neuralbrdf study --profile {profile_name}",
