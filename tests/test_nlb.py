@@ -230,8 +230,9 @@ def test_save_pretrained_keeps_what_loading_and_warm_starts_need(tmp_path):
     torch.testing.assert_close(saved.latents, pretrained.latents, rtol=0, atol=0)
     for key, value in pretrained.network.state_dict().items():
         assert torch.equal(saved.network.state_dict()[key], value)
-    assert set(torch.load(tmp_path / "shipped.ckpt", weights_only=True)) == {"state_dict", "hyper_parameters",
-                                                                             "material_names"}
+    written = torch.load(tmp_path / "shipped.ckpt", weights_only=True)
+    assert set(written) == {"state_dict", "hyper_parameters", "material_names", "pytorch-lightning_version"}
+    assert written["hyper_parameters"]["_class_path"] == "neuralbrdf.lightning.nlb_module.NlbPretrainModule"
 
 
 def test_warm_start_copies_the_network_and_the_latents_of_the_same_material(tmp_path):

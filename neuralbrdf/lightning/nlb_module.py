@@ -214,13 +214,16 @@ def load_pretrained(path: str | os.PathLike[str]) -> PretrainedNlb:
 
 def save_pretrained(pretrained: PretrainedNlb, path: str | os.PathLike[str]) -> Path:
     """Write ``pretrained`` as a checkpoint that :func:`load_pretrained` and a warm start read:
-    the weights, the architecture and the latents' names, no optimiser or loop state.
+    the weights, the architecture (and the module's class path, from which Lightning rebuilds it for
+    ``--ckpt_path``) and the latents' names, no optimiser or loop state.
     Written atomically (a failed write leaves no file)."""
     path = Path(path)
     config = asdict(pretrained.network.config)
     state = {f"network.{k}": v.detach().clone() for k, v in pretrained.network.state_dict().items()}
     state["latents.latents"] = pretrained.latents.detach().clone()
-    checkpoint = {"state_dict": state, "hyper_parameters": {**config, "n_materials": len(pretrained.latents)},
+    class_path = f"{NlbPretrainModule.__module__}.{NlbPretrainModule.__qualname__}"
+    checkpoint = {"state_dict": state, "pytorch-lightning_version": pl.__version__,
+                  "hyper_parameters": {**config, "n_materials": len(pretrained.latents), "_class_path": class_path},
                   "material_names": list(pretrained.names)}
     with atomic_path(path) as temporary:
         torch.save(checkpoint, temporary)
