@@ -162,6 +162,29 @@ def test_group_tables_take_medians_over_seeds_on_shared_materials():
         assert value == NUMBER_FORMAT.format(_lookup(study, path))
 
 
+def test_spread_labels_leaves_no_two_labels_overlapping():
+    import matplotlib.pyplot as plt
+
+    from neuralbrdf.study.charts import spread_labels
+
+    fig, ax = plt.subplots()
+    ax.set_xlim(0, 5)
+    ax.set_ylim(0, 5)
+    points = [(1.0, 1.0), (1.02, 1.01), (1.01, 1.0), (3.0, 4.0), (1.0, 1.03)]
+    labels = [ax.annotate(f"spectral_mlp_{i}", xy, xytext=(3, 3), textcoords="offset points") for i, xy in enumerate(points)]
+    renderer = fig.canvas.get_renderer()
+
+    def overlapping():
+        boxes = [a.get_window_extent(renderer) for a in labels]
+        return sum(boxes[i].overlaps(boxes[j]) for i in range(len(boxes)) for j in range(i))
+
+    assert overlapping() > 0
+    spread_labels(ax, labels)
+    assert overlapping() == 0
+    assert labels[3].xyann == (3, 3)  # a label alone stays where it was
+    plt.close(fig)
+
+
 def test_pareto_front_against_brute_force():
     items = [("a", 1.0, 5.0), ("b", 2.0, 3.0), ("c", 3.0, 3.5), ("d", 0.5, 9.0), ("e", 4.0, 1.0), ("f", 4.0, 1.0)]
     assert aggregate.pareto_front(items) == ["d", "a", "b", "e", "f"]

@@ -40,16 +40,18 @@ def speed_accuracy(entries: list[dict], fronts: dict[str, list[str]], title: str
     ``render_ratio``/``fit_time_s`` and ``image_delta_e2000_mean``; ``fronts`` per cost key."""
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for ax, cost_key in zip(axes, COST_AXES):
-        named = {}
+        named, labels = {}, []
         for e in entries:
             if e.get(cost_key) is None or e.get(ACCURACY_METRIC) is None:
                 continue
             x, y = e[cost_key], e[ACCURACY_METRIC]
             named[e["model"]] = (x, y)
             ax.scatter(x, y, color=METHOD_COLOURS.get(e["method"], "grey"), s=30, zorder=3)
-            ax.annotate(e["model"], (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
+            labels.append(ax.annotate(e["model"], (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points",
+                                      arrowprops={"arrowstyle": "-", "lw": 0.4, "color": "grey", "shrinkA": 0}))
         _front_line(ax, named, fronts.get(cost_key, []))
         _cost_scale(ax, [x for x, _ in named.values()])
+        spread_labels(ax, labels)
         ax.set_xlabel(COST_AXES[cost_key])
         ax.set_ylabel("mean ΔE2000 vs truth render")
         ax.set_title("Pareto: " + (", ".join(fronts.get(cost_key, [])) or "none"), fontsize=8)
@@ -58,6 +60,23 @@ def speed_accuracy(entries: list[dict], fronts: dict[str, list[str]], title: str
     axes[1].legend(handles=handles, fontsize=7, loc="best")
     fig.suptitle(title, fontsize=10)
     return _save(fig, path)
+
+
+def spread_labels(ax, labels: list) -> None:
+    """Move point labels (``ax.annotate`` in offset points) up, lowest point first, in steps of a
+    label's height until none overlaps a label placed before it: models of similar cost and error
+    keep legible names, each joined to its point by a thin line."""
+    renderer = ax.figure.canvas.get_renderer()
+    placed = []
+    for label in sorted(labels, key=lambda a: ax.transData.transform(a.xy)[1]):
+        box = label.get_window_extent(renderer)
+        shift = 0.0  # pixels
+        while any(box.translated(0, shift).overlaps(other) for other in placed):
+            shift += 1.1 * box.height
+        if shift:
+            dx, dy = label.xyann
+            label.xyann = (dx, dy + shift * 72.0 / ax.figure.dpi)
+        placed.append(box.translated(0, shift))
 
 
 def _cost_scale(ax, values: list[float]) -> None:
