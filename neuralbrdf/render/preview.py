@@ -171,20 +171,24 @@ class Material:
         return f"{Path(self.model).name} ({self.backend})"
 
 
-def load_scene(material: Material, resolution: int, max_depth: int = DEFAULT_MAX_DEPTH) -> mi.Scene:
-    """The material-preview scene with ``material``, for the current variant.
+#: Options of every scene load here (:func:`load_scene`, :meth:`~neuralbrdf.render.scene_file.SceneFile.load`):
+#: serially and without Mitsuba's object merging, i.e. in file order.  With them the preview's two
+#: area lights came out in either order, by memory address (2-3 of 30 loads in one process), and a
+#: render of a fixed seed drew its light samples from the other light — one of two different images,
+#: which broke every comparison at matched seeds.  The price: identical shapes are not merged.
+FILE_ORDER_LOADING = {"parallel": False, "optimize": False}
 
-    Loaded serially and without Mitsuba's object merging (``parallel=False, optimize=False``):
-    with them the two area lights came out in either order, by memory address (2-3 of 30 loads in
-    one process), and a render of a fixed seed drew its light samples from the other light — one
-    of two different images, which broke every comparison at matched seeds."""
+
+def load_scene(material: Material, resolution: int, max_depth: int = DEFAULT_MAX_DEPTH) -> mi.Scene:
+    """The material-preview scene with ``material``, for the current variant, loaded in file order
+    (:data:`FILE_ORDER_LOADING`)."""
     if material.model is not None:
         from neuralbrdf.kinds import load_model
 
         load_model(material.model)  # one clear InputError before Mitsuba wraps it
     try:
         return mi.load_file(
-            str(SCENE_FILE), parallel=False, optimize=False, resolution=str(resolution), max_depth=str(max_depth),
+            str(SCENE_FILE), **FILE_ORDER_LOADING, resolution=str(resolution), max_depth=str(max_depth),
             **material.scene_parameters()
         )
     except InputError:

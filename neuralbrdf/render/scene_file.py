@@ -14,11 +14,8 @@ point a ``neuralbrdf`` BSDF at another model file (the selector's rungs), set pl
 selector's per-object error, SPEC §11).
 :meth:`SceneFile.load` loads the edited text with the scene's folder first on Mitsuba's file
 resolver (as ``mi.load_file`` does), so relative paths in it — meshes, textures, included files,
-model files — resolve as they would from the file itself.  It loads in file order
-(``parallel=False, optimize=False``): with Mitsuba's parallel loading and object merging the
-emitters' order followed memory addresses, so a render of a fixed seed could come out as either
-of two images (:func:`neuralbrdf.render.preview.load_scene`); the price is that identical
-shapes are not merged (more memory for heavily instanced scenes).
+model files — resolve as they would from the file itself.  It loads in file order, like the
+preview scene (:data:`neuralbrdf.render.preview.FILE_ORDER_LOADING`: a fixed seed renders one image).
 
 Materials are named by their ``id`` attribute, else the ``id`` of the shape that holds them, else
 ``neuralbrdf-K`` (K-th in document order).
@@ -173,12 +170,13 @@ class SceneFile:
         import mitsuba as mi
 
         from neuralbrdf.render.mitsuba_bsdf import scene_load_error, validated_model
+        from neuralbrdf.render.preview import FILE_ORDER_LOADING
 
         for material in self.materials():
             validated_model(material.model)  # one clear InputError (naming the file) before Mitsuba wraps it
         with _resolver_first(self.folder):
             try:
-                return mi.load_string(self.text(), parallel=False, optimize=False, **parameters)
+                return mi.load_string(self.text(), **FILE_ORDER_LOADING, **parameters)
             except RuntimeError as error:
                 raise scene_load_error(error, self.path) from None
 
