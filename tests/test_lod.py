@@ -187,7 +187,7 @@ def test_the_shipped_config_holds_every_setting_and_refuses_bad_keys(tmp_path):
     cases = {
         "unknown": (text.replace("  spp: 32", "  spp: 32\n  spp_typo: 3"), "select.spp_typo"),
         "missing": (text.replace("  coverage_subpixels: 4", ""), "select.coverage_subpixels"),
-        "type": (text.replace("    steps: 3000", "    steps: many"), "ladder.distill.steps"),
+        "type": (text.replace("    steps: 12000", "    steps: many"), "ladder.distill.steps"),
         "bool": (text.replace("  seed: 0  ", "  seed: true  "), "select.seed"),
     }
     for name, (edited, key) in cases.items():
