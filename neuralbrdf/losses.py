@@ -19,15 +19,7 @@
   region (~0.01 sr⁻¹) almost unconstrained; a relative or logarithmic residual scores every
   region by its *relative* error (the comparison is in the README, spectral MLP).
 * :func:`l1_loss` — mean absolute error (Fan et al. 2022, the NLB latent fits);
-* :func:`nlb_loss` — that L1 in the linear or the log-cosine domain (:func:`log_cosine`);
-* :func:`latent_prior_penalty` — a Gaussian prior on NLB latent codes (MAP latent fitting, as
-  the auto-decoders of Park et al. 2019, *DeepSDF*, Eq. 9, regularise their codes), the squared
-  Mahalanobis distance per latent value::
-
-      P(z) = (z − μ)ᵀ Σ⁻¹ (z − μ) / d
-
-  with μ, Σ the mean and covariance of the pretrained codes (``d`` the latent size: a typical
-  pretrained code scores ~1).
+* :func:`nlb_loss` — that L1 in the linear or the log-cosine domain (:func:`log_cosine`).
 
 Every function takes ``pred`` and ``target`` of the same shape, ``[N]`` or ``[N, C]`` (one
 column per channel or wavelength), and per-sample angles ``[N]`` in degrees that broadcast over
@@ -191,11 +183,3 @@ def nlb_loss(pred, target, wi, domain: str):
         return l1_loss(pred, target)
     cos_i = wi[:, 2]
     return l1_loss(log_cosine(pred, cos_i), log_cosine(target, cos_i))
-
-
-def latent_prior_penalty(codes, mean, whitening):
-    """:math:`P(z)` of each code (module docstring): ``codes`` ``[..., d]``, ``mean`` ``[d]``,
-    ``whitening`` ``W`` ``[d, d]`` with ``W Wᵀ = Σ⁻¹``; returns ``[...]`` (torch or NumPy)."""
-    xp = array_namespace(codes, mean, whitening)
-    white = (codes - mean) @ whitening
-    return xp.sum(white * white, axis=-1) / codes.shape[-1]

@@ -28,7 +28,7 @@ from neuralbrdf.lightning.latent_fit_module import LatentFitModule, start_candid
 from neuralbrdf.shipped import PRETRAINED_COMPACT
 from neuralbrdf.kinds.nlb import load_fitted
 from neuralbrdf.lightning.nlb_module import NlbPretrainModule, load_pretrained, save_pretrained
-from neuralbrdf.losses import latent_prior_penalty, nlb_loss
+from neuralbrdf.losses import nlb_loss
 from neuralbrdf.lightning.run import main as train_main
 from neuralbrdf.models.nlb import (
     COMPACT, LOG1P_F_MAX, PAPER, PRE_ACTIVATION_MIN, LatentTable, NlbNetwork, resize_latent,
@@ -453,53 +453,6 @@ def test_screened_starts_keep_each_materials_lowest_loss_after_screening(tmp_pat
         LatentFitModule(str(checkpoint), init_starts=2)
     with pytest.raises(InputError, match="positive integer"):
         LatentFitModule(str(checkpoint), init_candidates=2, init_starts=0)
-
-
-def test_latent_whitening_gives_the_mahalanobis_distance_of_the_corpus_gaussian(tmp_path):
-    module = tiny_module()
-    pretrained = load_pretrained(save_checkpoint(module, tmp_path / "tiny.ckpt"))
-    codes = pretrained.latents.double().numpy()
-    mean, covariance = codes.mean(0), np.cov(codes.T)
-    covariance += 1e-6 * np.diag(covariance).mean() * np.eye(len(covariance))
-    z = np.random.default_rng(0).normal(size=(5, codes.shape[1])) + mean
-    expected = np.einsum("ij,ij->i", z - mean, np.linalg.solve(covariance, (z - mean).T).T) / codes.shape[1]
-    penalty = latent_prior_penalty(torch.as_tensor(z, dtype=torch.float32), pretrained.latent_mean,
-                                   pretrained.latent_whitening)
-    np.testing.assert_allclose(penalty.numpy(), expected, rtol=2e-3)
-    # NumPy in, NumPy out; zero at the centroid
-    at_mean = latent_prior_penalty(mean[None], mean, pretrained.latent_whitening.double().numpy())
-    assert isinstance(at_mean, np.ndarray) and at_mean[0] == 0.0
-
-
-def test_the_latent_prior_pulls_the_fit_towards_the_corpus_and_enters_the_screening(tmp_path):
-    module = tiny_module()
-    checkpoint = save_checkpoint(module, tmp_path / "tiny.ckpt")
-    pretrained = load_pretrained(checkpoint)
-    data = _tables_off_the_codes(module, tmp_path)
-    distances = {}
-    for weight in (0.0, 0.05, 1e3):
-        fit = LatentFitModule(str(checkpoint), latent_prior_weight=weight,
-                              optimizer=lambda p: torch.optim.Adam(p, lr=0.05))
-        trainer = pl.Trainer(accelerator="cpu", max_steps=150, logger=False, enable_checkpointing=False,
-                             enable_progress_bar=False, enable_model_summary=False)
-        trainer.fit(fit, data)
-        distances[weight] = latent_prior_penalty(fit.latents.latents.detach(), pretrained.latent_mean,
-                                                 pretrained.latent_whitening)
-    assert torch.all(distances[0.05] < distances[0.0])
-    assert torch.all(distances[1e3] < 1e-3)  # an overwhelming prior keeps the codes at the centroid
-    # The screening's per-material objective is the data loss plus w P(z)
-    fit = LatentFitModule(str(checkpoint), latent_prior_weight=0.5)
-    plain = LatentFitModule(str(checkpoint))
-    for f in (fit, plain):
-        f.build_latents(data.material_names)
-    codes = module.latents.latents[:3, None].expand(3, 2, -1).detach()
-    with torch.no_grad():
-        difference = fit._material_losses(data.train_samples, codes) - plain._material_losses(data.train_samples, codes)
-    expected = 0.5 * latent_prior_penalty(codes, pretrained.latent_mean, pretrained.latent_whitening)
-    torch.testing.assert_close(difference, expected, rtol=1e-5, atol=1e-6)
-    for bad in (-0.1, float("nan"), float("inf"), "1", True):
-        with pytest.raises(InputError, match="latent_prior_weight"):
-            LatentFitModule(str(checkpoint), latent_prior_weight=bad)
 
 
 def test_latent_fit_detects_a_changed_weight(tmp_path):

@@ -24,13 +24,6 @@ optimiser, all materials and starts at once) and each material continues from th
 the lowest loss after them (on at most :data:`SCREEN_SAMPLES` of its samples).  Selection uses
 the fitting samples only, never the truth.
 
-**Prior** (``latent_prior_weight`` w).  With w > 0 the fit is a MAP estimate: the loss gains
-``w · P(z)`` per material, ``P`` the squared Mahalanobis distance of the code from the
-pretrained codes' Gaussian over the latent size (:func:`~neuralbrdf.losses.latent_prior_penalty`).
-A few in-plane samples leave directions of the latent unconstrained; without a prior the fit
-may wander along them into codes no material of the corpus has (measured on the report's
-five, ``README``, *Latent prior*).  The screening of starts scores the same objective.
-
 **Early stopping** (``early_stop_patience``).  The fit stops when the training loss has not
 improved by a relative ``early_stop_tolerance`` for that many steps.
 
@@ -75,7 +68,7 @@ from neuralbrdf.errors import InputError
 from neuralbrdf.lightning.common import WritesKind, scheduled_optimizer
 from neuralbrdf.lightning.latent_fit_data import EvalSet, FitSamples
 from neuralbrdf.lightning.nlb_module import PretrainedNlb, load_pretrained
-from neuralbrdf.losses import check_loss_domain, latent_prior_penalty, log_cosine, nlb_loss
+from neuralbrdf.losses import check_loss_domain, log_cosine, nlb_loss
 from neuralbrdf.models.nlb import LatentTable
 from neuralbrdf.shipped import PRETRAINED_COMPACT, resolve_pretrained
 
@@ -113,8 +106,6 @@ class LatentFitModule(WritesKind, pl.LightningModule):
     early_stop_patience:
         Steps without a relative loss improvement of ``early_stop_tolerance`` after which
         the fit stops; ``None``: run every step.
-    latent_prior_weight:
-        Weight ``w`` of the Gaussian prior on each latent (module docstring); 0: none.
     optimizer, lr_scheduler:
         Factories from the config; the scheduler steps every step.
     """
@@ -129,7 +120,6 @@ class LatentFitModule(WritesKind, pl.LightningModule):
         init_screen_steps: int = 100,
         early_stop_patience: int | None = None,
         early_stop_tolerance: float = 1e-3,
-        latent_prior_weight: float = 0.0,
         optimizer: OptimizerCallable = torch.optim.Adam,
         lr_scheduler: LRSchedulerCallable | None = None,
     ) -> None:
@@ -150,10 +140,6 @@ class LatentFitModule(WritesKind, pl.LightningModule):
                              column="model.early_stop_patience")
         if not early_stop_tolerance >= 0:
             raise InputError(f"must be non-negative, got {early_stop_tolerance}", column="model.early_stop_tolerance")
-        if isinstance(latent_prior_weight, bool) or not isinstance(latent_prior_weight, (int, float)) \
-                or not 0 <= latent_prior_weight < math.inf:
-            raise InputError(f"must be a finite non-negative number, got {latent_prior_weight!r}",
-                             column="model.latent_prior_weight")
         path = resolve_pretrained(checkpoint)
         if checkpoint is None and not path.is_file():
             raise InputError(f"the shipped pretrained NLB checkpoint is missing; make it with `{PRETRAIN_COMMAND}` "
@@ -166,7 +152,6 @@ class LatentFitModule(WritesKind, pl.LightningModule):
         start = pretrained.latent_mean
         self._start = start if latent_init is None else torch.full_like(start, latent_init)
         self._candidates = start_candidates(pretrained, init_candidates) if init_candidates else None
-        self._prior = (pretrained.latent_mean, pretrained.latent_whitening)
         self._best_loss = math.inf
         self._steps_since_best = 0
         self.latents: LatentTable | None = None
@@ -202,12 +187,7 @@ class LatentFitModule(WritesKind, pl.LightningModule):
                 log_cosine(target, cos_i)
         error = (pred - target).abs().mean(2)
         counts = torch.zeros(n).index_add_(0, samples.material, torch.ones(len(samples.material)))
-        return torch.zeros(n_starts, n).index_add_(1, samples.material, error) / counts + self.prior_penalty(codes)
-
-    def prior_penalty(self, codes: torch.Tensor) -> torch.Tensor | float:
-        """``w · P(z)`` of each code ``[..., d]`` (module docstring): ``[...]``, or 0 without a prior."""
-        weight = self.hparams.latent_prior_weight
-        return weight * latent_prior_penalty(codes, *self._prior) if weight else 0.0
+        return torch.zeros(n_starts, n).index_add_(1, samples.material, error) / counts
 
     def choose_starts(self, samples: FitSamples) -> None:
         """Set each material's latent to its best start (module docstring)."""
@@ -254,8 +234,6 @@ class LatentFitModule(WritesKind, pl.LightningModule):
 
     def training_step(self, batch: FitSamples, batch_idx: int) -> torch.Tensor:
         loss = nlb_loss(self.predict(batch), batch.f, batch.wi, self.hparams.loss_domain)
-        if self.hparams.latent_prior_weight:
-            loss = loss + self.prior_penalty(self.latents.latents).mean()
         self.log("train/loss", loss, on_step=False, on_epoch=True, batch_size=len(batch.f))
         self._track_convergence(float(loss.detach()))
         return loss

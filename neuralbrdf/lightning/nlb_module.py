@@ -181,18 +181,6 @@ class PretrainedNlb:
         """Centroid ``[latent_dim]`` of the corpus latents."""
         return self.latents.mean(0)
 
-    @property
-    def latent_whitening(self) -> torch.Tensor:
-        """``W`` ``[latent_dim, latent_dim]`` with ``W Wᵀ = Σ⁻¹``, ``Σ`` the covariance of the corpus
-        latents plus a ridge of 1e-6 × their mean variance (a flat direction stays invertible):
-        ``‖(z − μ) W‖²`` is the squared Mahalanobis distance of a code from the corpus
-        (:func:`neuralbrdf.losses.latent_prior_penalty`)."""
-        latents = self.latents.double()
-        covariance = torch.cov(latents.T).reshape(latents.shape[1], latents.shape[1])
-        covariance = covariance + 1e-6 * covariance.diagonal().mean() * torch.eye(len(covariance), dtype=latents.dtype)
-        variances, vectors = torch.linalg.eigh(covariance)
-        return (vectors / variances.sqrt()).to(self.latents.dtype)
-
 
 def load_pretrained(path: str | os.PathLike[str]) -> PretrainedNlb:
     """Network and latents of an :class:`NlbPretrainModule` checkpoint (``.ckpt``).
