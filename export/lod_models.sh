@@ -3,7 +3,7 @@
 # the README's main job (spectral MLP, configs/spectral_mlp.yaml, shipped DS1 data) for each of the
 # four virtual materials, exported to out/lod/models/NAME.onnx, then `neuralbrdf ladder` for each
 # (out/lod/models/NAME.ladder/, where `neuralbrdf select` finds it).
-# About 3 min of training and 3-5 min of ladder per material (12 000 distillation steps per student) on 2 cores.
+# About 3 min of training and ~3 min of ladder per material (12 000 distillation steps per student) on 2 cores.
 #   bash export/lod_models.sh [PYTHON]      (default: .venv/bin/python)
 set -euo pipefail
 cd "$(dirname "$0")/.."
