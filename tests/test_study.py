@@ -185,6 +185,29 @@ def test_spread_labels_leaves_no_two_labels_overlapping():
     plt.close(fig)
 
 
+def test_tick_labels_are_slanted_only_when_neighbours_would_touch():
+    import matplotlib.pyplot as plt
+
+    from neuralbrdf.study.charts import rotate_crowded_ticks
+
+    def ticks(labels):
+        fig, ax = plt.subplots(figsize=(6, 4))
+        ax.set_xticks(range(len(labels)), labels)
+        ax.set_xlim(-0.5, len(labels) - 0.5)
+        return fig, ax
+
+    # the latent-size group at its figure width: short labels on average (the old rule left them
+    # level), but "32" stood 8 px from "32 (from scratch)" and read as one label
+    fig, ax = ticks(["16 (shipped)", "4", "8", "16", "32", "32 (from scratch)"])
+    assert rotate_crowded_ticks(ax)
+    assert {label.get_rotation() for label in ax.get_xticklabels()} == {25.0}
+    plt.close(fig)
+    fig, ax = ticks(["DS1", "DS2", "DS3", "DS4"])
+    assert not rotate_crowded_ticks(ax)
+    assert {label.get_rotation() for label in ax.get_xticklabels()} == {0.0}
+    plt.close(fig)
+
+
 def test_pareto_front_against_brute_force():
     items = [("a", 1.0, 5.0), ("b", 2.0, 3.0), ("c", 3.0, 3.5), ("d", 0.5, 9.0), ("e", 4.0, 1.0), ("f", 4.0, 1.0)]
     assert aggregate.pareto_front(items) == ["d", "a", "b", "e", "f"]
@@ -416,7 +439,7 @@ def test_shipped_profiles_are_valid():
         if variant.method == "nlb":
             assert resolve_pretrained(pretrained_network(variant)).is_file(), variant.name
     latent = next(g for g in group_members(full).items() if g[0] == "NLB latent size")[1]
-    assert [label for label, _ in latent] == ["16 (shipped)", "4", "8", "16", "32"]
+    assert [label for label, _ in latent] == ["16 (shipped)", "4", "8", "16", "32", "32 (from scratch)"]
 
 
 def test_parameter_count_counts_float_initializers():
