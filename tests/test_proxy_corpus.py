@@ -79,3 +79,52 @@ def test_shipped_checkpoint_never_saw_a_held_out_or_report_material():
     names = load_pretrained(PRETRAINED_COMPACT).names
     proxies = {n.removeprefix("merl:") for n in names if n.startswith("merl:")}
     assert proxies and not proxies & set(NEVER_PRETRAINED)
+
+
+@needs_merl
+def test_blends_are_weighted_geometric_means_of_two_distinct_proxies_below_their_linear_mix():
+    names = pretraining_proxy_names(MERL)[:4]
+    proxies = ProxyMaterials(MERL, names, n_blends=6, seed=3)
+    assert len(proxies) == 4 + 6
+    assert (proxies.blend_parents[:, 0] != proxies.blend_parents[:, 1]).all()
+    assert ((0.2 <= proxies.blend_weights) & (proxies.blend_weights <= 0.8)).all()
+    rng = np.random.default_rng(0)
+    wi, wo = sample_proxy_directions(rng, 300, uniform_fraction=0.5)
+    networks = [NbrdfNetwork.load(MERL / f"{n}.h5") for n in names]
+    for blend, ((j, k), a) in enumerate(zip(proxies.blend_parents, proxies.blend_weights)):
+        f = proxies.evaluate(np.full(300, 4 + blend), wi, wo)
+        fj, fk = networks[j].evaluate(wi, wo), networks[k].evaluate(wi, wo)
+        lit = fj > 1e-4
+        np.testing.assert_allclose(f[lit & (fk > 1e-4)], (fj ** a * fk ** (1 - a))[lit & (fk > 1e-4)], rtol=1e-9)
+        assert (f <= a * fj + (1 - a) * fk + 1e-12).all()
+        weight = f"{a:.3f}*{names[j]}+{1 - a:.3f}*{names[k]}"
+        assert proxies.material_names[4 + blend] == f"merl-blend:{weight}"
+    np.testing.assert_array_equal(proxies.evaluate(np.zeros(300, int), wi, wo), networks[0].evaluate(wi, wo))
+
+
+@needs_merl
+def test_blend_batches_take_their_share_of_proxy_samples_and_leave_the_unblended_stream_alone():
+    from neuralbrdf.lightning.corpus_data import CorpusDataModule
+
+    n_proxies = len(pretraining_proxy_names(MERL))
+    plain = CorpusDataModule(n_analytic=6, batch_size=4000, batches_per_epoch=1, val_batches=1,
+                             proxy_dir=str(MERL), proxy_fraction=0.5)
+    blended = CorpusDataModule(n_analytic=6, batch_size=4000, batches_per_epoch=1, val_batches=1,
+                               proxy_dir=str(MERL), proxy_fraction=0.5, proxy_blends=40, proxy_blend_fraction=0.3)
+    assert blended.n_materials == 6 + n_proxies + 40 == len(blended.material_names)
+    assert blended.material_names[6 + n_proxies].startswith("merl-blend:")
+    batch = blended.train_dataloader().dataset[0]
+    from_blends = (batch.material >= 6 + n_proxies).sum() / (batch.material >= 6).sum()
+    assert 0.25 < float(from_blends) < 0.35
+    assert torch.isfinite(batch.f).all() and (batch.f >= 0).all()
+    unblended = CorpusDataModule(n_analytic=6, batch_size=4000, batches_per_epoch=1, val_batches=1,
+                                 proxy_dir=str(MERL), proxy_fraction=0.5, proxy_blends=0)
+    assert torch.equal(unblended.train_dataloader().dataset[0].f, plain.train_dataloader().dataset[0].f)
+
+
+@pytest.mark.parametrize("value", [-1, 2.5, True])
+def test_proxy_blends_must_be_a_non_negative_integer(value):
+    from neuralbrdf.lightning.corpus_data import CorpusDataModule
+
+    with pytest.raises(InputError, match="proxy_blends"):
+        CorpusDataModule(n_analytic=6, proxy_blends=value)

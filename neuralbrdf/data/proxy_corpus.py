@@ -21,6 +21,17 @@ directions are well covered); the rest have ``wi`` uniform and ``wo`` the reflec
 about a GGX half vector whose roughness is log-uniform in :data:`PROXY_SAMPLING_ALPHA` (the
 proxies' lobe widths are not known in closed form, so every width from near-mirror to broad is
 sampled).
+
+**Blends** (``n_blends``): the 35 measured materials are a sparse sample of real appearance,
+and a new material's latent lands between them, where only the analytic corpus constrains
+the network.  ``n_blends`` further materials, fixed by ``seed``, fill that gap: each is the
+weighted geometric mean of two distinct proxies, ``f = f_j^a · f_k^(1 − a)`` per RGB channel
+with ``a`` uniform in :data:`BLEND_WEIGHTS`.  In log space this interpolates lobe shapes (the
+geometric mean of two Gaussian lobes is a Gaussian of intermediate width) rather than
+superimposing two lobes as a linear mix would; it is a valid BRDF — non-negative, reciprocal
+where both parents are, and (weighted AM–GM) never above the linear mix ``a f_j + (1 − a) f_k``,
+so it conserves energy where the parents do.  A ``blend_fraction`` of proxy samples comes
+from the blends, the rest from the measured proxies.
 """
 
 from __future__ import annotations
@@ -48,6 +59,10 @@ HELD_OUT = (
 NEVER_PRETRAINED = REPORT_MATERIALS + HELD_OUT
 #: GGX roughness range (log-uniform) of the half vectors of importance-sampled proxy pairs.
 PROXY_SAMPLING_ALPHA = (0.003, 0.5)
+#: Range (uniform) of a blend's weight ``a`` on its first parent.
+BLEND_WEIGHTS = (0.2, 0.8)
+#: Floor (sr⁻¹) of the parents' values under the logarithm of a blend.
+BLEND_FLOOR = 1e-6
 
 
 def pretraining_proxy_names(data_dir: str | PathLike[str]) -> tuple[str, ...]:
@@ -68,31 +83,71 @@ def sample_proxy_directions(rng: np.random.Generator, n: int, uniform_fraction: 
 
 
 class ProxyMaterials:
-    """Loaded NBRDF proxies, addressed as materials ``0 .. len - 1`` (the order of ``names``)."""
+    """Loaded NBRDF proxies and their blends, addressed as materials ``0 .. len - 1``: the
+    measured proxies in the order of ``names``, then the ``n_blends`` blends (module docstring)."""
 
-    def __init__(self, data_dir: str | PathLike[str], names: tuple[str, ...]) -> None:
+    def __init__(self, data_dir: str | PathLike[str], names: tuple[str, ...], n_blends: int = 0,
+                 blend_fraction: float = 0.5, seed: int = 0) -> None:
         forbidden = sorted(set(names) & set(NEVER_PRETRAINED))
         if forbidden:
             raise InputError(f"{forbidden} are held out of pretraining (neuralbrdf.data.proxy_corpus)",
                              path=data_dir)
         if not names:
             raise InputError("no NBRDF proxy to pretrain on", path=data_dir)
+        if n_blends and len(names) < 2:
+            raise InputError(f"blends need two proxies or more, got {len(names)}", path=data_dir)
+        if not 0.0 <= blend_fraction <= 1.0:
+            raise InputError(f"must lie in [0, 1], got {blend_fraction}", column="proxy_blend_fraction")
         self.names = tuple(names)
         self.networks = tuple(NbrdfNetwork.load(Path(data_dir) / f"{name}.h5") for name in self.names)
+        rng = np.random.default_rng([seed, n_blends])
+        first = rng.integers(0, len(names), n_blends)
+        second = (first + rng.integers(1, max(len(names), 2), n_blends)) % len(names)  # never the first
+        #: Blend ``b``: parents ``blend_parents[b]`` with weights ``blend_weights[b]`` and 1 − it.
+        self.blend_parents = np.stack([first, second], axis=1)
+        self.blend_weights = rng.uniform(*BLEND_WEIGHTS, n_blends)
+        self.blend_fraction = blend_fraction if n_blends else 0.0
 
     def __len__(self) -> int:
-        return len(self.networks)
+        return len(self.networks) + len(self.blend_weights)
 
-    def evaluate(self, material, wi, wo) -> np.ndarray:
-        """RGB BRDF ``[N, 3]`` (sr⁻¹) of proxies ``material`` ``[N]`` at pairs ``wi, wo``."""
+    @property
+    def material_names(self) -> tuple[str, ...]:
+        """``merl:<name>`` per measured proxy, then ``merl-blend:<a>*<name>+<1-a>*<name>``."""
+        blends = (f"merl-blend:{a:.3f}*{self.names[j]}+{1 - a:.3f}*{self.names[k]}"
+                  for (j, k), a in zip(self.blend_parents, self.blend_weights))
+        return (*(f"merl:{n}" for n in self.names), *blends)
+
+    def _measured(self, material, wi, wo) -> np.ndarray:
         f = np.zeros((len(material), 3))
         for index in np.unique(material):
             rows = np.flatnonzero(material == index)
             f[rows] = self.networks[index].evaluate(wi[rows], wo[rows])
         return f
 
+    def evaluate(self, material, wi, wo) -> np.ndarray:
+        """RGB BRDF ``[N, 3]`` (sr⁻¹) of materials ``material`` ``[N]`` at pairs ``wi, wo``."""
+        material = np.asarray(material)
+        f = np.zeros((len(material), 3))
+        measured = material < len(self.networks)
+        f[measured] = self._measured(material[measured], wi[measured], wo[measured])
+        blend = np.flatnonzero(~measured)
+        if len(blend):
+            index = material[blend] - len(self.networks)
+            weight = self.blend_weights[index][:, None]
+            log_f = sum(w * np.log(np.maximum(self._measured(self.blend_parents[index, p], wi[blend], wo[blend]),
+                                              BLEND_FLOOR))
+                        for p, w in ((0, weight), (1, 1.0 - weight)))
+            f[blend] = np.exp(log_f)
+        return f
+
     def sample_batch(self, size: int, rng: np.random.Generator, uniform_fraction: float) -> CorpusBatch:
-        """``size`` samples, proxies uniform at random, pairs by :func:`sample_proxy_directions`."""
-        material = rng.integers(0, len(self), size=size)
+        """``size`` samples: a ``blend_fraction`` from the blends, the rest from the measured
+        proxies, materials uniform at random within each; pairs by :func:`sample_proxy_directions`."""
+        n_measured = len(self.networks)
+        material = rng.integers(0, n_measured, size=size)
+        if len(self.blend_weights):  # without blends the random stream is that of the measured proxies alone
+            from_blend = rng.random(size) < self.blend_fraction
+            material[from_blend] = n_measured + rng.integers(0, len(self.blend_weights), from_blend.sum())
         wi, wo = sample_proxy_directions(rng, size, uniform_fraction)
         return CorpusBatch(material, wi, wo, self.evaluate(material, wi, wo))

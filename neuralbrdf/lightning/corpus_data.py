@@ -11,8 +11,8 @@ every epoch: the training materials at directions not trained on.
 
 **MERL proxies** (``proxy_dir``, :mod:`neuralbrdf.data.proxy_corpus`): a ``proxy_fraction`` of
 every batch comes from the NBRDF proxies allowed in pretraining (never the held-out subset or
-the report's five materials); they are materials ``n_analytic .. n_materials - 1`` of the
-latent table, after the analytic ones.
+the report's five materials) and, with ``proxy_blends``, their geometric blends; they are
+materials ``n_analytic .. n_materials - 1`` of the latent table, after the analytic ones.
 
 A batch is a :class:`CorpusSamples` of float32 tensors (``material`` int64).
 """
@@ -119,6 +119,11 @@ class CorpusDataModule(pl.LightningDataModule):
         analytic corpus alone.
     proxy_fraction:
         Share of each batch drawn from the proxies (when ``proxy_dir`` is set).
+    proxy_blends:
+        Blends of two proxies added as further materials (seeded by ``seed``;
+        :class:`~neuralbrdf.data.proxy_corpus.ProxyMaterials`); 0: the measured proxies alone.
+    proxy_blend_fraction:
+        Share of the proxy samples drawn from the blends (when there are any).
     """
 
     def __init__(
@@ -133,6 +138,8 @@ class CorpusDataModule(pl.LightningDataModule):
         num_workers: int = 0,
         proxy_dir: str | None = None,
         proxy_fraction: float = 0.5,
+        proxy_blends: int = 0,
+        proxy_blend_fraction: float = 0.5,
     ) -> None:
         super().__init__()
         if not isinstance(num_workers, int) or num_workers < 0:
@@ -143,11 +150,14 @@ class CorpusDataModule(pl.LightningDataModule):
             raise InputError(f"must lie in [0, 1], got {uniform_fraction}", column="uniform_fraction")
         if not 0.0 < proxy_fraction < 1.0:
             raise InputError(f"must lie in (0, 1), got {proxy_fraction}", column="proxy_fraction")
+        if not isinstance(proxy_blends, int) or isinstance(proxy_blends, bool) or proxy_blends < 0:
+            raise InputError(f"must be a non-negative integer, got {proxy_blends!r}", column="proxy_blends")
         self.save_hyperparameters()
         self.materials = generate_materials(n_analytic, seed, tuple(archetype_weights))
         self.proxies = None
         if proxy_dir is not None:
-            self.proxies = ProxyMaterials(proxy_dir, pretraining_proxy_names(proxy_dir))
+            self.proxies = ProxyMaterials(proxy_dir, pretraining_proxy_names(proxy_dir), proxy_blends,
+                                          proxy_blend_fraction, seed)
 
     @property
     def n_materials(self) -> int:
@@ -156,9 +166,10 @@ class CorpusDataModule(pl.LightningDataModule):
 
     @property
     def material_names(self) -> tuple[str, ...]:
-        """``analytic:<i>`` for the generated materials, ``merl:<name>`` for the proxies."""
-        proxies = () if self.proxies is None else self.proxies.names
-        return (*(f"analytic:{i}" for i in range(len(self.materials))), *(f"merl:{n}" for n in proxies))
+        """``analytic:<i>`` for the generated materials, then the proxies' names
+        (``merl:<name>``, ``merl-blend:…``; :attr:`ProxyMaterials.material_names`)."""
+        proxies = () if self.proxies is None else self.proxies.material_names
+        return (*(f"analytic:{i}" for i in range(len(self.materials))), *proxies)
 
     def _loader(self, n_batches: int, stream: int, epoch: int) -> DataLoader:
         batches = CorpusBatches(

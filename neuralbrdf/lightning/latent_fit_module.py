@@ -307,8 +307,9 @@ class LatentFitModule(WritesKind, pl.LightningModule):
 
 
 def start_candidates(pretrained: PretrainedNlb, n_analytic: int) -> torch.Tensor:
-    """Candidate starting codes ``[K, latent_dim]``: the centroid, every MERL proxy code and
-    ``n_analytic`` analytic codes evenly spaced in the table (module docstring)."""
+    """Candidate starting codes ``[K, latent_dim]``: the centroid, every measured MERL proxy code
+    (``merl:``) and ``n_analytic`` of the other codes (analytic, then proxy blends where the
+    network was pretrained with them) evenly spaced in the table (module docstring)."""
     merl = [i for i, name in enumerate(pretrained.names) if name.startswith("merl:")]
     analytic = [i for i in range(len(pretrained.latents)) if i not in set(merl)]
     picked = [analytic[int(j)] for j in np.linspace(0, len(analytic) - 1, min(n_analytic, len(analytic)))]
