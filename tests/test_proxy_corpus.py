@@ -72,13 +72,20 @@ def test_proxy_batches_are_the_proxies_values_and_follow_the_analytic_materials(
     assert torch.equal(again.f, batch.f)
 
 
-def test_shipped_checkpoint_never_saw_a_held_out_or_report_material():
-    from neuralbrdf.shipped import PRETRAINED_COMPACT
-    from neuralbrdf.lightning.nlb_module import load_pretrained
+@pytest.mark.parametrize("checkpoint", ["nlb_compact", "nlb_latent32_scratch", "nlb_latent32_blends"])
+def test_shipped_checkpoints_never_saw_a_held_out_or_report_material(checkpoint):
+    import re
 
-    names = load_pretrained(PRETRAINED_COMPACT).names
+    from neuralbrdf.lightning.nlb_module import load_pretrained
+    from neuralbrdf.shipped import resolve_pretrained
+
+    names = load_pretrained(resolve_pretrained(checkpoint)).names
     proxies = {n.removeprefix("merl:") for n in names if n.startswith("merl:")}
-    assert proxies and not proxies & set(NEVER_PRETRAINED)
+    blend_parents = {p for n in names if n.startswith("merl-blend:")
+                     for p in re.fullmatch(r"merl-blend:[0-9.]+\*(.+)\+[0-9.]+\*(.+)", n).groups()}
+    assert proxies and not (proxies | blend_parents) & set(NEVER_PRETRAINED)
+    assert blend_parents <= proxies
+    assert (len(blend_parents) > 0) == (checkpoint == "nlb_latent32_blends")
 
 
 @needs_merl

@@ -30,8 +30,9 @@ with ``a`` uniform in :data:`BLEND_WEIGHTS`.  In log space this interpolates lob
 geometric mean of two Gaussian lobes is a Gaussian of intermediate width) rather than
 superimposing two lobes as a linear mix would; it is a valid BRDF — non-negative, reciprocal
 where both parents are, and (weighted AM–GM) never above the linear mix ``a f_j + (1 − a) f_k``,
-so it conserves energy where the parents do.  A ``blend_fraction`` of proxy samples comes
-from the blends, the rest from the measured proxies.
+so it conserves energy where the parents do (parent values are floored at :data:`BLEND_FLOOR`
+under the logarithm, which can lift a blend of two near-zero values to at most that floor).
+A ``blend_fraction`` of proxy samples comes from the blends, the rest from the measured proxies.
 """
 
 from __future__ import annotations
