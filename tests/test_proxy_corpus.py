@@ -110,23 +110,50 @@ def test_blends_are_weighted_geometric_means_of_two_distinct_proxies_below_their
 
 
 @needs_merl
-def test_blend_batches_take_their_share_of_proxy_samples_and_leave_the_unblended_stream_alone():
+def test_blend_batches_take_their_share_of_proxy_samples_with_each_row_its_parents_geometric_mean():
     from neuralbrdf.lightning.corpus_data import CorpusDataModule
 
-    n_proxies = len(pretraining_proxy_names(MERL))
-    plain = CorpusDataModule(n_analytic=6, batch_size=4000, batches_per_epoch=1, val_batches=1,
-                             proxy_dir=str(MERL), proxy_fraction=0.5)
+    names = pretraining_proxy_names(MERL)
     blended = CorpusDataModule(n_analytic=6, batch_size=4000, batches_per_epoch=1, val_batches=1,
                                proxy_dir=str(MERL), proxy_fraction=0.5, proxy_blends=40, proxy_blend_fraction=0.3)
-    assert blended.n_materials == 6 + n_proxies + 40 == len(blended.material_names)
-    assert blended.material_names[6 + n_proxies].startswith("merl-blend:")
+    assert blended.n_materials == 6 + len(names) + 40 == len(blended.material_names)
+    assert blended.material_names[6 + len(names)].startswith("merl-blend:")
     batch = blended.train_dataloader().dataset[0]
-    from_blends = (batch.material >= 6 + n_proxies).sum() / (batch.material >= 6).sum()
+    from_blends = (batch.material >= 6 + len(names)).sum() / (batch.material >= 6).sum()
     assert 0.25 < float(from_blends) < 0.35
     assert torch.isfinite(batch.f).all() and (batch.f >= 0).all()
-    unblended = CorpusDataModule(n_analytic=6, batch_size=4000, batches_per_epoch=1, val_batches=1,
-                                 proxy_dir=str(MERL), proxy_fraction=0.5, proxy_blends=0)
-    assert torch.equal(unblended.train_dataloader().dataset[0].f, plain.train_dataloader().dataset[0].f)
+    # Rows of a mixed batch, measured and blended, against their parents evaluated independently.
+    proxies = blended.proxies
+    rows = [int(torch.nonzero(batch.material == m)[0]) for m in (6, 6 + len(names), 6 + len(names) + 1)]
+    for row in rows:
+        wi, wo = batch.wi[row : row + 1].double().numpy(), batch.wo[row : row + 1].double().numpy()
+        index = int(batch.material[row]) - 6
+        if index < len(names):
+            expected = NbrdfNetwork.load(MERL / f"{names[index]}.h5").evaluate(wi, wo)
+        else:
+            (j, k), a = proxies.blend_parents[index - len(names)], proxies.blend_weights[index - len(names)]
+            fj, fk = (NbrdfNetwork.load(MERL / f"{names[n]}.h5").evaluate(wi, wo) for n in (j, k))
+            expected = np.maximum(fj, 1e-6) ** a * np.maximum(fk, 1e-6) ** (1 - a)
+        np.testing.assert_allclose(batch.f[row].numpy(), expected[0], rtol=1e-5, atol=1e-7)
+
+
+@needs_merl
+def test_without_blends_the_proxy_samples_follow_the_unblended_random_stream():
+    """Materials, then directions, drawn from the batch's generator after the analytic samples:
+    the order the shipped networks were pretrained with."""
+    from neuralbrdf.data.corpus import sample_batch
+    from neuralbrdf.lightning.corpus_data import CorpusDataModule
+
+    data = CorpusDataModule(n_analytic=6, batch_size=400, batches_per_epoch=1, val_batches=1,
+                            proxy_dir=str(MERL), proxy_fraction=0.5, proxy_blends=0)
+    batch = data.train_dataloader().dataset[0]
+    rng = np.random.default_rng([0, 0, 0, 0])  # seed, training stream, epoch, batch index
+    sample_batch(data.materials, 200, rng, 0.5)
+    material = rng.integers(0, len(pretraining_proxy_names(MERL)), size=200)
+    wi, wo = sample_proxy_directions(rng, 200, 0.5)
+    np.testing.assert_array_equal(batch.material[200:].numpy(), material + 6)
+    np.testing.assert_allclose(batch.wi[200:].numpy(), wi, rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(batch.wo[200:].numpy(), wo, rtol=1e-6, atol=1e-7)
 
 
 @pytest.mark.parametrize("value", [-1, 2.5, True])
@@ -135,3 +162,10 @@ def test_proxy_blends_must_be_a_non_negative_integer(value):
 
     with pytest.raises(InputError, match="proxy_blends"):
         CorpusDataModule(n_analytic=6, proxy_blends=value)
+
+
+def test_proxy_blends_need_the_proxies():
+    from neuralbrdf.lightning.corpus_data import CorpusDataModule
+
+    with pytest.raises(InputError, match="proxy_dir"):
+        CorpusDataModule(n_analytic=6, proxy_blends=4)

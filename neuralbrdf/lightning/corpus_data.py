@@ -98,7 +98,7 @@ class CorpusDataModule(pl.LightningDataModule):
     ----------
     n_analytic:
         Analytic corpus materials.  The model's ``n_materials`` (one latent each) is this plus
-        the number of pretraining proxies (:attr:`n_materials` of the module).
+        the number of pretraining proxies and their blends (:attr:`n_materials` of the module).
     seed:
         Seed of the materials and of every batch.
     archetype_weights:
@@ -152,6 +152,8 @@ class CorpusDataModule(pl.LightningDataModule):
             raise InputError(f"must lie in (0, 1), got {proxy_fraction}", column="proxy_fraction")
         if not isinstance(proxy_blends, int) or isinstance(proxy_blends, bool) or proxy_blends < 0:
             raise InputError(f"must be a non-negative integer, got {proxy_blends!r}", column="proxy_blends")
+        if proxy_blends and proxy_dir is None:
+            raise InputError("blends are made from the MERL proxies: set proxy_dir too", column="proxy_blends")
         self.save_hyperparameters()
         self.materials = generate_materials(n_analytic, seed, tuple(archetype_weights))
         self.proxies = None
