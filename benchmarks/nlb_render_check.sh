@@ -2,13 +2,13 @@
 # Rendered-image check of NLB latent fits (issue 14): the held-out ten fitted from DS1 with each
 # pretrained network, exported, and scored by `neuralbrdf evaluate` against the NBRDF proxy's own
 # export (material-preview scene, llvm_ad_rgb, 128 px, 256 spp; direction metrics beside the image).
-#   benchmarks/nlb_render_check.sh OUT_DIR [CHECKPOINT ...]   (default: nlb_compact nlb_latent32_blends)
+#   benchmarks/nlb_render_check.sh OUT_DIR [CHECKPOINT ...]   (default: nlb_compact nlb_latent32_scratch nlb_latent32_blends)
 # Writes OUT_DIR/eval_<checkpoint>_<material>/{evaluation.json,comparison.png,...} and
 # OUT_DIR/summary.tsv (one row per checkpoint and material).  ~1 min per network's fit plus
 # ~10 s per evaluation on 2 cores.
 set -euo pipefail
 out=${1:?usage: nlb_render_check.sh OUT_DIR [CHECKPOINT ...]}; shift
-[ $# -gt 0 ] && checkpoints=("$@") || checkpoints=(nlb_compact nlb_latent32_blends)
+[ $# -gt 0 ] && checkpoints=("$@") || checkpoints=(nlb_compact nlb_latent32_scratch nlb_latent32_blends)
 merl=../shared/data/merl-nbrdf
 materials=$(python -c "from neuralbrdf.data.proxy_corpus import HELD_OUT; print(' '.join(HELD_OUT))")
 sources=$(python -c "import json; from neuralbrdf.data.proxy_corpus import HELD_OUT; \
