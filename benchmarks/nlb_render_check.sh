@@ -3,6 +3,7 @@
 # pretrained network, exported, and scored by `neuralbrdf evaluate` against the NBRDF proxy's own
 # export (material-preview scene, llvm_ad_rgb, 128 px, 256 spp; direction metrics beside the image).
 #   benchmarks/nlb_render_check.sh OUT_DIR [CHECKPOINT ...]   (default: nlb_compact nlb_latent32_scratch nlb_latent32_blends)
+# Run from the repository root, with the package's environment active (../shared beside the checkout).
 # Writes OUT_DIR/eval_<checkpoint>_<material>/{evaluation.json,comparison.png,...} and
 # OUT_DIR/summary.tsv (one row per checkpoint and material).  ~1 min per network's fit plus
 # ~10 s per evaluation on 2 cores.

@@ -108,7 +108,7 @@ class ProxyMaterials:
         #: Blend ``b``: parents ``blend_parents[b]`` with weights ``blend_weights[b]`` and 1 − it.
         self.blend_parents = np.stack([first, second], axis=1)
         self.blend_weights = rng.uniform(*BLEND_WEIGHTS, n_blends)
-        self.blend_fraction = blend_fraction if n_blends else 0.0
+        self.blend_fraction = blend_fraction
 
     def __len__(self) -> int:
         return len(self.networks) + len(self.blend_weights)

@@ -86,9 +86,11 @@ class CorpusBatches(Dataset):
         )
 
 
-def _positive(name: str, value) -> None:
-    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-        raise InputError(f"must be a positive integer, got {value!r}", column=name)
+def _whole_number(name: str, value, minimum: int = 1) -> None:
+    """Refuse ``value`` unless it is an ``int`` (not a ``bool``) of at least ``minimum`` (1 or 0)."""
+    if not isinstance(value, int) or isinstance(value, bool) or value < minimum:
+        kind = "positive" if minimum == 1 else "non-negative"
+        raise InputError(f"must be a {kind} integer, got {value!r}", column=name)
 
 
 class CorpusDataModule(pl.LightningDataModule):
@@ -145,13 +147,12 @@ class CorpusDataModule(pl.LightningDataModule):
         if not isinstance(num_workers, int) or num_workers < 0:
             raise InputError(f"must be a non-negative integer, got {num_workers!r}", column="num_workers")
         for name in ("n_analytic", "batch_size", "batches_per_epoch", "val_batches"):
-            _positive(name, locals()[name])
+            _whole_number(name, locals()[name])
         if not 0.0 <= uniform_fraction <= 1.0:
             raise InputError(f"must lie in [0, 1], got {uniform_fraction}", column="uniform_fraction")
         if not 0.0 < proxy_fraction < 1.0:
             raise InputError(f"must lie in (0, 1), got {proxy_fraction}", column="proxy_fraction")
-        if not isinstance(proxy_blends, int) or isinstance(proxy_blends, bool) or proxy_blends < 0:
-            raise InputError(f"must be a non-negative integer, got {proxy_blends!r}", column="proxy_blends")
+        _whole_number("proxy_blends", proxy_blends, minimum=0)
         if proxy_blends and proxy_dir is None:
             raise InputError("blends are made from the MERL proxies: set proxy_dir too", column="proxy_blends")
         self.save_hyperparameters()
