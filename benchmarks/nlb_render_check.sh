@@ -2,14 +2,16 @@
 # Rendered-image check of NLB latent fits (issue 14): the held-out ten fitted from DS1 with each
 # pretrained network, exported, and scored by `neuralbrdf evaluate` against the NBRDF proxy's own
 # export (material-preview scene, llvm_ad_rgb, 128 px, 256 spp; direction metrics beside the image).
-#   benchmarks/nlb_render_check.sh OUT_DIR [CHECKPOINT ...]   (default: nlb_compact nlb_latent32_scratch nlb_latent32_blends)
+#   benchmarks/nlb_render_check.sh OUT_DIR [CHECKPOINT[:PRIOR_WEIGHT] ...]
+# PRIOR_WEIGHT is the fit's model.latent_prior_weight (default 0, no prior); the default list is
+# nlb_compact nlb_latent32_scratch nlb_latent32_blends nlb_latent32_blends:0.01 (the default fit).
 # Run from the repository root, with the package's environment active (../shared beside the checkout).
-# Writes OUT_DIR/eval_<checkpoint>_<material>/{evaluation.json,comparison.png,...} and
-# OUT_DIR/summary.tsv (one row per checkpoint and material).  ~1 min per network's fit plus
+# Writes OUT_DIR/eval_<label>_<material>/{evaluation.json,comparison.png,...} (label: the checkpoint,
+# with _prior<weight> where there is one) and OUT_DIR/summary.tsv (one row per label and material).  ~1 min per network's fit plus
 # ~10 s per evaluation on 2 cores.
 set -euo pipefail
-out=${1:?usage: nlb_render_check.sh OUT_DIR [CHECKPOINT ...]}; shift
-[ $# -gt 0 ] && checkpoints=("$@") || checkpoints=(nlb_compact nlb_latent32_scratch nlb_latent32_blends)
+out=${1:?usage: nlb_render_check.sh OUT_DIR [CHECKPOINT[:PRIOR_WEIGHT] ...]}; shift
+[ $# -gt 0 ] && models=("$@") || models=(nlb_compact nlb_latent32_scratch nlb_latent32_blends nlb_latent32_blends:0.01)
 merl=../shared/data/merl-nbrdf
 materials=$(python -c "from neuralbrdf.data.proxy_corpus import HELD_OUT; print(' '.join(HELD_OUT))")
 sources=$(python -c "import json; from neuralbrdf.data.proxy_corpus import HELD_OUT; \
@@ -18,26 +20,31 @@ mkdir -p "$out"
 for m in $materials; do
   [ -f "$out/truth_$m.onnx" ] || neuralbrdf export-truth "$merl/$m.h5" --out "$out/truth_$m.onnx" > /dev/null
 done
-for ck in "${checkpoints[@]}"; do
+labels=()
+for spec in "${models[@]}"; do
+  ck=${spec%%:*}; weight=0; [[ $spec == *:* ]] && weight=${spec#*:}
+  label=$ck; [[ $weight == 0 ]] || label=${ck}_prior$weight
+  labels+=("$label")
   python train.py fit --config configs/nlb_latent.yaml --data.sources "$sources" --data.plan DS1 \
-    --model.checkpoint "$ck" --run_dir "$out/fit_$ck" --trainer.enable_progress_bar false > "$out/fit_$ck.log"
+    --model.checkpoint "$ck" --model.latent_prior_weight "$weight" --run_dir "$out/fit_$label" \
+    --trainer.enable_progress_bar false > "$out/fit_$label.log"
   for m in $materials; do
-    neuralbrdf export --ckpt "$out/fit_$ck/checkpoints/fitted.ckpt" --out "$out/${ck}_$m.onnx" --material "$m" > /dev/null
-    neuralbrdf evaluate "$out/${ck}_$m.onnx" --truth "$out/truth_$m.onnx" --out-dir "$out/eval_${ck}_$m" \
-      --variant llvm_ad_rgb > "$out/eval_${ck}_$m.log"
+    neuralbrdf export --ckpt "$out/fit_$label/checkpoints/fitted.ckpt" --out "$out/${label}_$m.onnx" --material "$m" > /dev/null
+    neuralbrdf evaluate "$out/${label}_$m.onnx" --truth "$out/truth_$m.onnx" --out-dir "$out/eval_${label}_$m" \
+      --variant llvm_ad_rgb > "$out/eval_${label}_$m.log"
   done
 done
-python - "$out" "${checkpoints[@]}" <<'PY'
+python - "$out" "${labels[@]}" <<'PY'
 import json, sys
 from pathlib import Path
 from neuralbrdf.data.proxy_corpus import HELD_OUT
-out, checkpoints = Path(sys.argv[1]), sys.argv[2:]
+out, labels = Path(sys.argv[1]), sys.argv[2:]
 keys = ("hemisphere_logcos_rmse", "image_delta_e2000_mean", "image_delta_e2000_p95", "image_rel_mse")
-lines = ["checkpoint\tmaterial\t" + "\t".join(keys)]
-for ck in checkpoints:
+lines = ["model\tmaterial\t" + "\t".join(keys)]
+for label in labels:
     for m in HELD_OUT:
-        e = json.loads((out / f"eval_{ck}_{m}" / "evaluation.json").read_text())
-        lines.append("\t".join([ck, m, *(f"{e[k]:.4g}" for k in keys)]))
+        e = json.loads((out / f"eval_{label}_{m}" / "evaluation.json").read_text())
+        lines.append("\t".join([label, m, *(f"{e[k]:.4g}" for k in keys)]))
 (out / "summary.tsv").write_text("\n".join(lines) + "\n")
 print("\n".join(lines))
 PY

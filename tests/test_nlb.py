@@ -6,6 +6,7 @@ tests that use the MERL proxies skip when ``../shared/data`` is absent.
 
 import json
 import math
+from dataclasses import replace
 import subprocess
 import sys
 import textwrap
@@ -25,7 +26,7 @@ from neuralbrdf.errors import InputError
 from neuralbrdf.geometry import normalize, spherical_pair_to_vectors
 from neuralbrdf.lightning.latent_fit_data import LatentFitData
 from neuralbrdf.lightning.latent_fit_module import LatentFitModule, start_candidates
-from neuralbrdf.shipped import PRETRAINED_COMPACT
+from neuralbrdf.shipped import PRETRAINED_DEFAULT
 from neuralbrdf.kinds.nlb import load_fitted
 from neuralbrdf.lightning.nlb_module import NlbPretrainModule, load_pretrained, save_pretrained
 from neuralbrdf.losses import nlb_loss
@@ -313,11 +314,11 @@ def test_load_pretrained_rejects_bad_files(tmp_path):
 
 
 def test_latent_fit_defaults_to_the_shipped_checkpoint():
-    if PRETRAINED_COMPACT.is_file():
-        pretrained = load_pretrained(PRETRAINED_COMPACT)
-        assert pretrained.network.config == COMPACT
+    if PRETRAINED_DEFAULT.is_file():
+        pretrained = load_pretrained(PRETRAINED_DEFAULT)
+        assert pretrained.network.config == replace(COMPACT, latent_dim=32)  # nlb_latent32_blends
         assert torch.isfinite(pretrained.latents).all()
-        assert LatentFitModule().network.config == COMPACT
+        assert LatentFitModule().network.config == pretrained.network.config
     else:
         with pytest.raises(InputError, match="nlb_pretrain.yaml"):
             LatentFitModule()
@@ -628,6 +629,7 @@ def test_pretrain_rejects_a_latent_table_of_the_wrong_size(tmp_path):
 def latent_run(pretrained_run, tmp_path, sources, *extra):
     run_train("--config", str(CONFIGS / "nlb_latent.yaml"), "--run_dir", str(tmp_path),
               "--model.checkpoint", str(pretrained_run / "checkpoints" / "last.ckpt"),
+              "--model.latent_prior_codes", "all",  # the fixture's network has no measured codes
               "--trainer.max_epochs", "1", "--trainer.check_val_every_n_epoch", "1",
               "--trainer.log_every_n_steps", "1", "--data.steps_per_epoch", "3",
               "--data.sources", json.dumps(sources), *extra)
@@ -651,7 +653,7 @@ def test_latent_fit_checkpoint_is_the_model_its_metrics_describe(pretrained_run,
     sources = [{"path": str(network_table(module, k, "DS2", tmp_path / f"m{k}.csv"))} for k in (1, 4)]
     run_train("--config", str(CONFIGS / "nlb_latent.yaml"), "--run_dir", str(tmp_path / "run"),
               "--model.checkpoint", str(pretrained_run / "checkpoints" / "last.ckpt"),
-              "--trainer.check_val_every_n_epoch", "10", "--data.steps_per_epoch", "3",
+              "--model.latent_prior_codes", "all", "--trainer.check_val_every_n_epoch", "10", "--data.steps_per_epoch", "3",
               "--data.sources", json.dumps(sources), *extra)
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     checkpoint = tmp_path / "run" / "checkpoints" / "fitted.ckpt"
@@ -706,6 +708,18 @@ def test_latent_config_evaluates_nbrdf_sources_on_the_low_plan(pretrained_run, t
 
 
 @pytest.mark.filterwarnings("ignore:.*negative linear-sRGB value")  # cyan lies partly outside sRGB
+def test_the_latent_config_refuses_a_network_without_measured_codes(pretrained_run, tmp_path, capsys):
+    """The config's prior is fitted to measured-material codes; an analytic-only network has none:
+    exit 2 with the file and the way out, and no fitted checkpoint."""
+    status = train("--config", str(CONFIGS / "nlb_latent.yaml"), "--run_dir", str(tmp_path),
+                   "--model.checkpoint", str(pretrained_run / "checkpoints" / "last.ckpt"),
+                   "--data.sources", json.dumps([{"virtual": "gold"}]))
+    assert status == 2
+    message = capsys.readouterr().err
+    assert "last.ckpt" in message and "latent_prior_codes: all" in message
+    assert not (tmp_path / "checkpoints" / "fitted.ckpt").exists()
+
+
 def test_latent_fit_minibatches_are_seeded_subsets():
     sources = [{"virtual": "gold"}, {"virtual": "cyan"}]
     data = LatentFitData(sources, eval_plan=None, steps_per_epoch=3, batch_size=500)
@@ -720,3 +734,97 @@ def test_latent_fit_minibatches_are_seeded_subsets():
     assert set(torch.cat([b.material for b in first]).tolist()) == {0, 1}
     with pytest.raises(InputError):
         LatentFitData([{"virtual": "gold"}], batch_size=0)
+
+
+# ------------------------------------------------------------------------------- latent prior
+
+
+def test_latent_prior_is_the_codes_gaussian_negative_log_density_per_dimension():
+    from scipy.stats import multivariate_normal
+
+    from neuralbrdf.models.latent_prior import COVARIANCE_RIDGE, gaussian_of_codes, latent_prior_penalty
+
+    generator = torch.Generator().manual_seed(3)
+    codes = torch.randn(40, 4, generator=generator, dtype=torch.float64) @ torch.tensor(
+        [[1.0, 0.3, 0.0, 0.0], [0.0, 0.5, 0.2, 0.0], [0.0, 0.0, 2.0, 0.1], [0.0, 0.0, 0.0, 0.7]], dtype=torch.float64)
+    mean, precision = gaussian_of_codes(codes)
+    covariance = np.cov(codes.numpy(), rowvar=False) + COVARIANCE_RIDGE * np.eye(4)
+    np.testing.assert_allclose(mean.numpy(), codes.numpy().mean(0), rtol=1e-12)
+    np.testing.assert_allclose(precision.numpy(), np.linalg.inv(covariance), rtol=1e-9)
+    z = torch.randn(3, 2, 4, generator=generator, dtype=torch.float64)
+    gaussian = multivariate_normal(codes.numpy().mean(0), covariance)
+    expected = (gaussian.logpdf(mean.numpy()) - gaussian.logpdf(z.numpy())) / 4
+    np.testing.assert_allclose(latent_prior_penalty(z, mean, precision).numpy(), expected, rtol=1e-9)
+    assert float(latent_prior_penalty(mean, mean, precision)) == 0.0
+    z.requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda x: latent_prior_penalty(x, mean, precision), (z,))
+    with pytest.raises(ValueError, match="at least 2 codes"):
+        gaussian_of_codes(codes[:1])
+
+
+def _named_checkpoint(tmp_path, names=("analytic:0", "merl:a", "merl:b", "merl-blend:0.5*a+0.5*b", "merl:c", "analytic:5")):
+    module = tiny_module(n_materials=len(names))
+    path = tmp_path / "named.ckpt"
+    torch.save({"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams),
+                "material_names": list(names)}, path)
+    return module, path
+
+
+def test_latent_prior_enters_each_materials_loss_with_its_weight(tmp_path):
+    from neuralbrdf.models.latent_prior import gaussian_of_codes, latent_prior_penalty
+
+    module, checkpoint = _named_checkpoint(tmp_path)
+    data = _tables_off_the_codes(module, tmp_path)
+    samples = data.train_samples
+    codes = module.latents.latents[:3, None].expand(3, 2, -1).detach()
+    plain = LatentFitModule(str(checkpoint))
+    measured = module.latents.latents.detach()[[1, 2, 3, 4]]  # merl: and merl-blend: codes only
+    for which, prior_codes in (("measured", measured), ("all", module.latents.latents.detach())):
+        fit = LatentFitModule(str(checkpoint), latent_prior_weight=0.2, latent_prior_codes=which)
+        for f in (plain, fit):
+            f.build_latents(data.material_names)
+        with torch.no_grad():
+            difference = fit._material_losses(samples, codes) - plain._material_losses(samples, codes)
+            penalty = latent_prior_penalty(codes, *gaussian_of_codes(prior_codes))
+        torch.testing.assert_close(difference, 0.2 * penalty, rtol=1e-5, atol=1e-7)
+        # the training loss: the data loss plus the mean of the materials' prior terms
+        with torch.no_grad():
+            fit.latents.latents.copy_(codes[1])
+        batch_loss = nlb_loss(fit.predict(samples), samples.f, samples.wi, "log_cosine")
+        with mock.patch.object(fit, "log"), mock.patch.object(fit, "_track_convergence"):
+            loss = fit.training_step(samples, 0)
+        torch.testing.assert_close(loss, batch_loss + 0.2 * penalty[1].mean(), rtol=1e-5, atol=1e-7)
+
+
+def test_a_strong_latent_prior_pulls_the_fit_to_the_measured_codes_mean(tmp_path):
+    names = ("analytic:0", *(f"merl:{c}" for c in "abcde"), "merl-blend:0.5*a+0.5*b", "analytic:7")
+    module, checkpoint = _named_checkpoint(tmp_path, names)
+    sources = [{"path": str(network_table(module, k, "DS2", tmp_path / f"m{k}.csv"))} for k in (0, 7)]
+    prior_mean = module.latents.latents.detach()[1:7].mean(0)
+    fitted = {}
+    for weight in (0.0, 1e3):
+        data = LatentFitData(sources, eval_plan=None, steps_per_epoch=300)
+        fit = LatentFitModule(str(checkpoint), latent_prior_weight=weight,
+                              optimizer=lambda p: torch.optim.Adam(p, lr=0.05),
+                              lr_scheduler=lambda o: torch.optim.lr_scheduler.ExponentialLR(o, 0.98))
+        trainer = pl.Trainer(accelerator="cpu", max_epochs=1, logger=False, enable_checkpointing=False,
+                             enable_progress_bar=False, enable_model_summary=False)
+        trainer.fit(fit, data)
+        fitted[weight] = fit.latents.latents.detach()
+    # without the prior each fit finds its own analytic code, with a strong one both sit at the mean
+    torch.testing.assert_close(fitted[0.0], module.latents.latents.detach()[[0, 7]], rtol=0, atol=0.05)
+    torch.testing.assert_close(fitted[1e3], prior_mean.expand(2, -1), rtol=0, atol=0.01)
+
+
+def test_bad_latent_prior_settings_raise(tmp_path):
+    checkpoint = save_checkpoint(tiny_module(), tmp_path / "unnamed.ckpt")  # no measured codes
+    LatentFitModule(str(checkpoint), latent_prior_weight=0.0)  # no prior: no codes needed
+    LatentFitModule(str(checkpoint), latent_prior_weight=0.1, latent_prior_codes="all")
+    with pytest.raises(InputError, match="latent_prior_codes: all") as error:
+        LatentFitModule(str(checkpoint), latent_prior_weight=0.1)
+    assert "unnamed.ckpt" in str(error.value)
+    for weight in (-0.1, float("nan"), float("inf"), True, "0.1"):
+        with pytest.raises(InputError, match="latent_prior_weight"):
+            LatentFitModule(str(checkpoint), latent_prior_weight=weight)
+    with pytest.raises(InputError, match="latent_prior_codes"):
+        LatentFitModule(str(checkpoint), latent_prior_weight=0.1, latent_prior_codes="merl")

@@ -105,17 +105,17 @@ def test_a_variant_fits_only_the_materials_it_names(tmp_path):
 def test_nlb_keys_follow_the_pretrained_networks_contents(tmp_path):
     import shutil
 
-    from neuralbrdf.shipped import PRETRAINED_COMPACT
+    from neuralbrdf.shipped import PRETRAINED_DEFAULT
 
     network = tmp_path / "net.ckpt"
-    shutil.copy(PRETRAINED_COMPACT, network)
+    shutil.copy(PRETRAINED_DEFAULT, network)
     variants = ("variants:\n  - {name: nlb, method: nlb, config: configs/nlb_latent.yaml, args: [--model.checkpoint, NET]}\n"
                 "  - {name: shipped, method: nlb, config: configs/nlb_latent.yaml}\n"
-                "  - {name: by_name, method: nlb, config: configs/nlb_latent.yaml, args: [--model.checkpoint, nlb_compact]}\n")
+                "  - {name: by_name, method: nlb, config: configs/nlb_latent.yaml, args: [--model.checkpoint, nlb_latent32_blends]}\n")
     text = BASE.split("variants:")[0] + variants.replace("NET", str(network))
     profile = load_profile(str(_write(tmp_path, text)))
     key = {v: cell_key(Cell("gold", v, "DS1", 0.0, 0), profile) for v in ("nlb", "shipped", "by_name")}
-    assert profile.variant("shipped").args == () and pretrained_network(profile.variant("by_name")) == "nlb_compact"
+    assert profile.variant("shipped").args == () and pretrained_network(profile.variant("by_name")) == "nlb_latent32_blends"
     settings = {v: cell_settings(Cell("gold", v, "DS1", 0.0, 0), profile)["variant"]["pretrained"] for v in key}
     assert settings["nlb"] == settings["shipped"] == settings["by_name"]  # the same bytes, three names
     network.write_bytes(network.read_bytes() + b"retrained")
@@ -434,12 +434,12 @@ def test_shipped_profiles_are_valid():
             raise
         pytest.skip(f"full.yaml names a config of a branch not merged yet ({error})")
     full = load_profile("full")
-    assert len(full.materials) == 9 and {"abc", "nlb_compact", "spectral_mlp"} <= set(full.stability.variants)
+    assert len(full.materials) == 9 and {"abc", "nlb", "nlb_compact", "spectral_mlp"} <= set(full.stability.variants)
     for variant in full.variants:  # every pretrained network a variant names is shipped
         if variant.method == "nlb":
             assert resolve_pretrained(pretrained_network(variant)).is_file(), variant.name
     latent = next(g for g in group_members(full).items() if g[0] == "NLB latent size")[1]
-    assert [label for label, _ in latent] == ["16 (shipped)", "4", "8", "16", "32", "32 (from scratch)"]
+    assert [label for label, _ in latent] == ["32, blends + prior (default)", "16 (nlb_compact)", "4", "8", "16", "32", "32 (from scratch)"]
 
 
 def test_parameter_count_counts_float_initializers():

@@ -24,6 +24,15 @@ optimiser, all materials and starts at once) and each material continues from th
 the lowest loss after them (on at most :data:`SCREEN_SAMPLES` of its samples).  Selection uses
 the fitting samples only, never the truth.
 
+**Latent prior** (``latent_prior_weight``, ``latent_prior_codes``).  Each material's loss gets
+``latent_prior_weight · P(z)``, the negative log-density per dimension of a Gaussian fitted to
+pretrained codes (:mod:`neuralbrdf.models.latent_prior`): a MAP fit that keeps the code among
+those the network learned.  ``latent_prior_codes: measured`` fits the Gaussian to the codes of
+the measured materials (``merl:``) and their blends (``merl-blend:``,
+:mod:`neuralbrdf.data.proxy_corpus`); ``all`` to every code, the analytic corpus included.
+Screening and the fit minimise the same loss.  Measured on the held-out MERL materials in the
+README (*NLB latent prior*).
+
 **Early stopping** (``early_stop_patience``).  The fit stops when the training loss has not
 improved by a relative ``early_stop_tolerance`` for that many steps.
 
@@ -69,11 +78,17 @@ from neuralbrdf.lightning.common import WritesKind, scheduled_optimizer
 from neuralbrdf.lightning.latent_fit_data import EvalSet, FitSamples
 from neuralbrdf.lightning.nlb_module import PretrainedNlb, load_pretrained
 from neuralbrdf.losses import check_loss_domain, log_cosine, nlb_loss
+from neuralbrdf.models.latent_prior import gaussian_of_codes, latent_prior_penalty
 from neuralbrdf.models.nlb import LatentTable
-from neuralbrdf.shipped import PRETRAINED_COMPACT, resolve_pretrained
+from neuralbrdf.shipped import resolve_pretrained
 
 #: How the shipped checkpoint is made (for the error message when it is missing).
 PRETRAIN_COMMAND = "python train.py fit --config configs/nlb_pretrain.yaml"
+
+#: Name prefixes of the pretrained codes of measured materials (:attr:`ProxyMaterials.material_names`).
+MEASURED_PREFIXES = ("merl:", "merl-blend:")
+#: Values of ``latent_prior_codes``: the codes the prior's Gaussian is fitted to (module docstring).
+PRIOR_CODES = ("measured", "all")
 
 #: At most this many of the fitting samples (a fixed random subset) take part in the screening of starts.
 SCREEN_SAMPLES = 65536
@@ -90,7 +105,8 @@ class LatentFitModule(WritesKind, pl.LightningModule):
     ----------
     checkpoint:
         :class:`~neuralbrdf.lightning.nlb_module.NlbPretrainModule` checkpoint, or the name of
-        a shipped one (``nlb_compact``, ``nlb_64x4``); ``None``: the shipped ``nlb_compact``.
+        a shipped one (``nlb_compact``, ``nlb_64x4``, …); ``None``: the default
+        (:data:`~neuralbrdf.shipped.PRETRAINED_DEFAULT`).
     latent_init:
         Constant every latent starts from; ``None``: the centroid of the pretrained corpus
         latents.
@@ -106,6 +122,10 @@ class LatentFitModule(WritesKind, pl.LightningModule):
     early_stop_patience:
         Steps without a relative loss improvement of ``early_stop_tolerance`` after which
         the fit stops; ``None``: run every step.
+    latent_prior_weight:
+        Weight of the latent prior ``P(z)`` in each material's loss (module docstring); 0: none.
+    latent_prior_codes:
+        The pretrained codes the prior's Gaussian is fitted to: ``"measured"`` or ``"all"``.
     optimizer, lr_scheduler:
         Factories from the config; the scheduler steps every step.
     """
@@ -120,6 +140,8 @@ class LatentFitModule(WritesKind, pl.LightningModule):
         init_screen_steps: int = 100,
         early_stop_patience: int | None = None,
         early_stop_tolerance: float = 1e-3,
+        latent_prior_weight: float = 0.0,
+        latent_prior_codes: str = "measured",
         optimizer: OptimizerCallable = torch.optim.Adam,
         lr_scheduler: LRSchedulerCallable | None = None,
     ) -> None:
@@ -140,6 +162,14 @@ class LatentFitModule(WritesKind, pl.LightningModule):
                              column="model.early_stop_patience")
         if not early_stop_tolerance >= 0:
             raise InputError(f"must be non-negative, got {early_stop_tolerance}", column="model.early_stop_tolerance")
+        if isinstance(latent_prior_weight, bool) or not (isinstance(latent_prior_weight, (int, float))
+                                                         and math.isfinite(latent_prior_weight)
+                                                         and latent_prior_weight >= 0):
+            raise InputError(f"must be a finite non-negative number, got {latent_prior_weight!r}",
+                             column="model.latent_prior_weight")
+        if latent_prior_codes not in PRIOR_CODES:
+            raise InputError(f"must be one of {', '.join(PRIOR_CODES)}, got {latent_prior_codes!r}",
+                             column="model.latent_prior_codes")
         path = resolve_pretrained(checkpoint)
         if checkpoint is None and not path.is_file():
             raise InputError(f"the shipped pretrained NLB checkpoint is missing; make it with `{PRETRAIN_COMMAND}` "
@@ -152,6 +182,7 @@ class LatentFitModule(WritesKind, pl.LightningModule):
         start = pretrained.latent_mean
         self._start = start if latent_init is None else torch.full_like(start, latent_init)
         self._candidates = start_candidates(pretrained, init_candidates) if init_candidates else None
+        self._prior = gaussian_of_codes(prior_codes(pretrained, latent_prior_codes, path)) if latent_prior_weight else None
         self._best_loss = math.inf
         self._steps_since_best = 0
         self.latents: LatentTable | None = None
@@ -187,7 +218,13 @@ class LatentFitModule(WritesKind, pl.LightningModule):
                 log_cosine(target, cos_i)
         error = (pred - target).abs().mean(2)
         counts = torch.zeros(n).index_add_(0, samples.material, torch.ones(len(samples.material)))
-        return torch.zeros(n_starts, n).index_add_(1, samples.material, error) / counts
+        return torch.zeros(n_starts, n).index_add_(1, samples.material, error) / counts + self._prior_terms(codes)
+
+    def _prior_terms(self, codes: torch.Tensor) -> torch.Tensor | float:
+        """``latent_prior_weight · P(z)`` of each code ``[..., d]``: ``[...]`` (0 without a prior)."""
+        if self._prior is None:
+            return 0.0
+        return self.hparams.latent_prior_weight * latent_prior_penalty(codes, *self._prior)
 
     def choose_starts(self, samples: FitSamples) -> None:
         """Set each material's latent to its best start (module docstring)."""
@@ -233,7 +270,11 @@ class LatentFitModule(WritesKind, pl.LightningModule):
         return self.network(samples.wi, samples.wo, self.latents(samples.material))
 
     def training_step(self, batch: FitSamples, batch_idx: int) -> torch.Tensor:
+        # The data loss is the mean over every material's samples, so each material's prior term
+        # enters with the weight 1 / (number of materials), as its data loss does for equal plans.
         loss = nlb_loss(self.predict(batch), batch.f, batch.wi, self.hparams.loss_domain)
+        if self._prior is not None:
+            loss = loss + self._prior_terms(self.latents.latents).mean()
         self.log("train/loss", loss, on_step=False, on_epoch=True, batch_size=len(batch.f))
         self._track_convergence(float(loss.detach()))
         return loss
@@ -314,6 +355,18 @@ def start_candidates(pretrained: PretrainedNlb, n_analytic: int) -> torch.Tensor
     analytic = [i for i in range(len(pretrained.latents)) if i not in set(merl)]
     picked = [analytic[int(j)] for j in np.linspace(0, len(analytic) - 1, min(n_analytic, len(analytic)))]
     return torch.cat([pretrained.latent_mean[None], pretrained.latents[merl + picked]])
+
+
+def prior_codes(pretrained: PretrainedNlb, which: str, path) -> torch.Tensor:
+    """The pretrained codes the latent prior is fitted to (module docstring): ``[M, latent_dim]``."""
+    if which == "all":
+        return pretrained.latents
+    measured = [i for i, name in enumerate(pretrained.names) if name.startswith(MEASURED_PREFIXES)]
+    if len(measured) < 2:
+        raise InputError(f"has {len(measured)} codes of measured materials (names merl:…, merl-blend:…); the "
+                         "latent prior needs at least 2: set model.latent_prior_codes: all, or "
+                         "model.latent_prior_weight: 0", path=path)
+    return pretrained.latents[measured]
 
 
 class ValidateFinalStep(pl.Callback):
