@@ -55,6 +55,7 @@ from neuralbrdf.fitting.abc_fit import fit_abc  # noqa: E402
 from neuralbrdf.geometry import inplane_to_spherical, inplane_to_vectors, spherical_pair_to_vectors  # noqa: E402
 from neuralbrdf.lightning.run import main as train_main  # noqa: E402
 from neuralbrdf.metrics import hemisphere_logcos_rmse  # noqa: E402
+from neuralbrdf.shipped import resolve_pretrained  # noqa: E402
 from neuralbrdf.data.low2012 import load_low2012_parameters  # noqa: E402
 from neuralbrdf.physics.abc import abc_brdf  # noqa: E402
 
@@ -135,7 +136,8 @@ def _latent_fit(work: Path, run: str, sources: list[dict], *overrides: str) -> d
     return _train(work / run, "nlb_latent.yaml", "--data.sources", json.dumps(sources), *overrides)
 
 
-def nlb_vs_abc(work: Path, quick: bool, checkpoint: str | None, plans=("DS1", "DS3", "DS4"), timing=True) -> dict:
+def nlb_vs_abc(work: Path, quick: bool, checkpoint: str | None, plans=("DS1", "DS3", "DS4"), timing=True,
+               latent_prior_weight: float | None = None) -> dict:
     """NLB latent fits (DS1, DS3, DS4) against ABC on the held-out subset and the report's five.
 
     Hemisphere log-cosine RMSE against the NBRDF proxy on the Löw et al. set, for: the NLB
@@ -150,6 +152,8 @@ def nlb_vs_abc(work: Path, quick: bool, checkpoint: str | None, plans=("DS1", "D
     overrides = ["--trainer.max_epochs", "1", "--data.steps_per_epoch", "20"] if quick else []
     if checkpoint:
         overrides += ["--model.checkpoint", checkpoint]
+    if latent_prior_weight is not None:
+        overrides += ["--model.latent_prior_weight", str(latent_prior_weight)]
     sources = [{"nbrdf": str(nbrdf_dir / f"{name}.h5")} for name in names]
     fits = {plan: _latent_fit(work, f"latent_{plan}", sources, "--data.plan", plan, *overrides) for plan in plans}
     report_recipe = _latent_fit(work, "latent_DS1_report", sources, "--config",
@@ -194,7 +198,8 @@ def nlb_vs_abc(work: Path, quick: bool, checkpoint: str | None, plans=("DS1", "D
         "summary": {group: _summary({n: r for n, r in rows.items() if r["held_out"] == (group == "held_out")})
                     for group in ("held_out", "report")},
         "latent_fit_s": fit_s,
-        "checkpoint": checkpoint or "neuralbrdf/pretrained/nlb_compact.ckpt",
+        "checkpoint": str(resolve_pretrained(checkpoint).relative_to(REPO)) if checkpoint is None else checkpoint,
+        "latent_prior_weight": latent_prior_weight if latent_prior_weight is not None else "the config's",
     }
 
 
@@ -303,6 +308,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--only-nlb", action="store_true", help="only the NLB-vs-ABC section")
     parser.add_argument("--plans", default="DS1,DS3,DS4", help="plans of the NLB latent fits (comma-separated)")
     parser.add_argument("--skip-timing", action="store_true", help="no single / 100-material timing fits")
+    parser.add_argument("--latent-prior-weight", type=float,
+                        help="the NLB fits' model.latent_prior_weight (default: the config's; 0 to reproduce "
+                             "the measurements of other networks made before the prior)")
     args = parser.parse_args(argv)
     started = time.perf_counter()
     results = {
@@ -317,7 +325,7 @@ def main(argv: list[str] | None = None) -> int:
             results["abc_known"] = abc_known(work)
         if (SHARED_DATA / "merl-nbrdf").is_dir():
             results["nlb_vs_abc"] = nlb_vs_abc(work, args.quick, args.checkpoint, tuple(args.plans.split(",")),
-                                               not args.skip_timing)
+                                               not args.skip_timing, args.latent_prior_weight)
     if args.pretrain_run:
         results["pretraining"] = pretraining(Path(args.pretrain_run), args.curve_png and Path(args.curve_png))
     results["total_wall_time_s"] = time.perf_counter() - started

@@ -22,8 +22,12 @@ for m in $materials; do
 done
 labels=()
 for spec in "${models[@]}"; do
-  ck=${spec%%:*}; weight=0; [[ $spec == *:* ]] && weight=${spec#*:}
-  label=$ck; [[ $weight == 0 ]] || label=${ck}_prior$weight
+  ck=${spec%:*}; weight=0; [[ $spec == *:* ]] && weight=${spec##*:}
+  # a number, and the label names it unless it is zero (0, 0.0, ...)
+  python -c "import sys; w = float(sys.argv[1]); sys.exit(0 if w >= 0 else 1)" "$weight" 2>/dev/null \
+    || { echo "nlb_render_check.sh: $spec: the prior weight must be a non-negative number" >&2; exit 2; }
+  label=$(basename "$ck" .ckpt)
+  python -c "import sys; sys.exit(float(sys.argv[1]) == 0)" "$weight" && label=${label}_prior$weight
   labels+=("$label")
   python train.py fit --config configs/nlb_latent.yaml --data.sources "$sources" --data.plan DS1 \
     --model.checkpoint "$ck" --model.latent_prior_weight "$weight" --run_dir "$out/fit_$label" \

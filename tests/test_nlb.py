@@ -595,8 +595,8 @@ def pretrained_run(tmp_path_factory):
     run_train("--config", str(CONFIGS / "nlb_pretrain.yaml"), "--run_dir", str(run_dir),
               "--trainer.max_epochs", "2", "--trainer.log_every_n_steps", "1",
               "--data.batches_per_epoch", "3", "--data.val_batches", "1", "--data.num_workers", "0",
-              "--data.batch_size", "256", "--data.n_analytic", "16", "--model.n_materials", "16",
-              "--data.proxy_dir", "null")
+              "--data.batch_size", "256", "--data.n_analytic", "24", "--model.n_materials", "24",
+              "--data.proxy_dir", "null")  # 24 codes: more than the 16 latent dimensions a prior over them needs
     return run_dir
 
 
@@ -605,7 +605,7 @@ def test_compact_pretrain_config_runs(pretrained_run):
     assert metrics["fit/epochs"] == 2
     assert math.isfinite(metrics["fit/val/logcos_rmse"]) and math.isfinite(metrics["fit/train/loss_epoch"])
     pretrained = load_pretrained(pretrained_run / "checkpoints" / "last.ckpt")
-    assert pretrained.network.config == COMPACT and pretrained.latents.shape == (16, COMPACT.latent_dim)
+    assert pretrained.network.config == COMPACT and pretrained.latents.shape == (24, COMPACT.latent_dim)
 
 
 def test_paper_pretrain_config_runs(tmp_path):
@@ -707,7 +707,6 @@ def test_latent_config_evaluates_nbrdf_sources_on_the_low_plan(pretrained_run, t
     assert metrics["fit/hemisphere_logcos_rmse"] == pytest.approx(metrics["fit/hemisphere_logcos_rmse/mean"], rel=1e-5)
 
 
-@pytest.mark.filterwarnings("ignore:.*negative linear-sRGB value")  # cyan lies partly outside sRGB
 def test_the_latent_config_refuses_a_network_without_measured_codes(pretrained_run, tmp_path, capsys):
     """The config's prior is fitted to measured-material codes; an analytic-only network has none:
     exit 2 with the file and the way out, and no fitted checkpoint."""
@@ -717,9 +716,9 @@ def test_the_latent_config_refuses_a_network_without_measured_codes(pretrained_r
     assert status == 2
     message = capsys.readouterr().err
     assert "last.ckpt" in message and "latent_prior_codes: all" in message
-    assert not (tmp_path / "checkpoints" / "fitted.ckpt").exists()
 
 
+@pytest.mark.filterwarnings("ignore:.*negative linear-sRGB value")  # cyan lies partly outside sRGB
 def test_latent_fit_minibatches_are_seeded_subsets():
     sources = [{"virtual": "gold"}, {"virtual": "cyan"}]
     data = LatentFitData(sources, eval_plan=None, steps_per_epoch=3, batch_size=500)
@@ -762,7 +761,11 @@ def test_latent_prior_is_the_codes_gaussian_negative_log_density_per_dimension()
         gaussian_of_codes(codes[:1])
 
 
-def _named_checkpoint(tmp_path, names=("analytic:0", "merl:a", "merl:b", "merl-blend:0.5*a+0.5*b", "merl:c", "analytic:5")):
+#: Names of a tiny network's codes: six of measured materials (more than its 4 latent dimensions).
+NAMED = ("analytic:0", *(f"merl:{c}" for c in "abcde"), "merl-blend:0.5*a+0.5*b", "analytic:7")
+
+
+def _named_checkpoint(tmp_path, names=NAMED):
     module = tiny_module(n_materials=len(names))
     path = tmp_path / "named.ckpt"
     torch.save({"state_dict": module.state_dict(), "hyper_parameters": dict(module.hparams),
@@ -774,31 +777,37 @@ def test_latent_prior_enters_each_materials_loss_with_its_weight(tmp_path):
     from neuralbrdf.models.latent_prior import gaussian_of_codes, latent_prior_penalty
 
     module, checkpoint = _named_checkpoint(tmp_path)
-    data = _tables_off_the_codes(module, tmp_path)
+    codes_table = module.latents.latents.detach()
+    # two materials on plans of different sizes (DS2 and DS4), each at its own code
+    sources = [{"path": str(network_table(module, k, plan, tmp_path / f"m{k}.csv"))} for k, plan in ((0, "DS2"), (7, "DS4"))]
+    data = LatentFitData(sources, eval_plan=None)
+    data.setup()
     samples = data.train_samples
-    codes = module.latents.latents[:3, None].expand(3, 2, -1).detach()
+    counts = torch.bincount(samples.material).double()
+    assert counts[0] > 3 * counts[1]
+    codes = torch.stack([codes_table[[2, 5]], codes_table[[0, 7]]])  # [S=2 starts, n=2 materials, d]
     plain = LatentFitModule(str(checkpoint))
-    measured = module.latents.latents.detach()[[1, 2, 3, 4]]  # merl: and merl-blend: codes only
-    for which, prior_codes in (("measured", measured), ("all", module.latents.latents.detach())):
+    for which, prior_codes in (("measured", codes_table[1:7]), ("all", codes_table)):
         fit = LatentFitModule(str(checkpoint), latent_prior_weight=0.2, latent_prior_codes=which)
         for f in (plain, fit):
             f.build_latents(data.material_names)
+        penalty = latent_prior_penalty(codes, *gaussian_of_codes(prior_codes))  # [S, n]
         with torch.no_grad():
             difference = fit._material_losses(samples, codes) - plain._material_losses(samples, codes)
-            penalty = latent_prior_penalty(codes, *gaussian_of_codes(prior_codes))
-        torch.testing.assert_close(difference, 0.2 * penalty, rtol=1e-5, atol=1e-7)
-        # the training loss: the data loss plus the mean of the materials' prior terms
+        torch.testing.assert_close(difference, 0.2 * penalty, rtol=1e-5, atol=1e-7)  # screening: per material
+        # training: every sample carries its material's prior term, so each material's share is
+        # (data loss + prior) in proportion to its samples
         with torch.no_grad():
-            fit.latents.latents.copy_(codes[1])
-        batch_loss = nlb_loss(fit.predict(samples), samples.f, samples.wi, "log_cosine")
+            fit.latents.latents.copy_(codes[0])
         with mock.patch.object(fit, "log"), mock.patch.object(fit, "_track_convergence"):
             loss = fit.training_step(samples, 0)
-        torch.testing.assert_close(loss, batch_loss + 0.2 * penalty[1].mean(), rtol=1e-5, atol=1e-7)
+        data_loss = nlb_loss(fit.predict(samples), samples.f, samples.wi, "log_cosine")
+        expected = data_loss + 0.2 * float((penalty[0].double() * counts).sum() / counts.sum())
+        torch.testing.assert_close(loss, expected.float(), rtol=1e-5, atol=1e-7)
 
 
 def test_a_strong_latent_prior_pulls_the_fit_to_the_measured_codes_mean(tmp_path):
-    names = ("analytic:0", *(f"merl:{c}" for c in "abcde"), "merl-blend:0.5*a+0.5*b", "analytic:7")
-    module, checkpoint = _named_checkpoint(tmp_path, names)
+    module, checkpoint = _named_checkpoint(tmp_path)
     sources = [{"path": str(network_table(module, k, "DS2", tmp_path / f"m{k}.csv"))} for k in (0, 7)]
     prior_mean = module.latents.latents.detach()[1:7].mean(0)
     fitted = {}
@@ -828,3 +837,7 @@ def test_bad_latent_prior_settings_raise(tmp_path):
             LatentFitModule(str(checkpoint), latent_prior_weight=weight)
     with pytest.raises(InputError, match="latent_prior_codes"):
         LatentFitModule(str(checkpoint), latent_prior_weight=0.1, latent_prior_codes="merl")
+    # as many measured codes as latent dimensions: a singular covariance, refused
+    _, four = _named_checkpoint(tmp_path, ("analytic:0", "merl:a", "merl:b", "merl:c", "merl:d", "analytic:5"))
+    with pytest.raises(InputError, match=r"has 4 codes of measured materials .* in 4 latent dimensions"):
+        LatentFitModule(str(four), latent_prior_weight=0.1)

@@ -434,7 +434,7 @@ def test_shipped_profiles_are_valid():
             raise
         pytest.skip(f"full.yaml names a config of a branch not merged yet ({error})")
     full = load_profile("full")
-    assert len(full.materials) == 9 and {"abc", "nlb", "nlb_compact", "spectral_mlp"} <= set(full.stability.variants)
+    assert len(full.materials) == 9 and {"abc", "nlb", "spectral_mlp"} <= set(full.stability.variants)
     for variant in full.variants:  # every pretrained network a variant names is shipped
         if variant.method == "nlb":
             assert resolve_pretrained(pretrained_network(variant)).is_file(), variant.name

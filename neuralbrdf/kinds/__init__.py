@@ -222,6 +222,8 @@ def provenance(checkpoint: dict, path: Path) -> str:
     parts = [f"checkpoint {path.name}"]
     if "epoch" in checkpoint:
         parts.append(f"epoch {checkpoint['epoch']} step {checkpoint.get('global_step', '?')}")
+    if "pretrained_network" in checkpoint:  # a latent fit: the network it was fitted on
+        parts.append(f"pretrained network {checkpoint['pretrained_network']}")
     for key, label in (("hyper_parameters", "model"), ("datamodule_hyper_parameters", "data")):
         if checkpoint.get(key):
             parts.append(f"{label} {_compact_json(dict(checkpoint[key]))}")

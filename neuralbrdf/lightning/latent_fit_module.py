@@ -82,8 +82,10 @@ from neuralbrdf.models.latent_prior import gaussian_of_codes, latent_prior_penal
 from neuralbrdf.models.nlb import LatentTable
 from neuralbrdf.shipped import resolve_pretrained
 
-#: How the shipped checkpoint is made (for the error message when it is missing).
-PRETRAIN_COMMAND = "python train.py fit --config configs/nlb_pretrain.yaml"
+#: How the default checkpoint is made (for the error message when it is missing; README, *Latent 32 from
+#: scratch with proxy blends*).
+PRETRAIN_COMMAND = ("python train.py fit --config configs/nlb_pretrain.yaml --model.latent_dim 32 "
+                    "--data.proxy_blends 1024 --model.n_materials 5155")
 
 #: Name prefixes of the pretrained codes of measured materials (:attr:`ProxyMaterials.material_names`).
 MEASURED_PREFIXES = ("merl:", "merl-blend:")
@@ -123,7 +125,8 @@ class LatentFitModule(WritesKind, pl.LightningModule):
         Steps without a relative loss improvement of ``early_stop_tolerance`` after which
         the fit stops; ``None``: run every step.
     latent_prior_weight:
-        Weight of the latent prior ``P(z)`` in each material's loss (module docstring); 0: none.
+        Weight of the latent prior ``P(z)`` in each material's loss (module docstring); 0: none
+        (this class's default; ``configs/nlb_latent.yaml`` sets 0.01, chosen for the default network).
     latent_prior_codes:
         The pretrained codes the prior's Gaussian is fitted to: ``"measured"`` or ``"all"``.
     optimizer, lr_scheduler:
@@ -172,8 +175,9 @@ class LatentFitModule(WritesKind, pl.LightningModule):
                              column="model.latent_prior_codes")
         path = resolve_pretrained(checkpoint)
         if checkpoint is None and not path.is_file():
-            raise InputError(f"the shipped pretrained NLB checkpoint is missing; make it with `{PRETRAIN_COMMAND}` "
-                             "and copy its checkpoints/best.ckpt there, or set model.checkpoint", path=path)
+            raise InputError(f"the default pretrained NLB checkpoint is missing; make it with `{PRETRAIN_COMMAND}`, "
+                             "save its checkpoints/best.ckpt there with neuralbrdf.lightning.nlb_module.save_pretrained, "
+                             "or set model.checkpoint", path=path)
         self.save_hyperparameters(ignore=["optimizer", "lr_scheduler"])
         pretrained = load_pretrained(path)
         # Frozen by requires_grad alone: nothing in the network depends on train/eval mode.
@@ -182,7 +186,11 @@ class LatentFitModule(WritesKind, pl.LightningModule):
         start = pretrained.latent_mean
         self._start = start if latent_init is None else torch.full_like(start, latent_init)
         self._candidates = start_candidates(pretrained, init_candidates) if init_candidates else None
-        self._prior = gaussian_of_codes(prior_codes(pretrained, latent_prior_codes, path)) if latent_prior_weight else None
+        self._pretrained_name = path.name
+        # Buffers (not saved): they move with the module to the fit's device.
+        prior = gaussian_of_codes(prior_codes(pretrained, latent_prior_codes, path)) if latent_prior_weight else (None, None)
+        self.register_buffer("_prior_mean", prior[0], persistent=False)
+        self.register_buffer("_prior_precision", prior[1], persistent=False)
         self._best_loss = math.inf
         self._steps_since_best = 0
         self.latents: LatentTable | None = None
@@ -222,9 +230,9 @@ class LatentFitModule(WritesKind, pl.LightningModule):
 
     def _prior_terms(self, codes: torch.Tensor) -> torch.Tensor | float:
         """``latent_prior_weight · P(z)`` of each code ``[..., d]``: ``[...]`` (0 without a prior)."""
-        if self._prior is None:
+        if self._prior_mean is None:
             return 0.0
-        return self.hparams.latent_prior_weight * latent_prior_penalty(codes, *self._prior)
+        return self.hparams.latent_prior_weight * latent_prior_penalty(codes, self._prior_mean, self._prior_precision)
 
     def choose_starts(self, samples: FitSamples) -> None:
         """Set each material's latent to its best start (module docstring)."""
@@ -261,6 +269,7 @@ class LatentFitModule(WritesKind, pl.LightningModule):
     def on_save_checkpoint(self, checkpoint: dict) -> None:
         super().on_save_checkpoint(checkpoint)
         checkpoint["material_names"] = self.material_names
+        checkpoint["pretrained_network"] = self._pretrained_name
         checkpoint["nlb_config"] = asdict(self.network.config)
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
@@ -270,11 +279,11 @@ class LatentFitModule(WritesKind, pl.LightningModule):
         return self.network(samples.wi, samples.wo, self.latents(samples.material))
 
     def training_step(self, batch: FitSamples, batch_idx: int) -> torch.Tensor:
-        # The data loss is the mean over every material's samples, so each material's prior term
-        # enters with the weight 1 / (number of materials), as its data loss does for equal plans.
+        # The data loss is a mean over the batch's samples; the prior term is too (each sample carries
+        # its material's), so each material's share of the loss is (its data loss + its prior term) in
+        # proportion to its samples in the batch: the same minimum per material as in screening.
         loss = nlb_loss(self.predict(batch), batch.f, batch.wi, self.hparams.loss_domain)
-        if self._prior is not None:
-            loss = loss + self._prior_terms(self.latents.latents).mean()
+        loss = loss + torch.as_tensor(self._prior_terms(self.latents(batch.material))).mean()
         self.log("train/loss", loss, on_step=False, on_epoch=True, batch_size=len(batch.f))
         self._track_convergence(float(loss.detach()))
         return loss
@@ -359,14 +368,16 @@ def start_candidates(pretrained: PretrainedNlb, n_analytic: int) -> torch.Tensor
 
 def prior_codes(pretrained: PretrainedNlb, which: str, path) -> torch.Tensor:
     """The pretrained codes the latent prior is fitted to (module docstring): ``[M, latent_dim]``."""
-    if which == "all":
-        return pretrained.latents
-    measured = [i for i, name in enumerate(pretrained.names) if name.startswith(MEASURED_PREFIXES)]
-    if len(measured) < 2:
-        raise InputError(f"has {len(measured)} codes of measured materials (names merl:…, merl-blend:…); the "
-                         "latent prior needs at least 2: set model.latent_prior_codes: all, or "
-                         "model.latent_prior_weight: 0", path=path)
-    return pretrained.latents[measured]
+    codes = pretrained.latents
+    if which == "measured":
+        codes = codes[[i for i, name in enumerate(pretrained.names) if name.startswith(MEASURED_PREFIXES)]]
+    dim = pretrained.latents.shape[1]
+    if len(codes) <= dim:  # fewer codes than dimensions + 1: a singular covariance
+        kind = "codes of measured materials (names merl:…, merl-blend:…)" if which == "measured" else "codes"
+        raise InputError(f"has {len(codes)} {kind} in {dim} latent dimensions; the latent prior's Gaussian needs "
+                         f"more than {dim}: set model.latent_prior_codes: all, or model.latent_prior_weight: 0",
+                         path=path)
+    return codes
 
 
 class ValidateFinalStep(pl.Callback):
