@@ -123,6 +123,19 @@ def test_nlb_keys_follow_the_pretrained_networks_contents(tmp_path):
     assert cell_key(Cell("gold", "shipped", "DS1", 0.0, 0), profile) == key["shipped"]
 
 
+def test_keys_follow_the_contents_of_config_overlays_in_the_arguments(tmp_path):
+    overlay = tmp_path / "overlay.yaml"
+    overlay.write_text("model:\n  init_args:\n    n_starts: 2\n")
+    variants = (f"variants:\n  - {{name: abc, method: abc, config: configs/abc.yaml}}\n"
+                f"  - {{name: two, method: abc, config: configs/abc.yaml, args: [--config, {overlay}]}}\n")
+    profile = load_profile(str(_write(tmp_path, BASE.split("variants:")[0] + variants)))
+    key = {v: cell_key(Cell("gold", v, "DS1", 0.0, 0), profile) for v in ("abc", "two")}
+    assert "overlays" not in cell_settings(Cell("gold", "abc", "DS1", 0.0, 0), profile)["variant"]
+    overlay.write_text("model:\n  init_args:\n    n_starts: 3\n")
+    assert cell_key(Cell("gold", "two", "DS1", 0.0, 0), profile) != key["two"]
+    assert cell_key(Cell("gold", "abc", "DS1", 0.0, 0), profile) == key["abc"]
+
+
 def test_pooled_points_use_only_the_materials_every_model_fits():
     def main(material, model, ratio, delta_e):
         return {"material": material, "model": model, "method": model, "is_main": True, "failure": None,

@@ -2,7 +2,8 @@
 
 A cell is one fit and its evaluation: ``(material, variant, plan, noise, seed)``.  Its key hashes
 everything that changes its result — the material's truth and table (file contents), the
-variant's method, config file contents and overrides (for NLB, the pretrained network's file
+variant's method, config file contents and overrides (with the contents of any ``--config`` overlay
+among them; for NLB, the pretrained network's file
 contents too), plan, noise, seed, and for the *main*
 cell of a (material, variant) (DS1, no noise, seed 0: the one that is rendered and timed, unless the
 variant is a sweep only — ``speed_accuracy: false``) the render and cost settings — so a finished cell is found again under ``DIR/cells/KEY/`` by a later
@@ -26,6 +27,7 @@ from pathlib import Path
 import yaml
 
 from neuralbrdf.atomic import file_version
+from neuralbrdf.configs_dir import resolve_config
 from neuralbrdf.shipped import resolve_pretrained
 from neuralbrdf.study.profile import Profile, VariantSpec
 
@@ -81,6 +83,12 @@ def pretrained_network(variant: VariantSpec) -> str | None:
     return ((config.get("model") or {}).get("init_args") or {}).get("checkpoint")
 
 
+def overlay_digests(variant: VariantSpec) -> list[str]:
+    """Contents (digests) of the config files a variant's arguments add with ``--config``."""
+    args = list(variant.args)
+    return [file_digest(str(resolve_config(args[i + 1]))) for i, arg in enumerate(args[:-1]) if arg == "--config"]
+
+
 def is_rendered(cell: Cell, profile: Profile) -> bool:
     """Whether ``cell`` is rendered and timed: the main condition of a speed–accuracy variant."""
     return cell.is_main and profile.variant(cell.variant).speed_accuracy
@@ -98,6 +106,9 @@ def cell_settings(cell: Cell, profile: Profile) -> dict:
         "variant": {"method": variant.method, "config": file_digest(variant.config), "args": list(variant.args),
                     "render_variant": variant.render_variant},
     }
+    overlays = overlay_digests(variant)
+    if overlays:  # only then: the keys of variants without overlays stay what they were
+        settings["variant"]["overlays"] = overlays
     if variant.method == "nlb":  # a retrained network changes every NLB result
         settings["variant"]["pretrained"] = file_digest(str(resolve_pretrained(pretrained_network(variant))))
     settings["hemisphere_strata"] = list(profile.render.hemisphere_strata)
