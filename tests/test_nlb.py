@@ -629,7 +629,6 @@ def test_pretrain_rejects_a_latent_table_of_the_wrong_size(tmp_path):
 def latent_run(pretrained_run, tmp_path, sources, *extra):
     run_train("--config", str(CONFIGS / "nlb_latent.yaml"), "--run_dir", str(tmp_path),
               "--model.checkpoint", str(pretrained_run / "checkpoints" / "last.ckpt"),
-              "--model.latent_prior_codes", "all",  # the fixture's network has no measured codes
               "--trainer.max_epochs", "1", "--trainer.check_val_every_n_epoch", "1",
               "--trainer.log_every_n_steps", "1", "--data.steps_per_epoch", "3",
               "--data.sources", json.dumps(sources), *extra)
@@ -653,7 +652,7 @@ def test_latent_fit_checkpoint_is_the_model_its_metrics_describe(pretrained_run,
     sources = [{"path": str(network_table(module, k, "DS2", tmp_path / f"m{k}.csv"))} for k in (1, 4)]
     run_train("--config", str(CONFIGS / "nlb_latent.yaml"), "--run_dir", str(tmp_path / "run"),
               "--model.checkpoint", str(pretrained_run / "checkpoints" / "last.ckpt"),
-              "--model.latent_prior_codes", "all", "--trainer.check_val_every_n_epoch", "10", "--data.steps_per_epoch", "3",
+              "--trainer.check_val_every_n_epoch", "10", "--data.steps_per_epoch", "3",
               "--data.sources", json.dumps(sources), *extra)
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     checkpoint = tmp_path / "run" / "checkpoints" / "fitted.ckpt"
@@ -707,12 +706,12 @@ def test_latent_config_evaluates_nbrdf_sources_on_the_low_plan(pretrained_run, t
     assert metrics["fit/hemisphere_logcos_rmse"] == pytest.approx(metrics["fit/hemisphere_logcos_rmse/mean"], rel=1e-5)
 
 
-def test_the_latent_config_refuses_a_network_without_measured_codes(pretrained_run, tmp_path, capsys):
-    """The config's prior is fitted to measured-material codes; an analytic-only network has none:
-    exit 2 with the file and the way out, and no fitted checkpoint."""
+def test_the_latent_config_refuses_a_prior_on_measured_codes_a_network_lacks(pretrained_run, tmp_path, capsys):
+    """A prior fitted to measured-material codes on an analytic-only network, which has none:
+    exit 2 with the file and the way out."""
     status = train("--config", str(CONFIGS / "nlb_latent.yaml"), "--run_dir", str(tmp_path),
                    "--model.checkpoint", str(pretrained_run / "checkpoints" / "last.ckpt"),
-                   "--data.sources", json.dumps([{"virtual": "gold"}]))
+                   "--model.latent_prior_codes", "measured", "--data.sources", json.dumps([{"virtual": "gold"}]))
     assert status == 2
     message = capsys.readouterr().err
     assert "last.ckpt" in message and "latent_prior_codes: all" in message
@@ -813,7 +812,7 @@ def test_a_strong_latent_prior_pulls_the_fit_to_the_measured_codes_mean(tmp_path
     fitted = {}
     for weight in (0.0, 1e3):
         data = LatentFitData(sources, eval_plan=None, steps_per_epoch=300)
-        fit = LatentFitModule(str(checkpoint), latent_prior_weight=weight,
+        fit = LatentFitModule(str(checkpoint), latent_prior_weight=weight, latent_prior_codes="measured",
                               optimizer=lambda p: torch.optim.Adam(p, lr=0.05),
                               lr_scheduler=lambda o: torch.optim.lr_scheduler.ExponentialLR(o, 0.98))
         trainer = pl.Trainer(accelerator="cpu", max_epochs=1, logger=False, enable_checkpointing=False,
@@ -830,7 +829,7 @@ def test_bad_latent_prior_settings_raise(tmp_path):
     LatentFitModule(str(checkpoint), latent_prior_weight=0.0)  # no prior: no codes needed
     LatentFitModule(str(checkpoint), latent_prior_weight=0.1, latent_prior_codes="all")
     with pytest.raises(InputError, match="latent_prior_codes: all") as error:
-        LatentFitModule(str(checkpoint), latent_prior_weight=0.1)
+        LatentFitModule(str(checkpoint), latent_prior_weight=0.1, latent_prior_codes="measured")
     assert "unnamed.ckpt" in str(error.value)
     for weight in (-0.1, float("nan"), float("inf"), True, "0.1"):
         with pytest.raises(InputError, match="latent_prior_weight"):
@@ -840,4 +839,4 @@ def test_bad_latent_prior_settings_raise(tmp_path):
     # as many measured codes as latent dimensions: a singular covariance, refused
     _, four = _named_checkpoint(tmp_path, ("analytic:0", "merl:a", "merl:b", "merl:c", "merl:d", "analytic:5"))
     with pytest.raises(InputError, match=r"has 4 codes of measured materials .* in 4 latent dimensions"):
-        LatentFitModule(str(four), latent_prior_weight=0.1)
+        LatentFitModule(str(four), latent_prior_weight=0.1, latent_prior_codes="measured")

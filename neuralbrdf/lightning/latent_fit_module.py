@@ -144,7 +144,7 @@ class LatentFitModule(WritesKind, pl.LightningModule):
         early_stop_patience: int | None = None,
         early_stop_tolerance: float = 1e-3,
         latent_prior_weight: float = 0.0,
-        latent_prior_codes: str = "measured",
+        latent_prior_codes: str = "all",
         optimizer: OptimizerCallable = torch.optim.Adam,
         lr_scheduler: LRSchedulerCallable | None = None,
     ) -> None:
