@@ -1,7 +1,7 @@
 """The latent prior's weight, swept (issue 14; README, *NLB latent prior*).
 
     python benchmarks/latent_prior_sweep.py [--checkpoints nlb_latent32_blends,nlb_compact]
-        [--weights 0,0.001,0.003,0.01,0.03,0.1,1] [--codes measured] [--plans DS1]
+        [--weights 0,0.001,0.003,0.01,0.03,0.1,1] [--codes all|measured] [--plans DS1]
         [--out benchmarks/latent_prior_sweep.json]
 
 For each pretrained network, plan and weight: ``configs/nlb_latent.yaml`` (the default fit, all
@@ -90,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--checkpoints", default="nlb_latent32_blends,nlb_compact")
     parser.add_argument("--weights", default="0,0.001,0.003,0.01,0.03,0.1,1")
-    parser.add_argument("--codes", default="measured", choices=("measured", "all"))
+    parser.add_argument("--codes", default="all", choices=("measured", "all"), help="model.latent_prior_codes")
     parser.add_argument("--plans", default="DS1")
     parser.add_argument("--abc-json", default=str(REPO / "benchmarks" / "models.json"),
                         help="benchmarks/models.py output with the ABC columns")

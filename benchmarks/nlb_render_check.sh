@@ -2,15 +2,16 @@
 # Rendered-image check of NLB latent fits (issue 14): the held-out ten fitted from DS1 with each
 # pretrained network, exported, and scored by `neuralbrdf evaluate` against the NBRDF proxy's own
 # export (material-preview scene, llvm_ad_rgb, 128 px, 256 spp; direction metrics beside the image).
-#   benchmarks/nlb_render_check.sh OUT_DIR [CHECKPOINT[:PRIOR_WEIGHT] ...]
-# PRIOR_WEIGHT is the fit's model.latent_prior_weight (default 0, no prior); the default list is
-# nlb_compact nlb_latent32_scratch nlb_latent32_blends nlb_latent32_blends:0.01 (the default fit).
+#   benchmarks/nlb_render_check.sh OUT_DIR [CHECKPOINT[:PRIOR_WEIGHT[:PRIOR_CODES]] ...]
+# PRIOR_WEIGHT is the fit's model.latent_prior_weight (default 0, no prior), PRIOR_CODES its
+# model.latent_prior_codes (default: the config's, all); the default list is nlb_compact
+# nlb_latent32_scratch nlb_latent32_blends nlb_latent32_blends:0.01 (the default fit).
 # Run from the repository root, with the package's environment active (../shared beside the checkout).
 # Writes OUT_DIR/eval_<label>_<material>/{evaluation.json,comparison.png,...} (label: the checkpoint,
 # with _prior<weight> where there is one) and OUT_DIR/summary.tsv (one row per label and material).  ~1 min per network's fit plus
 # ~10 s per evaluation on 2 cores.
 set -euo pipefail
-out=${1:?usage: nlb_render_check.sh OUT_DIR [CHECKPOINT[:PRIOR_WEIGHT] ...]}; shift
+out=${1:?usage: nlb_render_check.sh OUT_DIR [CHECKPOINT[:PRIOR_WEIGHT[:PRIOR_CODES]] ...]}; shift
 [ $# -gt 0 ] && models=("$@") || models=(nlb_compact nlb_latent32_scratch nlb_latent32_blends nlb_latent32_blends:0.01)
 merl=../shared/data/merl-nbrdf
 materials=$(python -c "from neuralbrdf.data.proxy_corpus import HELD_OUT; print(' '.join(HELD_OUT))")
@@ -22,15 +23,18 @@ for m in $materials; do
 done
 labels=()
 for spec in "${models[@]}"; do
-  ck=${spec%:*}; weight=0; [[ $spec == *:* ]] && weight=${spec##*:}
+  IFS=: read -r ck weight codes <<< "$spec"
+  weight=${weight:-0}; codes=${codes:-all}
   # a number, and the label names it unless it is zero (0, 0.0, ...)
   python -c "import sys; w = float(sys.argv[1]); sys.exit(0 if w >= 0 else 1)" "$weight" 2>/dev/null \
     || { echo "nlb_render_check.sh: $spec: the prior weight must be a non-negative number" >&2; exit 2; }
   label=$(basename "$ck" .ckpt)
   python -c "import sys; sys.exit(float(sys.argv[1]) == 0)" "$weight" && label=${label}_prior$weight
+  [[ $codes == all ]] || label=${label}_$codes
   labels+=("$label")
   python train.py fit --config configs/nlb_latent.yaml --data.sources "$sources" --data.plan DS1 \
-    --model.checkpoint "$ck" --model.latent_prior_weight "$weight" --run_dir "$out/fit_$label" \
+    --model.checkpoint "$ck" --model.latent_prior_weight "$weight" --model.latent_prior_codes "$codes" \
+    --run_dir "$out/fit_$label" \
     --trainer.enable_progress_bar false > "$out/fit_$label.log"
   for m in $materials; do
     neuralbrdf export --ckpt "$out/fit_$label/checkpoints/fitted.ckpt" --out "$out/${label}_$m.onnx" --material "$m" > /dev/null

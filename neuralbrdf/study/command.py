@@ -9,12 +9,12 @@ DESCRIPTION = (
     "sampling plan, relative noise level and seed), score each fit against the material's truth, time it against "
     "Mitsuba's roughconductor, and write DIR/study.json, DIR/figures/*.png and DIR/index.html (SPEC §10). "
     "Finished cells are cached under DIR/cells/ by their settings: a rerun does only what is new, a killed run "
-    "resumes. PROFILE is quick, full (configs/study/) or your own YAML file."
+    "resumes. PROFILE is a shipped profile (quick, full, latent_prior: configs/study/) or your own YAML file."
 )
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--profile", required=True, help="quick, full or a profile YAML file")
+    parser.add_argument("--profile", required=True, help="quick, full, latent_prior or a profile YAML file")
     parser.add_argument("--out", required=True, help="output folder (cache, figures, study.json, index.html)")
     parser.add_argument("--jobs", type=int, default=1, help="cells run at once, one core each (default 1)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -121,9 +121,14 @@ class Profile:
         return next(v for v in self.variants if v.name == name)
 
 
+def shipped_profiles() -> list[str]:
+    """Names of the shipped profiles (``quick``, ``full``, ...): the YAML files of the shipped folder."""
+    return sorted(path.stem for path in BUILTIN_DIR.glob("*.yaml"))
+
+
 def resolve_profile_path(name_or_path: str) -> Path:
-    """``quick``/``full`` name the shipped profiles; anything else is a YAML file."""
-    if name_or_path in ("quick", "full"):
+    """A shipped profile's name (:func:`shipped_profiles`) names its file; anything else is a YAML file."""
+    if name_or_path in shipped_profiles():
         return BUILTIN_DIR / f"{name_or_path}.yaml"
     return Path(name_or_path)
 
@@ -183,7 +188,7 @@ def load_profile(name_or_path: str) -> Profile:
     """The validated profile (module docstring); :class:`InputError` naming file and key otherwise."""
     path = resolve_profile_path(name_or_path)
     if not path.is_file():
-        raise InputError("no such study profile; expected quick, full or a YAML file", path=path)
+        raise InputError(f"no such study profile; expected {', '.join(shipped_profiles())} or a YAML file", path=path)
     try:
         raw = yaml.safe_load(path.read_text())
     except yaml.YAMLError as error:
