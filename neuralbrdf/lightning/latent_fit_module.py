@@ -279,11 +279,13 @@ class LatentFitModule(WritesKind, pl.LightningModule):
         return self.network(samples.wi, samples.wo, self.latents(samples.material))
 
     def training_step(self, batch: FitSamples, batch_idx: int) -> torch.Tensor:
-        # The data loss is a mean over the batch's samples; the prior term is too (each sample carries
-        # its material's), so each material's share of the loss is (its data loss + its prior term) in
-        # proportion to its samples in the batch: the same minimum per material as in screening.
         loss = nlb_loss(self.predict(batch), batch.f, batch.wi, self.hparams.loss_domain)
-        loss = loss + torch.as_tensor(self._prior_terms(self.latents(batch.material))).mean()
+        if self._prior_mean is not None:
+            # The data loss is a mean over the batch's samples; the prior term is too (each sample
+            # carries its material's, computed once per material), so each material's share of the
+            # loss is (its data loss + its prior term) in proportion to its samples in the batch: the
+            # same minimum per material as in screening.
+            loss = loss + self._prior_terms(self.latents.latents)[batch.material].mean()
         self.log("train/loss", loss, on_step=False, on_epoch=True, batch_size=len(batch.f))
         self._track_convergence(float(loss.detach()))
         return loss
