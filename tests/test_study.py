@@ -127,12 +127,14 @@ def test_keys_follow_the_contents_of_config_overlays_in_the_arguments(tmp_path):
     overlay = tmp_path / "overlay.yaml"
     overlay.write_text("model:\n  init_args:\n    n_starts: 2\n")
     variants = (f"variants:\n  - {{name: abc, method: abc, config: configs/abc.yaml}}\n"
-                f"  - {{name: two, method: abc, config: configs/abc.yaml, args: [--config, {overlay}]}}\n")
+                f"  - {{name: two, method: abc, config: configs/abc.yaml, args: [--config, {overlay}]}}\n"
+                f"  - {{name: joined, method: abc, config: configs/abc.yaml, args: [--config={overlay}]}}\n")
     profile = load_profile(str(_write(tmp_path, BASE.split("variants:")[0] + variants)))
-    key = {v: cell_key(Cell("gold", v, "DS1", 0.0, 0), profile) for v in ("abc", "two")}
+    key = {v: cell_key(Cell("gold", v, "DS1", 0.0, 0), profile) for v in ("abc", "two", "joined")}
     assert "overlays" not in cell_settings(Cell("gold", "abc", "DS1", 0.0, 0), profile)["variant"]
     overlay.write_text("model:\n  init_args:\n    n_starts: 3\n")
     assert cell_key(Cell("gold", "two", "DS1", 0.0, 0), profile) != key["two"]
+    assert cell_key(Cell("gold", "joined", "DS1", 0.0, 0), profile) != key["joined"]  # --config=PATH too
     assert cell_key(Cell("gold", "abc", "DS1", 0.0, 0), profile) == key["abc"]
 
 

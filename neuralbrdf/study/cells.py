@@ -70,23 +70,31 @@ def _digest(version: tuple) -> str:
     return hashlib.sha256(Path(version[0]).read_bytes()).hexdigest()
 
 
+def flag_values(args, flag: str) -> list[str]:
+    """The values given to ``flag`` in command-line ``args``, as ``FLAG VALUE`` or ``FLAG=VALUE``, in order."""
+    args = list(args)
+    values = []
+    for i, arg in enumerate(args):
+        if arg == flag and i + 1 < len(args):
+            values.append(args[i + 1])
+        elif arg.startswith(flag + "="):
+            values.append(arg.split("=", 1)[1])
+    return values
+
+
 def pretrained_network(variant: VariantSpec) -> str | None:
     """The pretrained network an NLB variant fits on: ``--model.checkpoint`` of its arguments,
     else its config's ``model.init_args.checkpoint``, else the shipped default (``None``)."""
-    args = list(variant.args)
-    for i, arg in enumerate(args):
-        if arg == "--model.checkpoint" and i + 1 < len(args):
-            return args[i + 1]
-        if arg.startswith("--model.checkpoint="):
-            return arg.split("=", 1)[1]
+    given = flag_values(variant.args, "--model.checkpoint")
+    if given:
+        return given[0]
     config = yaml.safe_load(Path(variant.config).read_text()) or {}
     return ((config.get("model") or {}).get("init_args") or {}).get("checkpoint")
 
 
 def overlay_digests(variant: VariantSpec) -> list[str]:
     """Contents (digests) of the config files a variant's arguments add with ``--config``."""
-    args = list(variant.args)
-    return [file_digest(str(resolve_config(args[i + 1]))) for i, arg in enumerate(args[:-1]) if arg == "--config"]
+    return [file_digest(str(resolve_config(path))) for path in flag_values(variant.args, "--config")]
 
 
 def is_rendered(cell: Cell, profile: Profile) -> bool:
