@@ -260,3 +260,44 @@ def test_corpus_data_module_checks_its_arguments():
     for bad in ({"n_analytic": 0}, {"batch_size": 1.5}, {"uniform_fraction": -0.1}):
         with pytest.raises(InputError):
             CorpusDataModule(**bad)
+
+
+def test_thin_films_coat_some_dielectric_lobes_and_leave_the_rest_of_the_corpus_as_it_was():
+    plain = generate_materials(300, seed=5)
+    filmed = generate_materials(300, seed=5, thin_film_probability=0.5)
+    for field in dataclasses.fields(plain):
+        if field.name not in ("lobe_film_nm", "lobe_film_index", "channel_wavelength"):
+            np.testing.assert_array_equal(getattr(plain, field.name), getattr(filmed, field.name))
+    coated = filmed.lobe_film_nm > 0
+    dielectric = np.isin(filmed.lobe_kind, (LOBE_GGX, LOBE_BECKMANN)) & ~filmed.lobe_conductor
+    assert coated.any() and not (coated & ~dielectric).any()
+    assert 0.3 < coated[dielectric].mean() < 0.7
+    assert not (plain.lobe_film_nm > 0).any()
+    with pytest.raises(InputError, match="thin_film_probability"):
+        generate_materials(3, seed=0, thin_film_probability=1.5)
+
+
+def test_a_thin_film_lobe_is_the_airy_reflectance_at_its_channels_wavelengths_and_stays_reciprocal():
+    """A coated lobe over the same lobe without its film is the Airy reflectance over the bare
+    dielectric Fresnel term, per channel at the channel's wavelength; swapping wi and wo changes nothing."""
+    from neuralbrdf.physics.fresnel import fresnel_dielectric
+    from neuralbrdf.physics.thin_film import thin_film_reflectance
+
+    filmed = generate_materials(300, seed=5, thin_film_probability=0.5)
+    m = int(np.flatnonzero(filmed.lobe_film_nm[:, 0] > 0)[0])
+    bare = dataclasses.replace(filmed, lobe_film_nm=np.zeros_like(filmed.lobe_film_nm))
+    rng = np.random.default_rng(3)
+    wi, wo = random_pairs(rng, 500)
+    material = np.full(500, m)
+    lobe = lambda c: c._lobe(filmed.lobe_kind[m, 0], material, 0, wi, wo)  # noqa: E731
+    h = (wi + wo) / np.linalg.norm(wi + wo, axis=1, keepdims=True)
+    cos_d = (wi * h).sum(1)[:, None]
+    eta = filmed.lobe_eta[m, 0]
+    airy = thin_film_reflectance(cos_d, filmed.channel_wavelength[m], filmed.lobe_film_index[m, 0],
+                                 filmed.lobe_film_nm[m, 0], eta[0])
+    np.testing.assert_allclose(lobe(filmed), lobe(bare) * airy / fresnel_dielectric(cos_d, eta), rtol=1e-9, atol=1e-300)
+    np.testing.assert_allclose(filmed.evaluate(material, wi, wo), filmed.evaluate(material, wo, wi), rtol=1e-10)
+    # interference: the channels' ratio changes with angle (a goniochromatic colour shift)
+    near, grazing = airy[cos_d[:, 0] > 0.95], airy[cos_d[:, 0] < 0.4]
+    ratio = lambda r: r[:, 0] / r[:, 2]  # noqa: E731
+    assert abs(np.median(ratio(near)) - np.median(ratio(grazing))) > 0.05

@@ -24,13 +24,13 @@ KIND = Kind(name="toy", summary="a kind added as one file")
 
 
 def test_the_shipped_kinds_are_registered_with_what_the_library_needs():
-    assert kinds.names() == ["abc", "nlb", "reference", "spectral_mlp", "table"]
+    assert kinds.names() == ["abc", "nlb", "nlb_spectral", "reference", "spectral_mlp", "table"]
     for name in kinds.names():
         kind = kinds.get(name)
         assert kind.name == name and kind.summary
         assert kind.proposal in ("fitted_ggx", "abc_lobe")
     trained = {name for name in kinds.names() if kinds.get(name).from_checkpoint is not None}
-    assert trained == {"abc", "nlb", "spectral_mlp"}
+    assert trained == {"abc", "nlb", "nlb_spectral", "spectral_mlp"}
     assert kinds.get("spectral_mlp").spectral_only and not kinds.get("nlb").spectral_only
     assert kinds.get("abc").proposal == "abc_lobe"
 
@@ -130,7 +130,7 @@ def test_checkpoints_without_the_kind_key_are_recognised_by_their_layout(checkpo
 
 @pytest.mark.parametrize("checkpoint", [{}, {CHECKPOINT_KIND_KEY: "reference"}, {"state_dict": {}}])
 def test_a_checkpoint_of_no_trained_kind_is_refused_naming_the_key(checkpoint):
-    with pytest.raises(InputError, match=r"unknown checkpoint kind .*expected one of \['abc', 'nlb', 'spectral_mlp'\]") as info:
+    with pytest.raises(InputError, match=r"unknown checkpoint kind .*expected one of \['abc', 'nlb', 'nlb_spectral', 'spectral_mlp'\]") as info:
         kinds.checkpoint_kind(checkpoint, "x.ckpt")
     assert info.value.column == CHECKPOINT_KIND_KEY and str(info.value.path) == "x.ckpt"
 

@@ -12,27 +12,34 @@ from neuralbrdf.data.nbrdf import REPORT_MATERIALS, NbrdfNetwork, available_mate
 from neuralbrdf.data.proxy_corpus import (
     HELD_OUT,
     NEVER_PRETRAINED,
+    RGL_VALIDATION,
     ProxyMaterials,
+    ProxySet,
+    is_blend_code,
+    is_measured_code,
     pretraining_proxy_names,
     sample_proxy_directions,
 )
 from neuralbrdf.errors import InputError
 
 MERL = Path(__file__).resolve().parents[2] / "shared" / "data" / "merl-nbrdf"
+RGL = MERL.parent / "rgl-nbrdf"
 needs_merl = pytest.mark.skipif(not MERL.is_dir(), reason=f"MERL NBRDF proxies not found at {MERL}")
+needs_rgl = pytest.mark.skipif(not (MERL.is_dir() and RGL.is_dir()), reason=f"NBRDF proxies not found at {MERL}, {RGL}")
 
 
 def test_held_out_subset_is_ten_materials_disjoint_from_the_report_materials():
     assert len(HELD_OUT) == len(set(HELD_OUT)) == 10
     assert not set(HELD_OUT) & set(REPORT_MATERIALS)
-    assert set(NEVER_PRETRAINED) == set(HELD_OUT) | set(REPORT_MATERIALS)
+    assert set(NEVER_PRETRAINED) == set(HELD_OUT) | set(REPORT_MATERIALS) | set(RGL_VALIDATION)
+    assert len(RGL_VALIDATION) == len(set(RGL_VALIDATION)) == 9
 
 
 @needs_merl
 def test_pretraining_proxies_exclude_held_out_and_report_materials():
     names = pretraining_proxy_names(MERL)
     assert set(HELD_OUT) <= set(available_materials(MERL))
-    assert len(names) == len(available_materials(MERL)) - len(NEVER_PRETRAINED)
+    assert len(names) == len(available_materials(MERL)) - len(HELD_OUT) - len(REPORT_MATERIALS) == 35
     assert not set(names) & set(NEVER_PRETRAINED)
     with pytest.raises(InputError, match="held out"):
         ProxyMaterials(MERL, (names[0], HELD_OUT[3]))
@@ -106,7 +113,7 @@ def test_blends_are_weighted_geometric_means_of_two_distinct_proxies_below_their
         assert (f <= a * fj + (1 - a) * fk + 1e-12).all()
         weight = f"{a:.3f}*{names[j]}+{1 - a:.3f}*{names[k]}"
         assert proxies.material_names[4 + blend] == f"merl-blend:{weight}"
-    np.testing.assert_array_equal(proxies.evaluate(np.zeros(300, int), wi, wo), networks[0].evaluate(wi, wo))
+    np.testing.assert_allclose(proxies.evaluate(np.zeros(300, int), wi, wo), networks[0].evaluate(wi, wo), rtol=1e-12)
 
 
 @needs_merl
@@ -123,7 +130,7 @@ def test_blend_batches_take_their_share_of_proxy_samples_with_each_row_its_paren
     assert 0.25 < float(from_blends) < 0.35
     assert torch.isfinite(batch.f).all() and (batch.f >= 0).all()
     # Rows of a mixed batch, measured and blended, against their parents evaluated independently.
-    proxies = blended.proxies
+    (proxies,) = blended.proxies.labs
     rows = [int(torch.nonzero(batch.material == m)[0]) for m in (6, 6 + len(names), 6 + len(names) + 1)]
     for row in rows:
         wi, wo = batch.wi[row : row + 1].double().numpy(), batch.wo[row : row + 1].double().numpy()
@@ -169,3 +176,39 @@ def test_proxy_blends_need_the_proxies():
 
     with pytest.raises(InputError, match="proxy_dir"):
         CorpusDataModule(n_analytic=6, proxy_blends=4)
+
+
+@needs_rgl
+def test_rgl_validation_split_is_never_pretrained_and_labs_are_named():
+    assert set(RGL_VALIDATION) <= set(available_materials(RGL))
+    names = pretraining_proxy_names(RGL)
+    assert len(names) == len(available_materials(RGL)) - len(RGL_VALIDATION) == 17
+    with pytest.raises(InputError, match="held out"):
+        ProxyMaterials(RGL, (names[0], RGL_VALIDATION[0]))
+    rgl = ProxyMaterials(RGL, names[:3], n_blends=2)
+    assert rgl.material_names[:3] == tuple(f"rgl:{n}" for n in names[:3])
+    assert all(is_measured_code(n) for n in rgl.material_names[:3])
+    assert all(is_blend_code(n) and not is_measured_code(n) for n in rgl.material_names[3:])
+    assert not is_measured_code("analytic:3") and not is_blend_code("analytic:3")
+
+
+@needs_rgl
+def test_batched_proxy_evaluation_equals_each_network_and_labs_share_a_batch():
+    """Every network at once (stacked weights) gives what each network's own evaluate gives, at
+    and below the horizon; a two-lab batch holds both labs' materials at their own indices."""
+    merl = ProxyMaterials(MERL, pretraining_proxy_names(MERL)[:4], n_blends=3, seed=1)
+    rgl = ProxyMaterials(RGL, pretraining_proxy_names(RGL)[:3], n_blends=2, seed=1)
+    rng = np.random.default_rng(0)
+    wi, wo = sample_proxy_directions(rng, 600, 0.5)
+    wo[:20, 2] *= -1.0  # below the horizon: exactly 0
+    material = rng.integers(0, len(merl.networks), 600)
+    expected = np.stack([merl.networks[m].evaluate(wi[i:i + 1], wo[i:i + 1])[0] for i, m in enumerate(material)])
+    np.testing.assert_allclose(merl.evaluate(material, wi, wo), expected, rtol=1e-12, atol=1e-15)
+    assert (merl.evaluate(material[:20], wi[:20], wo[:20]) == 0).all()
+    both = ProxySet([merl, rgl])
+    assert len(both) == len(merl) + len(rgl) and both.material_names == merl.material_names + rgl.material_names
+    batch = both.sample_batch(3000, np.random.default_rng(2), 0.5)
+    from_rgl = batch.material >= len(merl)
+    assert 0.2 < from_rgl.mean() < 0.6  # 3 of 7 measured materials
+    np.testing.assert_allclose(batch.f[from_rgl], rgl.evaluate(batch.material[from_rgl] - len(merl),
+                                                                  batch.wi[from_rgl], batch.wo[from_rgl]))

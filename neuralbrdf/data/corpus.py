@@ -26,6 +26,16 @@ A material is a diffuse base plus up to :data:`MAX_LOBES` specular lobes, all RG
   GGX and Beckmann lobes take a dielectric Fresnel term (``η``) or a conductor one (complex
   RGB index ``η + i k``); each lobe carries an RGB weight.
 
+* **Thin films** (``thin_film_probability`` > 0): that share of the dielectric GGX/Beckmann
+  lobes reflect through a thin dielectric film on their dielectric (the Airy reflectance of
+  :func:`neuralbrdf.physics.thin_film.thin_film_reflectance`: interference pigments, coated
+  flakes), film index in :data:`FILM_INDEX_RANGE`, thickness in :data:`FILM_THICKNESS_RANGE_NM`.
+  Interference depends on wavelength, so each material's channels then stand for wavelengths
+  (:attr:`CorpusMaterials.channel_wavelength`: near the dominant wavelengths of the sRGB
+  primaries, jittered by ± :data:`CHANNEL_WAVELENGTH_JITTER_NM`), and its colour changes with
+  angle as a goniochromatic ink's does.  These draws come from a generator of their own, so a
+  corpus without films is the same with or without this option.
+
 Four archetypes (``ARCHETYPES``) set which parts a material has: ``diffuse`` (Lambert only),
 ``plastic`` (coated Lambert + one dielectric lobe), ``metal`` (one conductor lobe, sometimes a
 faint diffuse base) and ``layered`` (coated Lambert + a sharp dielectric clear coat + a broad
@@ -54,6 +64,7 @@ from neuralbrdf.geometry import dot, normalize
 from neuralbrdf.physics.abc import abc_brdf
 from neuralbrdf.physics.fresnel import fresnel_conductor, fresnel_dielectric
 from neuralbrdf.physics.microfacet import microfacet_brdf
+from neuralbrdf.physics.thin_film import thin_film_reflectance
 
 MAX_LOBES = 2
 
@@ -91,6 +102,12 @@ SAMPLING_SPREAD = (1.0, 2.5)
 GGX_HALF_WIDTH = math.sqrt(math.sqrt(2.0) - 1.0)
 #: Sampling widths are clipped to this range of GGX ``alpha``.
 SAMPLING_ALPHA_RANGE = (2e-3, 1.0)
+#: Thin films on dielectric lobes: film index (uniform) and thickness in nm (uniform).
+FILM_INDEX_RANGE = (1.8, 2.6)
+FILM_THICKNESS_RANGE_NM = (100.0, 700.0)
+#: Wavelengths (nm) the R, G, B channels stand for in thin-film interference, and their jitter.
+CHANNEL_WAVELENGTHS_NM = (610.0, 550.0, 465.0)
+CHANNEL_WAVELENGTH_JITTER_NM = 25.0
 
 
 # ------------------------------------------------------------------------------- physics
@@ -151,6 +168,10 @@ class CorpusMaterials:
         ``[M, L, 3]`` Fresnel index per channel (``k`` = 0 for dielectrics).
     lobe_b, lobe_c:
         ``[M, L]`` ABC shape parameters ``B, C`` (unused for other kinds).
+    lobe_film_nm, lobe_film_index:
+        ``[M, L]`` thickness (nm; 0 = no film) and index of a thin film on a dielectric lobe.
+    channel_wavelength:
+        ``[M, 3]`` wavelength (nm) each channel stands for in thin-film interference.
     """
 
     archetype: np.ndarray
@@ -164,6 +185,9 @@ class CorpusMaterials:
     lobe_k: np.ndarray
     lobe_b: np.ndarray
     lobe_c: np.ndarray
+    lobe_film_nm: np.ndarray
+    lobe_film_index: np.ndarray
+    channel_wavelength: np.ndarray
 
     def __len__(self) -> int:
         return self.archetype.shape[0]
@@ -206,10 +230,18 @@ class CorpusMaterials:
             return abc_specular(wi, wo, weight, self.lobe_b[material, slot], self.lobe_c[material, slot], eta[:, 0])
         k = self.lobe_k[material, slot]
         conductor = self.lobe_conductor[material, slot][:, None]
+        film = self.lobe_film_nm[material, slot][:, None]
 
         def fresnel(cos_d):
             c = cos_d[:, None]
-            return weight * np.where(conductor, fresnel_conductor(c, eta, k), fresnel_dielectric(c, eta))
+            dielectric = fresnel_dielectric(c, eta)
+            if np.any(film > 0.0):
+                # a film of thickness 0 is the bare interface (the Airy formula's own limit)
+                film_index = self.lobe_film_index[material, slot][:, None]
+                coated = thin_film_reflectance(c, self.channel_wavelength[material], film_index, film,
+                                               np.maximum(eta, 1.0))
+                dielectric = np.where(film > 0.0, coated, dielectric)
+            return weight * np.where(conductor, fresnel_conductor(c, eta, k), dielectric)
 
         alpha = self.lobe_alpha[material, slot]
         return microfacet_brdf(wi, wo, alpha, fresnel, distribution="ggx" if kind == LOBE_GGX else "beckmann")
@@ -313,11 +345,15 @@ def _fill_lobe(rng, params, rows, slot, kinds, alpha, conductor, weight):
     return params["lobe_eta"][rows, slot, 0]
 
 
-def generate_materials(n_materials: int, seed: int, archetype_weights=DEFAULT_ARCHETYPE_WEIGHTS) -> CorpusMaterials:
+def generate_materials(n_materials: int, seed: int, archetype_weights=DEFAULT_ARCHETYPE_WEIGHTS,
+                       thin_film_probability: float = 0.0) -> CorpusMaterials:
     """``n_materials`` random materials, reproducible from ``seed`` (module docstring).
 
-    ``archetype_weights``: relative probabilities of :data:`ARCHETYPES`, in that order.
+    ``archetype_weights``: relative probabilities of :data:`ARCHETYPES`, in that order;
+    ``thin_film_probability``: share of the dielectric GGX/Beckmann lobes under a thin film.
     """
+    if not 0.0 <= thin_film_probability <= 1.0:
+        raise InputError(f"must lie in [0, 1], got {thin_film_probability}", column="thin_film_probability")
     if not isinstance(n_materials, int) or n_materials < 1:
         raise InputError(f"n_materials must be a positive integer, got {n_materials!r}", column="n_materials")
     weights = np.asarray(archetype_weights, dtype=np.float64)
@@ -365,8 +401,24 @@ def generate_materials(n_materials: int, seed: int, archetype_weights=DEFAULT_AR
     base_weight = np.where(metallic[:, None], _colour(rng, rng.uniform(0.1, 0.5, size=n), n), 1.0)
     _fill_lobe(rng, params, layered, 1, all_kinds, log_uniform(rng, *BASE_ALPHA_RANGE, n), metallic, base_weight)
     albedo[layered] *= 0.6
-
+    params.update(_thin_films(np.random.default_rng([seed, 1]), params, thin_film_probability))
     return CorpusMaterials(archetype=archetype, albedo=albedo, coat_eta=coat_eta, **params)
+
+
+def _thin_films(rng, params, probability: float) -> dict[str, np.ndarray]:
+    """Films on a ``probability`` share of the dielectric GGX/Beckmann lobes, and each material's
+    channel wavelengths (module docstring), from a generator of their own."""
+    kind = params["lobe_kind"]
+    m = kind.shape[0]
+    film_nm, film_index = np.zeros(kind.shape), np.ones(kind.shape)
+    wavelength = np.broadcast_to(np.asarray(CHANNEL_WAVELENGTHS_NM), (m, 3)).copy()
+    if probability > 0.0:
+        eligible = np.isin(kind, (LOBE_GGX, LOBE_BECKMANN)) & ~params["lobe_conductor"]
+        coated = eligible & (rng.random(kind.shape) < probability)
+        film_nm = np.where(coated, rng.uniform(*FILM_THICKNESS_RANGE_NM, size=kind.shape), 0.0)
+        film_index = np.where(coated, rng.uniform(*FILM_INDEX_RANGE, size=kind.shape), 1.0)
+        wavelength += rng.uniform(-CHANNEL_WAVELENGTH_JITTER_NM, CHANNEL_WAVELENGTH_JITTER_NM, size=(m, 3))
+    return {"lobe_film_nm": film_nm, "lobe_film_index": film_index, "channel_wavelength": wavelength}
 
 
 # ------------------------------------------------------------------------------- batches

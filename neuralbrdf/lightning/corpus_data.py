@@ -9,10 +9,11 @@ the trainer, so with ``trainer.reload_dataloaders_every_n_epochs: 1`` every epoc
 directions; otherwise every epoch repeats epoch 0's samples.  Validation batches are the same in
 every epoch: the training materials at directions not trained on.
 
-**MERL proxies** (``proxy_dir``, :mod:`neuralbrdf.data.proxy_corpus`): a ``proxy_fraction`` of
-every batch comes from the NBRDF proxies allowed in pretraining (never the held-out subset or
-the report's five materials) and, with ``proxy_blends``, their geometric blends; they are
-materials ``n_analytic .. n_materials - 1`` of the latent table, after the analytic ones.
+**Measured proxies** (``proxy_dir``: one folder or a list, one per lab;
+:mod:`neuralbrdf.data.proxy_corpus`): a ``proxy_fraction`` of every batch comes from the NBRDF
+proxies allowed in pretraining (never a held-out, validation or report material) and, with
+``proxy_blends``, their geometric blends within each lab; they are materials
+``n_analytic .. n_materials - 1`` of the latent table, after the analytic ones.
 
 A batch is a :class:`CorpusSamples` of float32 tensors (``material`` int64).
 """
@@ -29,7 +30,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from neuralbrdf.data.corpus import DEFAULT_ARCHETYPE_WEIGHTS, CorpusMaterials, generate_materials, sample_batch
-from neuralbrdf.data.proxy_corpus import ProxyMaterials, pretraining_proxy_names
+from neuralbrdf.data.proxy_corpus import ProxyMaterials, ProxySet, pretraining_proxy_names
 from neuralbrdf.errors import InputError
 
 TRAIN_STREAM, VAL_STREAM = 0, 1
@@ -56,7 +57,7 @@ class CorpusBatches(Dataset):
         stream: int,
         epoch: int = 0,
         uniform_fraction: float = 0.5,
-        proxies: ProxyMaterials | None = None,
+        proxies: ProxySet | None = None,
         proxy_fraction: float = 0.0,
     ) -> None:
         self.materials = materials
@@ -105,6 +106,9 @@ class CorpusDataModule(pl.LightningDataModule):
         Seed of the materials and of every batch.
     archetype_weights:
         Relative probabilities of diffuse, plastic, metal and layered materials.
+    thin_film_probability:
+        Share of the dielectric lobes under a thin interference film
+        (:func:`~neuralbrdf.data.corpus.generate_materials`); 0: none.
     batch_size:
         Samples per training step (materials drawn uniformly per sample).
     batches_per_epoch:
@@ -117,13 +121,14 @@ class CorpusDataModule(pl.LightningDataModule):
         DataLoader worker processes generating batches while the model trains (0: generate
         in the training process).
     proxy_dir:
-        Folder of MERL NBRDF proxies (``../shared/data/merl-nbrdf``) to mix in; ``None``: the
-        analytic corpus alone.
+        Folder of NBRDF proxies to mix in (``../shared/data/merl-nbrdf``), or a list of folders,
+        one per lab (``[…/merl-nbrdf, …/rgl-nbrdf]``); ``None``: the analytic corpus alone.
     proxy_fraction:
         Share of each batch drawn from the proxies (when ``proxy_dir`` is set).
     proxy_blends:
-        Blends of two proxies added as further materials (seeded by ``seed``;
-        :class:`~neuralbrdf.data.proxy_corpus.ProxyMaterials`); 0: the measured proxies alone.
+        Blends of two proxies of one lab added as further materials (seeded by ``seed``;
+        :class:`~neuralbrdf.data.proxy_corpus.ProxyMaterials`), shared between the labs in
+        proportion to their measured materials; 0: the measured proxies alone.
     proxy_blend_fraction:
         Share of the proxy samples drawn from the blends (when there are any).
     """
@@ -133,12 +138,13 @@ class CorpusDataModule(pl.LightningDataModule):
         n_analytic: int = 1024,
         seed: int = 0,
         archetype_weights: Sequence[float] = DEFAULT_ARCHETYPE_WEIGHTS,
+        thin_film_probability: float = 0.0,
         batch_size: int = 8192,
         batches_per_epoch: int = 500,
         val_batches: int = 8,
         uniform_fraction: float = 0.5,
         num_workers: int = 0,
-        proxy_dir: str | None = None,
+        proxy_dir: str | list[str] | None = None,
         proxy_fraction: float = 0.5,
         proxy_blends: int = 0,
         proxy_blend_fraction: float = 0.5,
@@ -154,13 +160,13 @@ class CorpusDataModule(pl.LightningDataModule):
             raise InputError(f"must lie in (0, 1), got {proxy_fraction}", column="proxy_fraction")
         _whole_number("proxy_blends", proxy_blends, minimum=0)
         if proxy_blends and proxy_dir is None:
-            raise InputError("blends are made from the MERL proxies: set proxy_dir too", column="proxy_blends")
+            raise InputError("blends are made from measured proxies: set proxy_dir too, or proxy_blends: 0", column="proxy_blends")
         self.save_hyperparameters()
-        self.materials = generate_materials(n_analytic, seed, tuple(archetype_weights))
+        self.materials = generate_materials(n_analytic, seed, tuple(archetype_weights), thin_film_probability)
         self.proxies = None
         if proxy_dir is not None:
-            self.proxies = ProxyMaterials(proxy_dir, pretraining_proxy_names(proxy_dir), proxy_blends,
-                                          proxy_blend_fraction, seed)
+            self.proxies = _proxy_set([proxy_dir] if isinstance(proxy_dir, str) else list(proxy_dir), proxy_blends,
+                                      proxy_blend_fraction, seed)
 
     @property
     def n_materials(self) -> int:
@@ -170,7 +176,7 @@ class CorpusDataModule(pl.LightningDataModule):
     @property
     def material_names(self) -> tuple[str, ...]:
         """``analytic:<i>`` for the generated materials, then the proxies' names
-        (``merl:<name>``, ``merl-blend:…``; :attr:`ProxyMaterials.material_names`)."""
+        (``merl:<name>``, ``merl-blend:…``, ``rgl:<name>``, …; :attr:`ProxyMaterials.material_names`)."""
         proxies = () if self.proxies is None else self.proxies.material_names
         return (*(f"analytic:{i}" for i in range(len(self.materials))), *proxies)
 
@@ -187,3 +193,14 @@ class CorpusDataModule(pl.LightningDataModule):
 
     def val_dataloader(self) -> DataLoader:
         return self._loader(self.hparams.val_batches, VAL_STREAM, 0)
+
+
+def _proxy_set(folders: list[str], n_blends: int, blend_fraction: float, seed: int) -> ProxySet:
+    """One :class:`ProxyMaterials` per folder, the ``n_blends`` blends shared in proportion to the
+    folders' pretraining materials (all of them for a single folder)."""
+    names = [pretraining_proxy_names(folder) for folder in folders]
+    total = sum(len(n) for n in names)
+    blends = [n_blends * len(n) // max(total, 1) for n in names]
+    blends[0] += n_blends - sum(blends)
+    return ProxySet([ProxyMaterials(folder, folder_names, count, blend_fraction, seed)
+                     for folder, folder_names, count in zip(folders, names, blends)])

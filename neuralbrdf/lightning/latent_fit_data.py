@@ -13,6 +13,10 @@
 
 Each may carry ``name`` (default: the file stem or virtual material).  ``--data.path FILE``
 (with ``--data.reference``) drops a single measurement into any latent-fit config.
+
+Values are linear sRGB (spectral tables converted, SPEC §2.3) unless ``spectral`` is set: then
+every source must be spectral on one wavelength grid (:attr:`LatentFitData.wavelengths_nm`),
+which the spectral NLB fits band by band (:mod:`neuralbrdf.lightning.nlb_spectral_fit`).
 """
 
 from __future__ import annotations
@@ -37,7 +41,8 @@ from neuralbrdf.sources import check_source, load_material, source_name
 
 
 class FitSamples(NamedTuple):
-    """Samples of one or more materials: ``material`` ``[N]`` int64, ``wi, wo, f`` ``[N, 3]`` float32."""
+    """Samples of one or more materials: ``material`` ``[N]`` int64, ``wi, wo`` ``[N, 3]`` and ``f``
+    ``[N, C]`` float32 (``C`` = 3 RGB channels, or the wavelength bands of a spectral fit)."""
 
     material: torch.Tensor
     wi: torch.Tensor
@@ -62,8 +67,9 @@ def _tensors(index: int, wi, wo, f) -> FitSamples:
     )
 
 
-def _table_samples(index: int, table: BrdfTable) -> FitSamples:
-    table = table.to_rgb()
+def _table_samples(index: int, table: BrdfTable, spectral: bool = False) -> FitSamples:
+    if not spectral:
+        table = table.to_rgb()
     return _tensors(index, *table.vectors(), table.values)
 
 
@@ -112,7 +118,8 @@ class LatentFitData(pl.LightningDataModule):
     plan:
         Sampling plan (SPEC §3) of NBRDF sources without their own ``plan``.
     eval_plan:
-        Plan on which NBRDF sources are compared with the fit; ``None``: no such evaluation.
+        Plan on which NBRDF and virtual sources (which have a truth) are compared with the fit;
+        ``None``: no such evaluation.
     low2012_abc:
         Löw et al.'s published ABC fits (``abc-low2012/low2012_abc_merl.csv``) for the
         comparison; ``None``: no comparison; a missing file: a warning and no comparison.
@@ -124,6 +131,9 @@ class LatentFitData(pl.LightningDataModule):
         large for full-batch steps, such as five materials on the Löw et al. set (1.15 M pairs).
     seed:
         Seed of those draws.
+    spectral:
+        Keep spectral values (every source a spectral table on one wavelength grid) instead of
+        converting them to linear sRGB.
     """
 
     def __init__(
@@ -137,6 +147,7 @@ class LatentFitData(pl.LightningDataModule):
         steps_per_epoch: int = 100,
         batch_size: int | None = None,
         seed: int = 0,
+        spectral: bool = False,
     ) -> None:
         super().__init__()
         if path is not None:
@@ -161,6 +172,14 @@ class LatentFitData(pl.LightningDataModule):
         if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
             raise InputError(f"must be a positive integer or null, got {batch_size!r}", column="data.batch_size")
         self.steps_per_epoch, self.batch_size, self.seed = steps_per_epoch, batch_size, seed
+        self.spectral = bool(spectral)
+        if self.spectral:
+            rgb = [name for name, source in zip(self.material_names, self.sources) if "nbrdf" in source]
+            if rgb:
+                raise InputError(f"NBRDF proxies are RGB and cannot enter a spectral fit: {rgb}; "
+                                 "fit them with data.spectral: false", column="data.sources")
+        #: The wavelength grid (nm) of a spectral fit, once set up; ``None`` for RGB.
+        self.wavelengths_nm: np.ndarray | None = None
         self._steps: _Steps | None = None
         self.train_samples: FitSamples | None = None
         self.eval_sets: list[EvalSet] = []
@@ -173,17 +192,33 @@ class LatentFitData(pl.LightningDataModule):
             nbrdf=source.get("nbrdf"),
             virtual=source.get("virtual"),
             plan=source.get("plan", self.plan),
-            eval_plan=self.eval_plan if "nbrdf" in source else None,
+            eval_plan=self.eval_plan if "path" not in source else None,
             name=name,
         )
-        fit = _table_samples(index, material.fit)
+        if self.spectral:
+            self._check_grid(material.fit, name)
+        fit = _table_samples(index, material.fit, self.spectral)
         if material.truth is None:
             return EvalSet(name, fit, None, None)
-        abc_params = abc_fits.get(Path(source["nbrdf"]).stem)
+        if self.spectral:
+            self._check_grid(material.truth, f"{name} (truth)")
         abc = None
+        abc_params = abc_fits.get(Path(source["nbrdf"]).stem) if "nbrdf" in source else None
         if abc_params is not None:
             abc = torch.as_tensor(abc_params.evaluate(*material.truth.vectors()), dtype=torch.float32)
-        return EvalSet(name, fit, _table_samples(index, material.truth), abc)
+        return EvalSet(name, fit, _table_samples(index, material.truth, self.spectral), abc)
+
+    def _check_grid(self, table: BrdfTable, name: str) -> None:
+        """Refuse an RGB table, or a wavelength grid other than the first source's, in a spectral fit."""
+        if table.wavelengths is None:
+            raise InputError(f"{name} is an RGB table; a spectral fit needs spectral values", path=table.source)
+        if self.wavelengths_nm is None:
+            self.wavelengths_nm = table.wavelengths.copy()
+        elif not np.array_equal(table.wavelengths, self.wavelengths_nm):
+            raise InputError(f"{name} is sampled at {table.wavelengths.min():g}..{table.wavelengths.max():g} nm in "
+                             f"{table.wavelengths.size} bands, the first source at {self.wavelengths_nm.min():g}.."
+                             f"{self.wavelengths_nm.max():g} nm in {self.wavelengths_nm.size}: the materials of one "
+                             "spectral fit share a wavelength grid", path=table.source)
 
     def setup(self, stage: str | None = None) -> None:
         if self.train_samples is not None:

@@ -42,7 +42,72 @@ from neuralbrdf.lightning.common import scheduled_optimizer
 from neuralbrdf.losses import check_loss_domain, nlb_loss
 from neuralbrdf.models.nlb import COMPACT, LatentTable, NlbConfig, NlbNetwork, resize_latent
 
-class NlbPretrainModule(pl.LightningModule):
+class AutoDecoderPretraining(pl.LightningModule):
+    """What every auto-decoder pretraining shares (module docstring): the loss, the validation
+    metrics, the corpus-size check, the material names stored in checkpoints and the optimiser.
+
+    Subclasses build ``self.network`` and ``self.latents`` (a module holding every material's
+    codes, ``len()`` the number of materials), compute a batch's prediction in ``forward`` and
+    continue a previous run in ``_warm_start(names)``; their hyper-parameters include
+    ``loss_domain``, ``latent_lr_scale`` and ``warm_start``.
+    """
+
+    def __init__(self, optimizer: OptimizerCallable, lr_scheduler: LRSchedulerCallable | None) -> None:
+        super().__init__()
+        self.optimizer_factory = optimizer
+        self.lr_scheduler_factory = lr_scheduler
+        self._val_sums: list[torch.Tensor] = []
+        self.material_names: list[str] = []
+
+    def _warm_start(self, names: list[str]) -> None:
+        raise NotImplementedError
+
+    def setup(self, stage: str) -> None:
+        data = getattr(self.trainer, "datamodule", None)
+        corpus_size = getattr(data, "n_materials", None)
+        if corpus_size is not None and corpus_size != len(self.latents):
+            raise InputError(
+                f"the model has {len(self.latents)} latents but the corpus has {corpus_size} materials "
+                "(analytic + measured proxies and their blends); set model.n_materials to that",
+                column="model.n_materials",
+            )
+        self.material_names = list(getattr(data, "material_names", ()))
+        if self.hparams.warm_start and stage == "fit":
+            self._warm_start(self.material_names)
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        """Store the latents' material names (``analytic:<i>``, ``merl:<name>``, …), when known."""
+        if self.material_names:
+            checkpoint["material_names"] = self.material_names
+
+    def training_step(self, batch: CorpusSamples, batch_idx: int) -> torch.Tensor:
+        loss = nlb_loss(self(batch), batch.f, batch.wi, self.hparams.loss_domain)
+        self.log("train/loss", loss, on_step=True, on_epoch=True, batch_size=len(batch.f), sync_dist=True)
+        return loss
+
+    def validation_step(self, batch: CorpusSamples, batch_idx: int) -> None:
+        pred = self(batch)
+        n = len(batch.f)
+        for domain, name in (("log_cosine", "l1_logcos"), ("linear", "l1_linear")):
+            self.log(f"val/{name}", nlb_loss(pred, batch.f, batch.wi, domain), batch_size=n, sync_dist=True)
+        theta_i = torch.rad2deg(torch.acos(batch.wi[:, 2].clamp(-1.0, 1.0)))
+        rmse = metrics.hemisphere_logcos_rmse(pred, batch.f, theta_i)
+        self._val_sums.append(torch.tensor([rmse * rmse * n, n], dtype=torch.float64, device=pred.device))
+
+    def on_validation_epoch_end(self) -> None:
+        if not self._val_sums:
+            return
+        sums = torch.stack(self._val_sums).sum(0)
+        self._val_sums.clear()
+        sums = self.trainer.strategy.reduce(sums, reduce_op="sum")
+        self.log("val/logcos_rmse", torch.sqrt(sums[0] / sums[1]).float())
+
+    def configure_optimizers(self):
+        groups = [(self.network.parameters(), 1.0), (self.latents.parameters(), self.hparams.latent_lr_scale)]
+        return scheduled_optimizer(groups, self.optimizer_factory, self.lr_scheduler_factory, "epoch")
+
+
+class NlbPretrainModule(AutoDecoderPretraining):
     """Joint training of the NLB network and the corpus latents (module docstring).
 
     Parameters
@@ -83,17 +148,13 @@ class NlbPretrainModule(pl.LightningModule):
         optimizer: OptimizerCallable = torch.optim.Adam,
         lr_scheduler: LRSchedulerCallable | None = None,
     ) -> None:
-        super().__init__()
+        super().__init__(optimizer, lr_scheduler)
         check_loss_domain(loss_domain)
         if not latent_lr_scale > 0:
             raise InputError(f"must be positive, got {latent_lr_scale}", column="latent_lr_scale")
         self.save_hyperparameters(ignore=["optimizer", "lr_scheduler"])
         self.network = NlbNetwork(latent_dim, width, depth, residual, half_vector)
         self.latents = LatentTable(n_materials, latent_dim, latent_init)
-        self.optimizer_factory = optimizer
-        self.lr_scheduler_factory = lr_scheduler
-        self._val_sums: list[torch.Tensor] = []
-        self.material_names: list[str] = []
 
     def _warm_start(self, names: list[str]) -> None:
         """Copy the network and the matching latents of ``hparams.warm_start`` (class docstring)."""
@@ -115,52 +176,8 @@ class NlbPretrainModule(pl.LightningModule):
                 if name in rows:
                     self.latents.latents[i] = previous.latents[rows[name]]
 
-    def setup(self, stage: str) -> None:
-        data = getattr(self.trainer, "datamodule", None)
-        corpus_size = getattr(data, "n_materials", None)
-        if corpus_size is not None and corpus_size != len(self.latents):
-            raise InputError(
-                f"the model has {len(self.latents)} latents but the corpus has {corpus_size} materials "
-                "(analytic + MERL proxies); set model.n_materials to that",
-                column="model.n_materials",
-            )
-        self.material_names = list(getattr(data, "material_names", ()))
-        if self.hparams.warm_start and stage == "fit":
-            self._warm_start(self.material_names)
-
-    def on_save_checkpoint(self, checkpoint: dict) -> None:
-        """Store the latents' material names (``analytic:<i>``, ``merl:<name>``), when known."""
-        if self.material_names:
-            checkpoint["material_names"] = self.material_names
-
     def forward(self, batch: CorpusSamples) -> torch.Tensor:
         return self.network(batch.wi, batch.wo, self.latents(batch.material))
-
-    def training_step(self, batch: CorpusSamples, batch_idx: int) -> torch.Tensor:
-        loss = nlb_loss(self(batch), batch.f, batch.wi, self.hparams.loss_domain)
-        self.log("train/loss", loss, on_step=True, on_epoch=True, batch_size=len(batch.f), sync_dist=True)
-        return loss
-
-    def validation_step(self, batch: CorpusSamples, batch_idx: int) -> None:
-        pred = self(batch)
-        n = len(batch.f)
-        for domain, name in (("log_cosine", "l1_logcos"), ("linear", "l1_linear")):
-            self.log(f"val/{name}", nlb_loss(pred, batch.f, batch.wi, domain), batch_size=n, sync_dist=True)
-        theta_i = torch.rad2deg(torch.acos(batch.wi[:, 2].clamp(-1.0, 1.0)))
-        rmse = metrics.hemisphere_logcos_rmse(pred, batch.f, theta_i)
-        self._val_sums.append(torch.tensor([rmse * rmse * n, n], dtype=torch.float64, device=pred.device))
-
-    def on_validation_epoch_end(self) -> None:
-        if not self._val_sums:
-            return
-        sums = torch.stack(self._val_sums).sum(0)
-        self._val_sums.clear()
-        sums = self.trainer.strategy.reduce(sums, reduce_op="sum")
-        self.log("val/logcos_rmse", torch.sqrt(sums[0] / sums[1]).float())
-
-    def configure_optimizers(self):
-        groups = [(self.network.parameters(), 1.0), (self.latents.parameters(), self.hparams.latent_lr_scale)]
-        return scheduled_optimizer(groups, self.optimizer_factory, self.lr_scheduler_factory, "epoch")
 
 
 @dataclass(frozen=True)

@@ -109,7 +109,7 @@ def help_text() -> str:
         base = overlay_base(path)
         if base is not None:
             summary = f"[overlay: {path.stem} alone loads {base.stem} first] {summary}"
-        out.extend(textwrap.wrap(plain(summary), 96, initial_indent=f"  {path.stem:<20}", subsequent_indent=" " * 22))
+        out.extend(textwrap.wrap(plain(summary), 96, initial_indent=f"  {path.stem:<24}", subsequent_indent=" " * 26))
         class_path = _data_class(yaml.safe_load(text) or {})
         if class_path:
             data_classes.setdefault(class_path, []).append(path.stem)

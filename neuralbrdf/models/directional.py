@@ -15,6 +15,8 @@ so that both see the same function.
   material latent baked in as a constant (SPEC §4.2, §4.3).
 * :class:`AbcOnDirections` — the ABC model (Löw et al. 2012, SPEC §4.1) with fixed parameters;
   per-wavelength parameters are interpolated linearly in wavelength.
+* :class:`SpectralNlbWithCodes` — a fitted material of the spectral NLB
+  (:mod:`neuralbrdf.models.nlb_spectral`), RGB or spectral, its codes baked in.
 
 All return exactly 0 when either direction is at or below the horizon (``z <= 0``).  Only
 operators that ONNX (opset 17) has and that :mod:`neuralbrdf.render.drjit_onnx` interprets are
@@ -30,7 +32,8 @@ from torch import nn
 from torch.nn import functional as F
 
 from neuralbrdf.physics.abc import AbcParameters, abc_brdf
-from neuralbrdf.models.nlb import NlbNetwork, above_horizon
+from neuralbrdf.models.nlb import NlbNetwork, above_horizon, direction_inputs, masked_brdf
+from neuralbrdf.models.nlb_spectral import SpectralNlbNetwork
 from neuralbrdf.models.spectral_mlp import SpectralMLP
 
 #: Range (degrees) the in-plane equivalent angles are clamped to before the spectral MLP sees
@@ -180,3 +183,65 @@ class AbcOnDirections(nn.Module):
         unit = torch.tensor([1.0, 0.0], dtype=wi.dtype)
         parts = abc_brdf(wi, wo, unit, 1.0 - unit, self.B, self.C, self.eta)
         return parts[..., 0] * (weights @ self.kd) + parts[..., 1] * (weights @ self.A)
+
+
+class SpectralNlbWithCodes(nn.Module):
+    """A fitted material of the spectral NLB (:class:`SpectralNlbNetwork`) as a function of directions.
+
+    ``shared`` ``[shared_dim]`` and ``channels`` ``[K, channel_dim]`` are the material's codes;
+    ``node_wavelengths_nm`` the wavelengths of the ``K`` channel codes of a spectral fit, or
+    ``None`` for an RGB fit (``K`` = 3: R, G, B).  Everything the codes determine is baked into
+    constants: the shared code into the input layer's bias (no multiply-adds for it, as
+    :class:`NlbWithLatent`) and each channel code into its FiLM scale and shift ``[K, width]``.
+
+    * RGB: ``forward(wi, wo) -> [N, 3]``, the channels decoded one after the other from the
+      shared pre-activation;
+    * spectral: ``forward(wi, wo, wavelength) -> [N]``, the FiLM scale and shift interpolated
+      linearly in wavelength between the nodes (clamped to their range, :class:`LinearInWavelength`)
+      — the same interpolation as the fit's.
+    """
+
+    def __init__(self, network: SpectralNlbNetwork, shared: torch.Tensor, channels: torch.Tensor,
+                 node_wavelengths_nm=None) -> None:
+        super().__init__()
+        shared = torch.as_tensor(shared, dtype=torch.float32).detach().reshape(-1)
+        channels = torch.as_tensor(channels, dtype=torch.float32).detach()
+        if shared.numel() != network.shared_dim or channels.ndim != 2 or channels.shape[1] != network.channel_dim:
+            raise ValueError(f"codes of shapes {list(shared.shape)} and {list(channels.shape)} do not fit the network "
+                             f"(shared {network.shared_dim}, channel {network.channel_dim})")
+        self.network = network
+        self.is_spectral = node_wavelengths_nm is not None
+        if self.is_spectral:
+            self.interpolation_weights = LinearInWavelength(node_wavelengths_nm)
+            self.wavelength_range_nm = self.interpolation_weights.wavelength_range_nm
+            if len(self.interpolation_weights.grid) != len(channels):
+                raise ValueError(f"{len(channels)} channel codes for {len(self.interpolation_weights.grid)} nodes")
+        elif len(channels) != 3:
+            raise ValueError(f"an RGB fit has 3 channel codes, got {len(channels)}")
+        n = network.config.direction_features
+        with torch.no_grad():
+            weight = network.input_layer.weight
+            scale, shift = network.film(channels)
+        self.register_buffer("direction_weight", weight[:, :n].detach().clone())
+        self.register_buffer("input_bias", (weight[:, n:] @ shared + network.input_layer.bias).detach().clone())
+        self.register_buffer("film_scale", scale.detach().clone())
+        self.register_buffer("film_shift", shift.detach().clone())
+
+    def _shared_pre_activation(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+        network = self.network
+        a = F.linear(direction_inputs(wi, wo, network.config.half_vector), self.direction_weight, self.input_bias)
+        for layer in network.hidden_layers[: network.config.channel_layer]:
+            a = layer(F.relu(a))
+        return a
+
+    def forward(self, wi: torch.Tensor, wo: torch.Tensor, wavelength: torch.Tensor | None = None) -> torch.Tensor:
+        pre = self._shared_pre_activation(wi, wo)
+        if not self.is_spectral:
+            log1p_f = torch.stack([self.network.decode(pre, self.film_scale[k], self.film_shift[k]) for k in range(3)],
+                                  dim=-1)
+            return masked_brdf(wi, wo, log1p_f)
+        if wavelength is None:
+            raise ValueError("a spectral fit needs wavelengths")
+        weights = self.interpolation_weights(wavelength)
+        log1p_f = self.network.decode(pre, weights @ self.film_scale, weights @ self.film_shift)
+        return masked_brdf(wi, wo, log1p_f[:, None])[:, 0]

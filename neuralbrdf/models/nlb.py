@@ -112,6 +112,29 @@ def above_horizon(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
     return (wi[..., 2] > 0) & (wo[..., 2] > 0)
 
 
+def direction_inputs(wi: torch.Tensor, wo: torch.Tensor, half_vector: bool) -> torch.Tensor:
+    """Direction features ``[..., 6]`` (``wi, wo``) or, with ``half_vector``, ``[..., 9]`` (``wi, wo, h``)."""
+    if not half_vector:
+        return torch.cat([wi, wo], dim=-1)
+    s = wi + wo
+    h = s * torch.rsqrt((s * s).sum(-1, keepdim=True) + _HALF_EPS)
+    return torch.cat([wi, wo, h], dim=-1)
+
+
+def log1p_output(pre_activation: torch.Tensor) -> torch.Tensor:
+    """``ln(1 + f) = softplus(y)`` of the output pre-activation ``y``, with the straight-through clip
+    of ``y`` to [:data:`PRE_ACTIVATION_MIN`, :data:`LOG1P_F_MAX`] (module docstring): the value of
+    the bound, the gradient of softplus at the bound."""
+    y = pre_activation
+    return F.softplus(y + (y.clamp(PRE_ACTIVATION_MIN, LOG1P_F_MAX) - y).detach())
+
+
+def masked_brdf(wi: torch.Tensor, wo: torch.Tensor, log1p_f: torch.Tensor) -> torch.Tensor:
+    """``f = expm1(log1p_f)`` ``[..., C]``, 0 where either direction is below the horizon."""
+    f = torch.expm1(log1p_f)
+    return torch.where(above_horizon(wi, wo)[..., None], f, torch.zeros_like(f))
+
+
 class NlbNetwork(nn.Module):
     """``g1(wi, wo, V) -> f``: RGB BRDF in sr⁻¹ from directions and a material latent.
 
@@ -141,11 +164,7 @@ class NlbNetwork(nn.Module):
 
     def features(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
         """Direction features ``[..., 6]`` (``wi, wo``) or ``[..., 9]`` (``wi, wo, h``)."""
-        if not self.config.half_vector:
-            return torch.cat([wi, wo], dim=-1)
-        s = wi + wo
-        h = s * torch.rsqrt((s * s).sum(-1, keepdim=True) + _HALF_EPS)
-        return torch.cat([wi, wo, h], dim=-1)
+        return direction_inputs(wi, wo, self.config.half_vector)
 
     def log1p_f(self, wi: torch.Tensor, wo: torch.Tensor, latent: torch.Tensor) -> torch.Tensor:
         """``ln(1 + f)`` of the raw network, ``[..., 3]``, without the horizon mask."""
@@ -158,10 +177,7 @@ class NlbNetwork(nn.Module):
         for layer in self.hidden_layers:
             y = F.relu(layer(x))
             x = x + y if self.config.residual else y
-        y = self.output_layer(x)
-        # Straight-through clip: the value of the bound, the gradient of softplus at the bound.
-        y = y + (y.clamp(PRE_ACTIVATION_MIN, LOG1P_F_MAX) - y).detach()
-        return F.softplus(y)
+        return log1p_output(self.output_layer(x))
 
     def split_input_layer(self, latent: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The input layer for one fixed ``latent`` ``[latent_dim]``: its direction weights
@@ -175,8 +191,7 @@ class NlbNetwork(nn.Module):
 
     def masked(self, wi: torch.Tensor, wo: torch.Tensor, log1p_f: torch.Tensor) -> torch.Tensor:
         """``f = expm1(log1p_f)``, 0 where either direction is below the horizon."""
-        f = torch.expm1(log1p_f)
-        return torch.where(above_horizon(wi, wo)[..., None], f, torch.zeros_like(f))
+        return masked_brdf(wi, wo, log1p_f)
 
     def forward(self, wi: torch.Tensor, wo: torch.Tensor, latent: torch.Tensor) -> torch.Tensor:
         """RGB BRDF ``[..., 3]`` in sr⁻¹ (no cosine), 0 where either direction is below the horizon.

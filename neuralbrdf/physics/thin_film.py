@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from neuralbrdf.errors import InputError
 from neuralbrdf.geometry import array_namespace_of
 
@@ -38,11 +40,13 @@ def _airy(r01, r12, cos_delta):
     return num / den
 
 
-def _check_scalar(name: str, value: float, minimum: float) -> float:
-    value = float(value)
-    if not math.isfinite(value) or value < minimum:
-        raise InputError(f"{name} must be a finite number >= {minimum:g}, got {value!r}")
-    return value
+def _check_parameter(name: str, value, minimum: float):
+    """``value`` (a number, or a NumPy array broadcasting with the angles) if every entry is a
+    finite number >= ``minimum``, else :class:`InputError`."""
+    array = np.asarray(value, dtype=np.float64)
+    if not (np.all(np.isfinite(array)) and np.all(array >= minimum)):
+        raise InputError(f"{name} must be finite numbers >= {minimum:g}, got {value!r}")
+    return float(array) if array.ndim == 0 else array
 
 
 def thin_film_reflectance(
@@ -64,16 +68,17 @@ def thin_film_reflectance(
         wavelengths ``[W]`` gives ``[N, W]``).
     film_index, thickness_nm, substrate_index, ambient_index:
         Real refractive indices and the film thickness in nm.  ``film_index`` and
-        ``substrate_index`` must be at least ``ambient_index``.
+        ``substrate_index`` must be at least ``ambient_index``.  The first three may be NumPy
+        arrays broadcasting with ``cos_theta`` (one film per sample); ``ambient_index`` is a number.
 
     Returns
     -------
     Reflectance in [0, 1], the broadcast shape of ``cos_theta`` and ``wavelength_nm``.
     """
-    n0 = _check_scalar("ambient_index", ambient_index, 1e-6)
-    n1 = _check_scalar("film_index", film_index, n0)
-    n2 = _check_scalar("substrate_index", substrate_index, n0)
-    d = _check_scalar("thickness_nm", thickness_nm, 0.0)
+    n0 = float(_check_parameter("ambient_index", ambient_index, 1e-6))
+    n1 = _check_parameter("film_index", film_index, n0)
+    n2 = _check_parameter("substrate_index", substrate_index, n0)
+    d = _check_parameter("thickness_nm", thickness_nm, 0.0)
     xp = array_namespace_of(cos_theta, wavelength_nm)
     wavelength_nm = xp.asarray(wavelength_nm)
     if not bool(xp.all(wavelength_nm > 0.0)):
