@@ -307,3 +307,17 @@ def test_spectral_fit_refuses_rgb_sources_and_mixed_wavelength_grids(tmp_path):
     write_table(BrdfTable(*angles, np.full((len(angles[0]), 3), 0.1)), tmp_path / "rgb.csv")
     with pytest.raises(InputError, match="RGB table"):
         LatentFitData(path=str(tmp_path / "rgb.csv"), spectral=True).setup()
+
+
+def test_automatic_mode_is_spectral_only_when_every_source_has_a_spectrum(tmp_path):
+    network = random_network()
+    node_nm = [400.0, 500.0, 600.0, 700.0]
+    spectral = network_table(network, torch.randn(4), torch.randn(4, 3), node_nm, "DS4", tmp_path / "s.csv")
+    angles = plan_spherical("DS4")
+    write_table(BrdfTable(*angles, np.full((len(angles[0]), 3), 0.1)), tmp_path / "rgb.csv")
+    alone = LatentFitData(path=str(spectral), spectral=None, eval_plan=None)
+    alone.setup()
+    assert alone.spectral and alone.train_samples.f.shape[1] == len(WAVELENGTHS)
+    mixed = LatentFitData(sources=[{"path": str(spectral)}, {"path": str(tmp_path / "rgb.csv")}], spectral=None)
+    mixed.setup()
+    assert not mixed.spectral and mixed.train_samples.f.shape[1] == 3 and mixed.wavelengths_nm is None

@@ -14,9 +14,10 @@
 Each may carry ``name`` (default: the file stem or virtual material).  ``--data.path FILE``
 (with ``--data.reference``) drops a single measurement into any latent-fit config.
 
-Values are linear sRGB (spectral tables converted, SPEC §2.3) unless ``spectral`` is set: then
-every source must be spectral on one wavelength grid (:attr:`LatentFitData.wavelengths_nm`),
-which the spectral NLB fits band by band (:mod:`neuralbrdf.lightning.nlb_spectral_fit`).
+Values are linear sRGB (spectral tables converted, SPEC §2.3) unless ``spectral`` is set (or
+automatic and every source has a spectrum): then every source must be spectral on one wavelength
+grid (:attr:`LatentFitData.wavelengths_nm`), which the spectral NLB fits band by band
+(:mod:`neuralbrdf.lightning.nlb_spectral_fit`).
 """
 
 from __future__ import annotations
@@ -132,8 +133,9 @@ class LatentFitData(pl.LightningDataModule):
     seed:
         Seed of those draws.
     spectral:
-        Keep spectral values (every source a spectral table on one wavelength grid) instead of
-        converting them to linear sRGB.
+        ``True``: keep spectral values (every source a spectral table on one wavelength grid);
+        ``False``: convert them to linear sRGB; ``None`` (automatic): spectral when every source
+        has a spectrum, else linear sRGB.
     """
 
     def __init__(
@@ -147,7 +149,7 @@ class LatentFitData(pl.LightningDataModule):
         steps_per_epoch: int = 100,
         batch_size: int | None = None,
         seed: int = 0,
-        spectral: bool = False,
+        spectral: bool | None = False,
     ) -> None:
         super().__init__()
         if path is not None:
@@ -172,7 +174,7 @@ class LatentFitData(pl.LightningDataModule):
         if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
             raise InputError(f"must be a positive integer or null, got {batch_size!r}", column="data.batch_size")
         self.steps_per_epoch, self.batch_size, self.seed = steps_per_epoch, batch_size, seed
-        self.spectral = bool(spectral)
+        self.spectral = spectral
         if self.spectral:
             rgb = [name for name, source in zip(self.material_names, self.sources) if "nbrdf" in source]
             if rgb:
@@ -184,17 +186,19 @@ class LatentFitData(pl.LightningDataModule):
         self.train_samples: FitSamples | None = None
         self.eval_sets: list[EvalSet] = []
 
-    def _load(self, index: int, source: dict[str, str], abc_fits) -> EvalSet:
-        name = self.material_names[index]
-        material = load_material(
+    def _material(self, index: int, source: dict[str, str]):
+        return load_material(
             path=source.get("path"),
             reference=source.get("reference"),
             nbrdf=source.get("nbrdf"),
             virtual=source.get("virtual"),
             plan=source.get("plan", self.plan),
             eval_plan=self.eval_plan if "path" not in source else None,
-            name=name,
+            name=self.material_names[index],
         )
+
+    def _samples(self, index: int, source: dict[str, str], material, abc_fits) -> EvalSet:
+        name = self.material_names[index]
         if self.spectral:
             self._check_grid(material.fit, name)
         fit = _table_samples(index, material.fit, self.spectral)
@@ -229,7 +233,10 @@ class LatentFitData(pl.LightningDataModule):
                 abc_fits = load_low2012_parameters(self.low2012_abc)
             else:
                 warnings.warn(f"{self.low2012_abc}: Löw et al. ABC fits not found; no ABC comparison", stacklevel=2)
-        self.eval_sets = [self._load(i, s, abc_fits) for i, s in enumerate(self.sources)]
+        materials = [self._material(i, s) for i, s in enumerate(self.sources)]
+        if self.spectral is None:  # automatic: spectral when every measurement has a spectrum
+            self.spectral = all(m.fit.wavelengths is not None for m in materials)
+        self.eval_sets = [self._samples(i, s, m, abc_fits) for i, (s, m) in enumerate(zip(self.sources, materials))]
         self.train_samples = FitSamples(*(torch.cat(c) for c in zip(*(e.fit for e in self.eval_sets))))
 
     def train_dataloader(self) -> DataLoader:

@@ -55,15 +55,13 @@ from neuralbrdf.losses import check_loss_domain, log_cosine
 from neuralbrdf.models.directional import LinearInWavelength
 from neuralbrdf.models.latent_prior import gaussian_of_codes, latent_prior_penalty
 from neuralbrdf.models.nlb_spectral import SpectralLatentTable
-from neuralbrdf.shipped import resolve_pretrained
+from neuralbrdf.shipped import SPECTRAL_DEFAULT, resolve_pretrained
 
 #: Wavelengths (nm) at which a pretrained material's B, G, R channel codes stand when its codes
 #: start a spectral fit: the dominant wavelengths of the sRGB primaries (IEC 61966-2-1), rounded.
 RGB_CODE_WAVELENGTHS_NM = (465.0, 550.0, 610.0)
 #: Floor of a channel's mean ``ln(1 + f cos θi)`` when it normalises that channel's errors.
 CHANNEL_SCALE_FLOOR = 1e-4
-#: The shipped network the fit uses by default.
-DEFAULT_NETWORK = "nlb_spectral"
 
 
 def wavelength_nodes(wavelengths_nm: np.ndarray, step_nm: float) -> np.ndarray:
@@ -128,7 +126,7 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
         if isinstance(node_step_nm, bool) or not (isinstance(node_step_nm, (int, float)) and node_step_nm > 0
                                                   and math.isfinite(node_step_nm)):
             raise InputError(f"must be a positive number of nm, got {node_step_nm!r}", column="model.node_step_nm")
-        path = resolve_pretrained(checkpoint or DEFAULT_NETWORK)
+        path = resolve_pretrained(checkpoint, SPECTRAL_DEFAULT)
         self.save_hyperparameters(ignore=["optimizer", "lr_scheduler"])
         pretrained = load_spectral_pretrained(path)
         self.freeze(pretrained.network)

@@ -59,7 +59,7 @@ from neuralbrdf.atomic import atomic_write, file_version
 
 #: Reference seed offset: the Munsell N9 is measured with its own noise stream.
 REFERENCE_SEED_OFFSET = 1
-CHECKPOINTS = {"spectral_mlp": "best.ckpt", "abc": "best.ckpt", "nlb": "fitted.ckpt"}
+CHECKPOINTS = {"spectral_mlp": "best.ckpt", "abc": "best.ckpt", "nlb": "fitted.ckpt", "nlb_spectral": "fitted.ckpt"}
 #: Incident angles (degrees) of the per-angle relative RMSE: the DS1 grid.
 PER_ANGLE_THETA_I = np.arange(-60.0, 60.1, 5.0)
 LOSS_COLUMN_WORDS = ("loss",)

@@ -28,7 +28,7 @@ import yaml
 
 from neuralbrdf.atomic import file_version
 from neuralbrdf.configs_dir import resolve_config
-from neuralbrdf.shipped import resolve_pretrained
+from neuralbrdf.shipped import PRETRAINED_DEFAULT, SPECTRAL_DEFAULT, resolve_pretrained
 from neuralbrdf.study.profile import Profile, VariantSpec
 
 MAIN_PLAN, MAIN_NOISE, MAIN_SEED = "DS1", 0.0, 0
@@ -82,6 +82,10 @@ def flag_values(args, flag: str) -> list[str]:
     return values
 
 
+#: The default pretrained network of each method fitted on one (its file is part of a cell's key).
+NETWORK_DEFAULTS = {"nlb": PRETRAINED_DEFAULT, "nlb_spectral": SPECTRAL_DEFAULT}
+
+
 def pretrained_network(variant: VariantSpec) -> str | None:
     """The pretrained network an NLB variant fits on: ``--model.checkpoint`` of its arguments,
     else its config's ``model.init_args.checkpoint``, else the shipped default (``None``)."""
@@ -117,8 +121,9 @@ def cell_settings(cell: Cell, profile: Profile) -> dict:
     overlays = overlay_digests(variant)
     if overlays:  # only then: the keys of variants without overlays stay what they were
         settings["variant"]["overlays"] = overlays
-    if variant.method == "nlb":  # a retrained network changes every NLB result
-        settings["variant"]["pretrained"] = file_digest(str(resolve_pretrained(pretrained_network(variant))))
+    if variant.method in NETWORK_DEFAULTS:  # a retrained network changes every NLB result
+        network = resolve_pretrained(pretrained_network(variant), NETWORK_DEFAULTS[variant.method])
+        settings["variant"]["pretrained"] = file_digest(str(network))
     settings["hemisphere_strata"] = list(profile.render.hemisphere_strata)
     if is_rendered(cell, profile):
         settings["render"] = {**asdict(profile.render), "format": RENDER_FORMAT}

@@ -18,7 +18,7 @@ from neuralbrdf.atomic import atomic_path  # noqa: E402
 from neuralbrdf.study.aggregate import ACCURACY_METRIC, THRESHOLD_METRIC  # noqa: E402
 
 DPI = 80
-METHOD_COLOURS = {"spectral_mlp": "tab:blue", "abc": "tab:orange", "nlb": "tab:green"}
+METHOD_COLOURS = {"spectral_mlp": "tab:blue", "abc": "tab:orange", "nlb": "tab:green", "nlb_spectral": "tab:purple"}
 COST_AXES = {"render_ratio": "render time ÷ roughconductor (same run)", "fit_time_s": "fit wall time (s)"}
 
 

@@ -20,8 +20,8 @@ A profile is a YAML file (``configs/study/quick.yaml``, ``full.yaml``, or a user
       seeds: [0, 1, 2, 3, 4]
 
 Paths starting with ``configs/`` name the shipped configs (:mod:`neuralbrdf.configs_dir`), those
-starting with ``../shared`` are relative to the repository root, others to the profile file.  ``method`` is ``spectral_mlp``, ``abc`` or ``nlb`` (how
-data are passed and which checkpoint is exported); ``render_variant`` renders a model in another
+starting with ``../shared`` are relative to the repository root, others to the profile file.  ``method`` is ``spectral_mlp``, ``abc``, ``nlb`` or
+``nlb_spectral`` (how data are passed and which checkpoint is exported); ``render_variant`` renders a model in another
 Mitsuba variant (a spectral model in ``llvm_ad_rgb`` uses the reduced-wavelength rule).  Variants
 with a ``group`` are also run at every stability seed (DS1, no noise) and box-plotted by ``label``.
 ``speed_accuracy: false`` makes a variant a sweep only: its DS1 noise-free seed-0 cell is neither
@@ -43,7 +43,7 @@ from neuralbrdf.data.plans import PLAN_NAMES
 from neuralbrdf.errors import InputError
 from neuralbrdf.evaluation.scores import HEMISPHERE_STRATA
 
-METHODS = ("spectral_mlp", "abc", "nlb")
+METHODS = ("spectral_mlp", "abc", "nlb", "nlb_spectral")
 BUILTIN_DIR = CONFIGS_DIR / "study"
 REPO_ROOT = Path(__file__).resolve().parents[2]
 MAX_NOISE = 1.0
