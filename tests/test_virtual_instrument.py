@@ -309,3 +309,17 @@ def test_shipped_default_data_is_up_to_date(tmp_path):
     regenerated = regenerate_default_data(tmp_path, progress=False)
     for old, new in zip(shipped, regenerated):
         np.testing.assert_array_equal(read_gcms(old).beta, read_gcms(new).beta)
+
+
+def test_validation_materials_are_found_apart_from_the_shipped_stand_ins_and_are_reciprocal():
+    from neuralbrdf.virtual.materials import VALIDATION_MATERIALS
+
+    assert len(VALIDATION_MATERIALS) == 6 and not set(VALIDATION_MATERIALS) & set(MATERIALS)
+    wi, wo = random_hemisphere(300, 1), random_hemisphere(300, 2)
+    for name, material in VALIDATION_MATERIALS.items():
+        assert get_material(name) is material
+        f = material.brdf(wi, wo, WAVELENGTHS)
+        assert f.shape == (300, len(WAVELENGTHS)) and (f >= 0).all()
+        np.testing.assert_allclose(f, material.brdf(wo, wi, WAVELENGTHS), rtol=1e-10)
+    with pytest.raises(InputError, match="val-blue"):
+        get_material("val-bleu")

@@ -251,15 +251,34 @@ MATERIALS = {
     )
 }
 
+#: Validation materials: the same physical families with other spectra and parameters (a dark
+#: blue and two other inks, a rougher gold ink with less metal, two other interference films).
+#: Settings of spectral fits are chosen on these, never on the four stand-ins above, which are
+#: the test materials of the report and the study.  No shipped measurement: simulate one
+#: (``neuralbrdf simulate --material val-blue --plan DS3``).
+VALIDATION_MATERIALS = {
+    material.name: material
+    for material in (
+        GlossyInk(name="val-blue", patch="purplish blue", alpha=0.18),
+        GlossyInk(name="val-orange", patch="orange", alpha=0.3, eta=1.6),
+        GlossyInk(name="val-green", patch="green", alpha=0.12),
+        MetallicInk(name="val-gold-rough", alpha=0.35, metal_fraction=0.75, binder_patch="orange yellow"),
+        GoniochromaticInk(name="val-gonio-violet", alpha=0.2, film_thickness_nm=340.0, base_patch="purple",
+                          base_scale=0.5),
+        GoniochromaticInk(name="val-gonio-thin", alpha=0.1, film_thickness_nm=180.0, base_patch="blue",
+                          base_scale=0.3),
+    )
+}
+
 #: The white reference every measurement session is calibrated against.
 REFERENCE_MATERIAL = "munsell_n9"
 
 
 def get_material(name: str):
-    """The stand-in called ``name``; :class:`InputError` listing the valid names otherwise."""
+    """The stand-in or validation material called ``name``; :class:`InputError` listing the valid names otherwise."""
     try:
-        return MATERIALS[name]
+        return MATERIALS[name] if name in MATERIALS else VALIDATION_MATERIALS[name]
     except (KeyError, TypeError):
         raise InputError(
-            f"unknown virtual material {name!r}; expected one of {', '.join(MATERIALS)}"
+            f"unknown virtual material {name!r}; expected one of {', '.join([*MATERIALS, *VALIDATION_MATERIALS])}"
         ) from None
