@@ -321,3 +321,15 @@ def test_automatic_mode_is_spectral_only_when_every_source_has_a_spectrum(tmp_pa
     mixed = LatentFitData(sources=[{"path": str(spectral)}, {"path": str(tmp_path / "rgb.csv")}], spectral=None)
     mixed.setup()
     assert not mixed.spectral and mixed.train_samples.f.shape[1] == 3 and mixed.wavelengths_nm is None
+
+
+def test_batch_values_draw_as_many_pairs_as_hold_that_many_values(tmp_path):
+    network = random_network()
+    table = network_table(network, torch.randn(4), torch.randn(4, 3), [400.0, 500.0, 600.0, 700.0], "DS1",
+                          tmp_path / "m.csv")
+    data = LatentFitData(path=str(table), spectral=True, eval_plan=None, batch_values=310)
+    data.setup()
+    batch = next(iter(data.train_dataloader()))
+    assert batch.f.shape == (10, len(WAVELENGTHS))  # 310 values over 31 bands
+    with pytest.raises(InputError, match="not both"):
+        LatentFitData(path=str(table), batch_size=5, batch_values=310)

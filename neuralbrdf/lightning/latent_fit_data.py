@@ -130,6 +130,10 @@ class LatentFitData(pl.LightningDataModule):
         ``None`` (default): every step sees every sample of every material (one full batch).
         Else each step sees this many samples drawn at random from all of them: for plans too
         large for full-batch steps, such as five materials on the Löw et al. set (1.15 M pairs).
+    batch_values:
+        Instead of ``batch_size``: each step sees as many direction pairs as hold this many values
+        over the channels (pairs × 3 for RGB, pairs × bands for a spectral fit), so a step costs
+        about the same whatever the number of channels.
     seed:
         Seed of those draws.
     spectral:
@@ -148,6 +152,7 @@ class LatentFitData(pl.LightningDataModule):
         low2012_abc: str | None = None,
         steps_per_epoch: int = 100,
         batch_size: int | None = None,
+        batch_values: int | None = None,
         seed: int = 0,
         spectral: bool | None = False,
     ) -> None:
@@ -171,9 +176,14 @@ class LatentFitData(pl.LightningDataModule):
                 f"material names must be unique, {duplicates} repeat (set 'name')", column="data.sources"
             )
         self.plan, self.eval_plan, self.low2012_abc = plan, eval_plan, low2012_abc
-        if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
-            raise InputError(f"must be a positive integer or null, got {batch_size!r}", column="data.batch_size")
+        for key, value in (("batch_size", batch_size), ("batch_values", batch_values)):
+            if value is not None and (not isinstance(value, int) or isinstance(value, bool) or value < 1):
+                raise InputError(f"must be a positive integer or null, got {value!r}", column=f"data.{key}")
+        if batch_size is not None and batch_values is not None:
+            raise InputError("give data.batch_size (pairs) or data.batch_values (values), not both",
+                             column="data.batch_values")
         self.steps_per_epoch, self.batch_size, self.seed = steps_per_epoch, batch_size, seed
+        self.batch_values = batch_values
         self.spectral = spectral
         if self.spectral:
             rgb = [name for name, source in zip(self.material_names, self.sources) if "nbrdf" in source]
@@ -241,7 +251,10 @@ class LatentFitData(pl.LightningDataModule):
 
     def train_dataloader(self) -> DataLoader:
         if self._steps is None:  # one stream of random subsets for the whole fit
-            self._steps = _Steps(self.train_samples, self.steps_per_epoch, self.batch_size, self.seed)
+            pairs = self.batch_size
+            if self.batch_values is not None:  # as many pairs as give that many values over the channels
+                pairs = max(self.batch_values // self.train_samples.f.shape[1], 1)
+            self._steps = _Steps(self.train_samples, self.steps_per_epoch, pairs, self.seed)
         return DataLoader(self._steps, batch_size=None)
 
     def val_dataloader(self) -> DataLoader:

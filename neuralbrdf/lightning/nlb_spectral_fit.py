@@ -54,6 +54,7 @@ from neuralbrdf.lightning.nlb_spectral_module import PretrainedSpectralNlb, load
 from neuralbrdf.losses import check_loss_domain, log_cosine
 from neuralbrdf.models.directional import LinearInWavelength
 from neuralbrdf.models.latent_prior import gaussian_of_codes, latent_prior_penalty
+from neuralbrdf.models.nlb import masked_brdf
 from neuralbrdf.models.nlb_spectral import SpectralLatentTable
 from neuralbrdf.shipped import SPECTRAL_DEFAULT, resolve_pretrained
 
@@ -62,6 +63,9 @@ from neuralbrdf.shipped import SPECTRAL_DEFAULT, resolve_pretrained
 RGB_CODE_WAVELENGTHS_NM = (465.0, 550.0, 610.0)
 #: Floor of a channel's mean ``ln(1 + f cos θi)`` when it normalises that channel's errors.
 CHANNEL_SCALE_FLOOR = 1e-4
+#: Values (direction pairs × channels) the screening of starts uses at most: a spectral fit
+#: screens on fewer pairs than an RGB one, at the same cost.
+SCREEN_VALUES = 16384
 
 
 def wavelength_nodes(wavelengths_nm: np.ndarray, step_nm: float) -> np.ndarray:
@@ -159,6 +163,11 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
     def n_nodes(self) -> int:
         return self._interpolation.shape[1]
 
+    @property
+    def screen_samples(self) -> int:
+        """Direction pairs the screening of starts uses at most (:data:`SCREEN_VALUES` values)."""
+        return max(SCREEN_VALUES // self._interpolation.shape[0], 1)
+
     def setup(self, stage: str) -> None:
         if not self.material_names:
             data = getattr(self.trainer, "datamodule", None)
@@ -212,12 +221,15 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
     # ------------------------------------------------------------------ loss
 
     def _values(self, samples: FitSamples, shared: torch.Tensor, nodes: torch.Tensor) -> torch.Tensor:
-        """Values ``[S, N, C]`` under ``S`` sets of codes ``shared [S, n, ds]``, ``nodes [S, n, K, dc]``."""
-        n_starts = shared.shape[0]
-        channels = torch.einsum("ck,snkd->sncd", self._interpolation, nodes)[:, samples.material]
-        pred = self.network(samples.wi.repeat(n_starts, 1), samples.wo.repeat(n_starts, 1),
-                            shared[:, samples.material].reshape(-1, shared.shape[-1]),
-                            channels.reshape(-1, *channels.shape[2:]))
+        """Values ``[S, N, C]`` under ``S`` sets of codes ``shared [S, n, ds]``, ``nodes [S, n, K, dc]``.
+
+        The FiLM of each channel code is computed once per material and channel, not per sample."""
+        network, n_starts = self.network, shared.shape[0]
+        wi, wo = samples.wi.repeat(n_starts, 1), samples.wo.repeat(n_starts, 1)
+        pre = network.shared_pre_activation(wi, wo, shared[:, samples.material].reshape(-1, shared.shape[-1]))
+        scale, shift = network.film(torch.einsum("ck,snkd->sncd", self._interpolation, nodes))  # [S, n, C, width]
+        scale, shift = (t[:, samples.material].reshape(-1, *t.shape[2:]) for t in (scale, shift))
+        pred = masked_brdf(wi, wo, network.decode(pre[:, None, :], scale, shift))
         return pred.reshape(n_starts, len(samples.f), -1)
 
     def sample_errors(self, samples: FitSamples, codes: list[torch.Tensor]) -> torch.Tensor:
