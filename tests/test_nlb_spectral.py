@@ -250,7 +250,8 @@ def test_priors_are_gaussians_of_the_pretrained_codes_and_a_second_difference(tm
     checkpoint = pretrained_file(tmp_path)
     pretrained = load_spectral_pretrained(checkpoint)
     fit = fit_module(checkpoint, shared_prior_weight=0.3, channel_prior_weight=0.2, smoothness_weight=0.5)
-    shared, nodes = torch.randn(2, 4), torch.randn(2, 5, 3)
+    fit.set_channels(np.arange(400.0, 701.0, 10.0))  # a spectral fit: nodes 100 nm apart, 4 of them
+    shared, nodes = torch.randn(2, 4), torch.randn(2, 4, 3)
     expected = []
     for s, c in zip(shared, nodes):
         mean, precision = gaussian_of_codes(pretrained.shared)
@@ -259,9 +260,13 @@ def test_priors_are_gaussians_of_the_pretrained_codes_and_a_second_difference(tm
         mean_c, precision_c = gaussian_of_codes(pretrained.channel_codes)
         normal_c = stats.multivariate_normal(mean_c.double(), np.linalg.inv(precision_c.double()))
         p_c = np.mean([-normal_c.logpdf(code.double()) + normal_c.logpdf(mean_c.double()) for code in c])
-        curvature = np.mean([((c[k - 1] - 2 * c[k] + c[k + 1]) ** 2).mean().item() for k in range(1, 4)])
+        curvature = np.mean([((c[k - 1] - 2 * c[k] + c[k + 1]) ** 2).mean().item() for k in range(1, 3)])
         expected.append(0.3 * (p_s - p_s0) / 4 + 0.2 * p_c / 3 + 0.5 * curvature)
     np.testing.assert_allclose(fit.prior_terms([shared, nodes]).numpy(), expected, rtol=1e-4)
+    fit.set_channels(None)  # RGB: the channels are no wavelength sequence, no smoothness
+    without_smoothness = fit_module(checkpoint, shared_prior_weight=0.3, channel_prior_weight=0.2)
+    torch.testing.assert_close(fit.prior_terms([shared, nodes[:, :3]]),
+                               without_smoothness.prior_terms([shared, nodes[:, :3]]), rtol=0, atol=0)
     assert fit_module(checkpoint, shared_prior_weight=0, channel_prior_weight=0).prior_terms([shared, nodes]) == 0
 
 

@@ -20,9 +20,9 @@ is what keeps hue where users look.  The mean over channels is a sample's error.
 **Priors** (each material's loss gets them, like the RGB fit's latent prior,
 :mod:`neuralbrdf.models.latent_prior`): ``shared_prior_weight · P_s(s)`` and
 ``channel_prior_weight · mean_k P_c(c_k)``, the negative log-densities per dimension of Gaussians
-fitted to the pretrained shared and channel codes; and ``smoothness_weight`` times the mean
-squared second difference of the node codes along wavelength (spectra of real materials are
-smooth at the nodes' scale), per dimension.
+fitted to the pretrained shared and channel codes; and, for a spectral fit, ``smoothness_weight``
+times the mean squared second difference of the node codes along wavelength (spectra of real
+materials are smooth at the nodes' scale), per dimension.
 
 **Starts** (``init_candidates``): the centroid of the pretrained codes, every measured proxy's
 codes and ``init_candidates`` other pretrained materials'.  A pretrained material has RGB
@@ -108,7 +108,7 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
     def __init__(
         self,
         checkpoint: str | None = None,
-        node_step_nm: float = 20.0,
+        node_step_nm: float = 40.0,
         loss_domain: str = "log_cosine",
         channel_normalised: bool = True,
         init_candidates: int = 64,
@@ -118,7 +118,7 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
         early_stop_tolerance: float = 1e-3,
         shared_prior_weight: float = 0.01,
         channel_prior_weight: float = 0.01,
-        smoothness_weight: float = 0.0,
+        smoothness_weight: float = 0.1,
         optimizer: OptimizerCallable = torch.optim.Adam,
         lr_scheduler: LRSchedulerCallable | None = None,
     ) -> None:
@@ -245,7 +245,7 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
         if self._channel_mean is not None:
             terms = terms + self.hparams.channel_prior_weight * latent_prior_penalty(
                 nodes, self._channel_mean, self._channel_precision).mean(-1)
-        if self.hparams.smoothness_weight and nodes.shape[-2] >= 3:
+        if self.hparams.smoothness_weight and self.node_wavelengths_nm is not None and nodes.shape[-2] >= 3:
             curvature = nodes[..., :-2, :] - 2.0 * nodes[..., 1:-1, :] + nodes[..., 2:, :]
             terms = terms + self.hparams.smoothness_weight * curvature.square().mean((-2, -1))
         return terms
