@@ -49,7 +49,7 @@ from neuralbrdf.errors import InputError
 from neuralbrdf.lightning.common import WritesKind
 from neuralbrdf.lightning.latent_fit_data import FitSamples
 from neuralbrdf.lightning.latent_fit_module import sample_errors_in
-from neuralbrdf.lightning.latent_only import LatentOnlyFit, check_fit_settings, check_weight
+from neuralbrdf.lightning.latent_only import SCREEN_SAMPLES, LatentOnlyFit, check_fit_settings, check_weight
 from neuralbrdf.lightning.nlb_spectral_module import PretrainedSpectralNlb, load_spectral_pretrained
 from neuralbrdf.losses import check_loss_domain, log_cosine
 from neuralbrdf.models.directional import LinearInWavelength
@@ -63,8 +63,9 @@ from neuralbrdf.shipped import SPECTRAL_DEFAULT, resolve_pretrained
 RGB_CODE_WAVELENGTHS_NM = (465.0, 550.0, 610.0)
 #: Floor of a channel's mean ``ln(1 + f cos θi)`` when it normalises that channel's errors.
 CHANNEL_SCALE_FLOOR = 1e-4
-#: Values (direction pairs × channels) the screening of starts uses at most: a spectral fit
-#: screens on fewer pairs than an RGB one, at the same cost.
+#: Values (direction pairs × bands) the screening of starts of a spectral fit uses at most: fewer
+#: pairs than an RGB fit screens on (:data:`~neuralbrdf.lightning.latent_only.SCREEN_SAMPLES`),
+#: at a cost of the same order.
 SCREEN_VALUES = 16384
 
 
@@ -165,7 +166,10 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
 
     @property
     def screen_samples(self) -> int:
-        """Direction pairs the screening of starts uses at most (:data:`SCREEN_VALUES` values)."""
+        """Direction pairs the screening of starts uses at most: as many as the RGB NLB's for RGB
+        channels, as hold :data:`SCREEN_VALUES` values over the bands of a spectral fit."""
+        if self.node_wavelengths_nm is None:
+            return SCREEN_SAMPLES
         return max(SCREEN_VALUES // self._interpolation.shape[0], 1)
 
     def setup(self, stage: str) -> None:
