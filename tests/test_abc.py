@@ -15,7 +15,7 @@ from neuralbrdf.fitting import AbcBounds, fit_abc
 from neuralbrdf.geometry import inplane_to_vectors, spherical_pair_to_vectors, spherical_to_vector
 from neuralbrdf.metrics import hemisphere_logcos_rmse
 from neuralbrdf.data.low2012 import load_low2012_parameters
-from neuralbrdf.physics.abc import AbcParameters, abc_brdf
+from neuralbrdf.physics.abc import AbcParameters, abc_brdf, abc_brdf_by_sharpness
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 LOW_CSV = DATA / "abc-low2012" / "low2012_abc_merl.csv"
@@ -132,6 +132,32 @@ def test_fresnel_factor_tends_to_one_at_grazing_and_gradients_stay_finite():
     f.sum().backward()
     for name, leaf in leaves.items():
         assert torch.all(torch.isfinite(leaf.grad)), name
+
+
+def test_the_sharpness_form_is_the_same_brdf_and_reaches_the_gaussian_limit():
+    rng = np.random.default_rng(3)
+    wi, wo = random_upper_directions(rng, 500), random_upper_directions(rng, 500)
+    mirror = wi * np.array([-1.0, -1.0, 1.0]) + rng.normal(0.0, 0.02, wi.shape)
+    wi, wo = np.concatenate([wi, wi]), np.concatenate([wo, mirror / np.linalg.norm(mirror, axis=1, keepdims=True)])
+    kd, A = [0.1, 0.2], [2.0, 1.0]
+    for B, C in ((21.0, 10.0), (3e5, 1.2), (3e6, 0.08), (0.5, 2.0)):
+        np.testing.assert_allclose(abc_brdf_by_sharpness(wi, wo, kd, A, B * C, 1.0 / C, 1.5),
+                                   abc_brdf(wi, wo, kd, A, B, C, 1.5), rtol=1e-12)
+    # tail 0: exactly exp(-sharpness (1 - cos θh)), the limit C -> ∞ at a fixed B·C
+    h = (wi + wo) / np.linalg.norm(wi + wo, axis=1, keepdims=True)
+    lobe_only = abc_brdf_by_sharpness(wi, wo, [0.0], [1.0], 200.0, 0.0, 1.5)[:, 0]
+    unit_lobe = abc_brdf(wi, wo, [0.0], [1.0], 0.0, 0.0, 1.5)[:, 0]  # distribution 1
+    np.testing.assert_allclose(lobe_only, unit_lobe * np.exp(-200.0 * (1.0 - h[:, 2])), rtol=1e-12)
+    # C = 1e4 stands for the limit within 0.5 % wherever the lobe is above e^-10 of its peak
+    near = abc_brdf(wi, wo, [0.0], [1.0], 200.0 / 1e4, 1e4, 1.5)[:, 0]
+    upper_lobe = lobe_only >= math.exp(-10.0) * unit_lobe
+    assert upper_lobe.sum() > 100
+    np.testing.assert_allclose(near[upper_lobe], lobe_only[upper_lobe], rtol=0.005)
+    # differentiable at the limit
+    sharpness = torch.tensor(200.0, dtype=torch.float64, requires_grad=True)
+    tail = torch.tensor(0.0, dtype=torch.float64, requires_grad=True)
+    abc_brdf_by_sharpness(torch.tensor(wi), torch.tensor(wo), [0.0], [1.0], sharpness, tail, 1.5).sum().backward()
+    assert torch.isfinite(sharpness.grad) and torch.isfinite(tail.grad) and tail.grad > 0
 
 
 def test_parameters_round_trip_through_json():
