@@ -355,6 +355,19 @@ def test_a_bounded_c_says_which_parameter_ran_away_and_what_to_try():
     assert "bound 10)" in result.failure_reason and "--model.bounds.C '[0.001, .inf]'" in result.failure_reason
 
 
+def test_kd_ignores_rows_nobody_measured():
+    """MERL's unmeasured cells are read as all-zero rows; one of them used to set kd to 0."""
+    table = lambert_beckmann_table(0.2, "DS3")
+    zero = np.zeros((4, 3))
+    theta_o = np.array([89.5, 89.5, 89.5, 89.5])
+    padded = BrdfTable(np.concatenate([table.theta_i, [75.0] * 4]), np.concatenate([table.phi_i, [0.0] * 4]),
+                       np.concatenate([table.theta_o, theta_o]), np.concatenate([table.phi_o, [10.0, 90, 180, 270]]),
+                       np.concatenate([table.values, zero]))
+    result = fit_abc(padded, n_starts=4)
+    np.testing.assert_allclose(result.parameters.kd, math.pi * table.values.min(axis=0))
+    assert result.success, result.failure_reason
+
+
 @pytest.mark.parametrize(
     "bounds, key, message",
     [

@@ -4,6 +4,9 @@ Following the report (after Löw et al. 2012):
 
 1. ``kd = π · min(f)`` per channel — the specular term is non-negative and smallest far from
    the mirror direction, so the smallest measured value estimates the diffuse level ``kd/π``.
+   Rows whose every channel is exactly 0 do not count: they are directions nobody measured
+   (MERL's unmeasured cells, which :mod:`neuralbrdf.data.merl_binary` writes as 0), and one
+   such row would set ``kd`` to 0.
 2. ``A`` (per channel), ``B``, ``C`` and ``η`` minimise ``L_cus`` (report Eq. 4.2,
    :func:`neuralbrdf.losses.log_cosine_loss`) within bounds, from several starts; the best
    start wins.
@@ -183,7 +186,8 @@ class _Problem:
         self.weight = None if table.weight is None else torch.from_numpy(table.weight)
         if table.weight is not None and not table.weight.sum() > 0:
             raise InputError("every weight is zero: nothing to fit", path=table.source, column="weight")
-        self.kd = math.pi * self.target.min(dim=0).values
+        measured = (self.target != 0).any(dim=1)
+        self.kd = math.pi * self.target[measured if measured.any() else slice(None)].min(dim=0).values
         self.n_channels = table.values.shape[1]
         self.bounds = bounds
         c_lo, c_hi = bounds.C
