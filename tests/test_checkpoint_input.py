@@ -71,8 +71,9 @@ def test_ckpt_path_of_another_model_is_one_line(tmp_path, capsys):
     assert not (tmp_path / "run").exists()
 
 
-def test_model_checkpoint_cut_short_is_one_line(cut_short, tmp_path, capsys):
-    status = train(["fit", "--config", "nlb_latent", "--run_dir", str(tmp_path / "run"),
+@pytest.mark.parametrize("config", ["nlb_latent", "nlb_spectral"])
+def test_model_checkpoint_cut_short_is_one_line(config, cut_short, tmp_path, capsys):
+    status = train(["fit", "--config", config, "--run_dir", str(tmp_path / "run"),
                     "--model.checkpoint", str(cut_short)])
     assert status == 2 and _one_error_line(capsys).startswith(f"error: {cut_short}: {CUT_SHORT}")
     assert not (tmp_path / "run").exists()
