@@ -10,6 +10,7 @@ hidden width of 60 000 is refused before anything is allocated.
 from __future__ import annotations
 
 import os
+import zipfile
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
@@ -19,6 +20,11 @@ from torch import nn
 from neuralbrdf.atomic import note_input
 from neuralbrdf.errors import InputError, one_line
 from neuralbrdf.limits import MAX_CHECKPOINT_BYTES, MAX_MODEL_PARAMETERS, check_file_size
+
+#: First bytes of a zip archive, the container of ``torch.save`` files.
+ZIP_MAGIC = b"PK\x03\x04"
+#: First byte of a pickle (protocol 2 and later), the container of legacy ``torch.save`` files.
+PICKLE_PROTOCOL_OPCODE = b"\x80"
 
 
 def read_checkpoint(path: str | os.PathLike[str], what: str = "checkpoint") -> dict:
@@ -34,10 +40,26 @@ def read_checkpoint(path: str | os.PathLike[str], what: str = "checkpoint") -> d
     try:
         checkpoint = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # torch raises many kinds for corrupt or foreign files
-        raise InputError(f"not a readable PyTorch checkpoint ({one_line(error)})", path=path) from None
+        raise InputError(f"not a readable PyTorch checkpoint{_why_unreadable(path, error)}", path=path) from None
     if not isinstance(checkpoint, dict):
         raise InputError(f"not a checkpoint dictionary (found {type(checkpoint).__name__})", path=path)
     return checkpoint
+
+
+def _why_unreadable(path: Path, error: Exception) -> str:
+    """``": <reason>"`` for a file ``torch.load`` refused (empty, cut short, not PyTorch's), else torch's
+    own reason in parentheses."""
+    size = path.stat().st_size
+    if size == 0:
+        return ": the file is empty (0 bytes)"
+    with open(path, "rb") as handle:
+        head = handle.read(len(ZIP_MAGIC))
+    cut_short = f": cut short or damaged ({size} bytes; the end of the data is missing); copy or save it again"
+    if head == ZIP_MAGIC and not zipfile.is_zipfile(path):
+        return cut_short  # a zip archive without its closing directory
+    if head != ZIP_MAGIC and not head.startswith(PICKLE_PROTOCOL_OPCODE):
+        return f": {size} bytes that are neither a zip archive (the PyTorch format) nor a legacy PyTorch pickle"
+    return cut_short if isinstance(error, EOFError) else f" ({one_line(error)})"
 
 
 def check_weights_match(

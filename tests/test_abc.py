@@ -2,6 +2,7 @@
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -12,10 +13,13 @@ from neuralbrdf.data.plans import in_plane_plan, plan_spherical
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
 from neuralbrdf.fitting import AbcBounds, fit_abc
+from neuralbrdf.fitting.abc_fit import GAUSSIAN_LIMIT_C
 from neuralbrdf.geometry import inplane_to_vectors, spherical_pair_to_vectors, spherical_to_vector
 from neuralbrdf.metrics import hemisphere_logcos_rmse
 from neuralbrdf.data.low2012 import load_low2012_parameters
-from neuralbrdf.physics.abc import AbcParameters, abc_brdf
+from neuralbrdf.physics.abc import AbcParameters, abc_brdf, abc_brdf_by_sharpness
+from neuralbrdf.physics.fresnel import fresnel_dielectric
+from neuralbrdf.physics.microfacet import microfacet_brdf
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 LOW_CSV = DATA / "abc-low2012" / "low2012_abc_merl.csv"
@@ -132,6 +136,32 @@ def test_fresnel_factor_tends_to_one_at_grazing_and_gradients_stay_finite():
     f.sum().backward()
     for name, leaf in leaves.items():
         assert torch.all(torch.isfinite(leaf.grad)), name
+
+
+def test_the_sharpness_form_is_the_same_brdf_and_reaches_the_gaussian_limit():
+    rng = np.random.default_rng(3)
+    wi, wo = random_upper_directions(rng, 500), random_upper_directions(rng, 500)
+    mirror = wi * np.array([-1.0, -1.0, 1.0]) + rng.normal(0.0, 0.02, wi.shape)
+    wi, wo = np.concatenate([wi, wi]), np.concatenate([wo, mirror / np.linalg.norm(mirror, axis=1, keepdims=True)])
+    kd, A = [0.1, 0.2], [2.0, 1.0]
+    for B, C in ((21.0, 10.0), (3e5, 1.2), (3e6, 0.08), (0.5, 2.0)):
+        np.testing.assert_allclose(abc_brdf_by_sharpness(wi, wo, kd, A, B * C, 1.0 / C, 1.5),
+                                   abc_brdf(wi, wo, kd, A, B, C, 1.5), rtol=1e-12)
+    # tail 0: exactly exp(-sharpness (1 - cos θh)), the limit C -> ∞ at a fixed B·C
+    h = (wi + wo) / np.linalg.norm(wi + wo, axis=1, keepdims=True)
+    lobe_only = abc_brdf_by_sharpness(wi, wo, [0.0], [1.0], 200.0, 0.0, 1.5)[:, 0]
+    unit_lobe = abc_brdf(wi, wo, [0.0], [1.0], 0.0, 0.0, 1.5)[:, 0]  # distribution 1
+    np.testing.assert_allclose(lobe_only, unit_lobe * np.exp(-200.0 * (1.0 - h[:, 2])), rtol=1e-12)
+    # C = GAUSSIAN_LIMIT_C stands for the limit within 0.5 % wherever the lobe is above e^-10 of its peak
+    near = abc_brdf(wi, wo, [0.0], [1.0], 200.0 / GAUSSIAN_LIMIT_C, GAUSSIAN_LIMIT_C, 1.5)[:, 0]
+    upper_lobe = lobe_only >= math.exp(-10.0) * unit_lobe
+    assert upper_lobe.sum() > 100
+    np.testing.assert_allclose(near[upper_lobe], lobe_only[upper_lobe], rtol=0.005)
+    # differentiable at the limit
+    sharpness = torch.tensor(200.0, dtype=torch.float64, requires_grad=True)
+    tail = torch.tensor(0.0, dtype=torch.float64, requires_grad=True)
+    abc_brdf_by_sharpness(torch.tensor(wi), torch.tensor(wo), [0.0], [1.0], sharpness, tail, 1.5).sum().backward()
+    assert torch.isfinite(sharpness.grad) and torch.isfinite(tail.grad) and tail.grad > 0
 
 
 def test_parameters_round_trip_through_json():
@@ -263,6 +293,11 @@ def test_fit_reports_failure_on_impossible_data():
         result = fit_abc(BrdfTable(*angles, values), n_starts=3)
         assert not result.success, name
         assert "bound" in result.failure_reason, (name, result.failure_reason)
+        # every runaway says which parameter, its value, the bound and the option to change
+        runaways = [reason for reason in result.failure_reason.split("; ") if "ran to its" in reason]
+        assert runaways, (name, result.failure_reason)
+        for reason in runaways:
+            assert re.search(r"\(.*\d.*, bound [0-9.e+-]+\)", reason) and "--model.bounds." in reason, reason
 
 
 def test_fit_validates_its_arguments():
@@ -270,7 +305,81 @@ def test_fit_validates_its_arguments():
     with pytest.raises(ValueError, match="n_starts"):
         fit_abc(table, n_starts=0)
     with pytest.raises(ValueError, match="bounds"):
-        AbcBounds(B=(10.0, 1.0))
+        AbcBounds(sharpness=(10.0, 1.0))
     weighted = BrdfTable(table.theta_i, table.phi_i, table.theta_o, table.phi_o, table.values, weight=np.zeros(57))
     with pytest.raises(InputError, match="weight"):
         fit_abc(weighted)
+
+
+# --------------------------------------------------------------------------- smooth materials: the Gaussian limit
+
+ORANGE_KD = np.array([0.41, 0.13, 0.004])
+
+
+def lambert_beckmann(wi, wo, alpha, eta=1.5):
+    """An orange Lambertian base under one smooth dielectric Beckmann lobe (Walter et al. 2007)."""
+    specular = microfacet_brdf(wi, wo, alpha, lambda c: fresnel_dielectric(c, eta), "beckmann")
+    above = (wi[:, 2] > 0) & (wo[:, 2] > 0)
+    return np.where(above[:, None], ORANGE_KD / math.pi + specular[:, None], 0.0)
+
+
+def lambert_beckmann_table(alpha, plan="DS1") -> BrdfTable:
+    angles = plan_spherical(plan)
+    return BrdfTable(*angles, lambert_beckmann(*spherical_pair_to_vectors(*angles), alpha))
+
+
+def hemisphere_error(parameters: AbcParameters, alpha) -> float:
+    angles = plan_spherical("DS2")  # a cheap stand-in for the Low set: every fit here is in-plane
+    wi, wo = spherical_pair_to_vectors(*angles)
+    return hemisphere_logcos_rmse(parameters.evaluate(wi, wo), lambert_beckmann(wi, wo, alpha), angles[0])
+
+
+@pytest.mark.parametrize("alpha", [0.05, 0.4])
+def test_a_smooth_beckmann_material_fits_in_the_gaussian_limit(alpha):
+    """Beckmann falls off faster than any finite C allows: in (B, C) the fit ran to C's bound."""
+    result = fit_abc(lambert_beckmann_table(alpha), n_starts=4)
+    assert result.success, result.failure_reason
+    p = result.parameters
+    assert result.gaussian_limit and p.C == GAUSSIAN_LIMIT_C
+    # near the peak Beckmann is exp(-tan²θh / α²) ≈ exp(-2 (1 - cos θh) / α²): B·C ≈ 2 / α²
+    assert p.B * p.C == pytest.approx(2.0 / alpha**2, rel=0.15)
+    assert p.eta == pytest.approx(1.5, rel=0.03)
+    np.testing.assert_allclose(p.kd, ORANGE_KD, rtol=0.02, atol=1e-3)
+    assert hemisphere_error(p, alpha) < 0.02
+
+
+def test_a_bounded_c_says_which_parameter_ran_away_and_what_to_try():
+    result = fit_abc(lambert_beckmann_table(0.2), n_starts=4, bounds=AbcBounds(C=(1e-3, 10.0)))
+    assert not result.success
+    assert result.failure_reason.startswith("C ran to its upper bound (C = 10, B = ")
+    assert "bound 10)" in result.failure_reason and "--model.bounds.C '[0.001, .inf]'" in result.failure_reason
+
+
+def test_kd_ignores_rows_nobody_measured():
+    """MERL's unmeasured cells are read as all-zero rows; one of them used to set kd to 0."""
+    table = lambert_beckmann_table(0.2, "DS3")
+    zero = np.zeros((4, 3))
+    theta_o = np.array([89.5, 89.5, 89.5, 89.5])
+    padded = BrdfTable(np.concatenate([table.theta_i, [75.0] * 4]), np.concatenate([table.phi_i, [0.0] * 4]),
+                       np.concatenate([table.theta_o, theta_o]), np.concatenate([table.phi_o, [10.0, 90, 180, 270]]),
+                       np.concatenate([table.values, zero]))
+    result = fit_abc(padded, n_starts=4)
+    np.testing.assert_allclose(result.parameters.kd, math.pi * table.values.min(axis=0))
+    assert result.success, result.failure_reason
+
+
+@pytest.mark.parametrize(
+    "bounds, key, message",
+    [
+        ({"B": [1.0, 10.0]}, "model.bounds.B", "unknown bound; expected one of A, sharpness, C, eta"),
+        ({"C": [1.0, "many"]}, "model.bounds.C", "expected [low, high]"),
+        ({"C": [1.0]}, "model.bounds.C", "expected [low, high]"),
+        ({"eta": [2.0, 1.5]}, "model.bounds.eta", "0 < low < high < inf"),
+        ({"sharpness": [1.0, math.inf]}, "model.bounds.sharpness", "0 < low < high < inf"),
+        ({"C": [2e4, math.inf]}, "model.bounds.C", "must be below 10000"),
+    ],
+)
+def test_bounds_from_a_config_are_checked_naming_the_key(bounds, key, message):
+    with pytest.raises(InputError, match=re.escape(message)) as info:
+        AbcBounds.from_config(bounds)
+    assert info.value.column == key

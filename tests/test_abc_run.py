@@ -13,6 +13,11 @@ from neuralbrdf.data.table import BrdfTable, write_table
 from neuralbrdf.geometry import inplane_to_spherical, inplane_to_vectors
 from neuralbrdf.lightning.run import main
 from neuralbrdf.physics.abc import AbcParameters, abc_brdf
+from neuralbrdf.physics.fresnel import fresnel_dielectric
+from neuralbrdf.physics.microfacet import microfacet_brdf
+from neuralbrdf.cli.export_command import main as export_main
+from neuralbrdf.cli.main import main as cli
+from neuralbrdf.data.merl_binary import MERL_SHAPE, write_merl
 
 pytestmark = pytest.mark.filterwarnings("ignore:LightningCLI's args parameter is intended")
 
@@ -94,3 +99,69 @@ def test_nbrdf_proxy_fit_logs_the_hemisphere_metric(tmp_path):
     assert 0 <= metrics["fit/val/hemisphere_logcos_rmse"] < 0.2
     assert metrics["fit/hemisphere_logcos_rmse"] == pytest.approx(metrics["fit/val/hemisphere_logcos_rmse"], rel=1e-6)
     assert metrics["fit/inplane_glossy_rel_rmse"] >= 0 and metrics["fit/inplane_diffuse_rel_rmse"] >= 0
+
+
+# --------------------------------------------------------------------------- a smooth material (Lambert + Beckmann)
+
+ORANGE_KD = np.array([0.41, 0.13, 0.004])
+
+
+def _lambert_beckmann(wi, wo, alpha, eta=1.5):
+    specular = microfacet_brdf(wi, wo, alpha, lambda c: fresnel_dielectric(c, eta), "beckmann")
+    above = (wi[:, 2] > 0) & (wo[:, 2] > 0)
+    return np.where(above[:, None], ORANGE_KD / np.pi + specular[:, None], 0.0)
+
+
+def _merl_cell_directions():
+    """``wi, wo`` ``[90·90·180, 3]`` at the centre of every MERL cell (φh = 0; MERL's inverse index rule)."""
+    n_h, n_d, n_phi = MERL_SHAPE
+    i_h, i_d, i_phi = np.meshgrid(np.arange(n_h), np.arange(n_d), np.arange(n_phi), indexing="ij")
+    theta_h = np.radians((i_h + 0.5) ** 2 / 90.0)
+    theta_d, phi_d = np.radians((i_d + 0.5) * 90.0 / n_d), np.radians((i_phi + 0.5) * 180.0 / n_phi)
+    d = np.stack([np.sin(theta_d) * np.cos(phi_d), np.sin(theta_d) * np.sin(phi_d), np.cos(theta_d)], axis=-1)
+    c, s = np.cos(theta_h), np.sin(theta_h)
+    wi = np.stack([c * d[..., 0] + s * d[..., 2], d[..., 1], -s * d[..., 0] + c * d[..., 2]], axis=-1)
+    h = np.stack([s, np.zeros_like(s), c], axis=-1)
+    wo = 2.0 * (wi * h).sum(axis=-1, keepdims=True) * h - wi
+    return wi.reshape(-1, 3), wo.reshape(-1, 3)
+
+
+def test_a_bounded_c_fails_naming_the_parameter_and_the_flag_that_lets_it_fit(tmp_path, capsys):
+    """The fit of a smooth material used to fail with 'C at its upper bound' and no way out."""
+    path = _table_of(tmp_path, lambda wi, wo: _lambert_beckmann(wi, wo, 0.2), name="orange_DS1.csv")
+    with pytest.warns(UserWarning, match="ABC fit of orange_DS1 FAILED"):
+        status = main(["fit", "--config", str(CONFIG), "--run_dir", str(tmp_path / "bounded"), "--data.path",
+                       str(path), "--model.bounds.C", "[0.001, 10]"])
+    error = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+    assert status == 1 and len(error) == 1
+    assert error[0].startswith("error: fit failed: ABC fit of orange_DS1: C ran to its upper bound (C = 10, B = ")
+    assert "--model.bounds.C '[0.001, .inf]'" in error[0]
+    assert not (tmp_path / "bounded" / "checkpoints" / "best.ckpt").exists()
+
+
+def test_an_unknown_bound_is_one_line(tmp_path, capsys):
+    status = main(["fit", "--config", str(CONFIG), "--run_dir", str(tmp_path / "run"), "--model.bounds.B", "[1, 10]"])
+    err = capsys.readouterr().err
+    assert status == 2 and err.count("\n") == 1
+    assert "'model.bounds.B': unknown bound; expected one of A, sharpness, C, eta" in err, err
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.slow
+def test_a_smooth_material_from_a_merl_binary_fits_on_ds1_and_exports(tmp_path):
+    """Lambert + Beckmann as a MERL .binary, sampled on DS1 -> fitted in the Gaussian limit -> ONNX."""
+    wi, wo = _merl_cell_directions()
+    values = _lambert_beckmann(wi, wo, 0.1)
+    values[~((wi[:, 2] > 0) & (wo[:, 2] > 0))] = -1.0  # MERL's "not measured"
+    binary, table = tmp_path / "orange.binary", tmp_path / "orange_DS1.csv"
+    write_merl(values.T.reshape(3, *MERL_SHAPE), binary)
+    assert cli(["sample", str(binary), "--plan", "DS1", "--out", str(table)]) == 0
+    status, run_dir = _fit(tmp_path, "--data.path", str(table))
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    assert status == 0 and metrics["fit/abc/success"] is True, metrics["fit/abc/failure_reason"]
+    assert metrics["fit/inplane_glossy_rel_rmse"] < 0.05
+    fitted = AbcParameters.from_dict(metrics["fit/abc/parameters"])
+    assert fitted.B * fitted.C == pytest.approx(2.0 / 0.1**2, rel=0.1) and fitted.eta == pytest.approx(1.5, rel=0.02)
+    out = tmp_path / "orange.onnx"
+    assert export_main(["--ckpt", str(run_dir / "checkpoints" / "best.ckpt"), "--out", str(out)]) == 0
+    assert out.is_file()

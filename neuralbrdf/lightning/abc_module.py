@@ -7,8 +7,9 @@ minimisation of ``L_cus``, Eq. 4.2); this module runs it once on the material of
 
 ``metrics.json`` gets the shared names of :func:`~neuralbrdf.evaluation.scores.fit_scores`
 (``fit/inplane_glossy_rel_rmse``, ``fit/inplane_diffuse_rel_rmse``, and
-``fit/hemisphere_logcos_rmse`` with a truth), ``fit/abc/parameters`` (kd, A per channel; B, C, eta), ``fit/abc/success``
-and ``fit/abc/failure_reason``: a failed fit is reported as failed (and warned about), never
+``fit/hemisphere_logcos_rmse`` with a truth), ``fit/abc/parameters`` (kd, A per channel; B, C, eta), ``fit/abc/success``,
+``fit/abc/failure_reason`` and ``fit/abc/gaussian_limit`` (the lobe ended in the limit ``C -> ∞``,
+stored as ``C = 1e4``; :mod:`neuralbrdf.fitting.abc_fit`): a failed fit is reported as failed (and warned about), never
 passed off as a result.  Checkpoints carry ``neuralbrdf_kind = "abc"`` (:class:`~neuralbrdf.lightning.common.WritesKind`), ``abc_parameters`` and
 ``material`` for the exporter (:mod:`neuralbrdf.kinds.abc`).
 """
@@ -33,7 +34,7 @@ class AbcFitModule(WritesKind, pl.LightningModule):
     """Fits ABC parameters once (first training step); evaluates them in val/test.
 
     Parameters mirror :func:`~neuralbrdf.fitting.abc_fit.fit_abc`; ``bounds`` overrides fields
-    of :class:`~neuralbrdf.fitting.abc_fit.AbcBounds` (e.g. ``{eta: [1.01, 10]}``).
+    of :class:`~neuralbrdf.fitting.abc_fit.AbcBounds` (e.g. ``{eta: [1.01, 10]}``; keys A, sharpness, C, eta).
     """
 
     def __init__(
@@ -42,7 +43,7 @@ class AbcFitModule(WritesKind, pl.LightningModule):
         super().__init__()
         self.save_hyperparameters()
         self.automatic_optimization = False
-        self.bounds = AbcBounds(**{k: tuple(v) for k, v in (bounds or {}).items()})
+        self.bounds = AbcBounds.from_config(bounds)
         self.result: AbcFitResult | None = None
         self.parameters_: AbcParameters | None = None
         self.material_name: str | None = None
@@ -114,6 +115,7 @@ class AbcFitModule(WritesKind, pl.LightningModule):
             "abc/parameters": self.result.parameters.to_dict(),
             "abc/success": bool(self.result.success),
             "abc/failure_reason": self.result.failure_reason,
+            "abc/gaussian_limit": bool(self.result.gaussian_limit),
             "abc/start_losses": [None if not np.isfinite(x) else float(x) for x in self.result.start_losses],
         }
 

@@ -84,6 +84,8 @@ SUBCOMMANDS = ("fit", "validate", "test")
 #: What a run writes into its directory; a directory holding any of these holds a run.
 RUN_ENTRIES = ("metrics.json", "metrics.csv", "config.yaml", "hparams.yaml", "checkpoints", "validate", "test")
 STATUS_OK, STATUS_FAILED = "ok", "failed"
+#: ``--ckpt_path`` values Lightning resolves itself rather than as files.
+LIGHTNING_CKPT_NAMES = ("best", "last", "hpc", "registry")
 
 
 def _number(value) -> float | int:
@@ -471,6 +473,24 @@ class NeuralBrdfCLI(LightningCLI):
             return Path(ckpt_path).parent.parent
         return _fresh_run_dir(config.get("config"))
 
+    def _parse_ckpt_path(self) -> None:
+        # Lightning reads --ckpt_path right after parsing and lets its hyper-parameters replace the
+        # config's model: a missing, truncated or foreign file is refused first, in one line naming it.
+        subcommand = self.config.get("subcommand")
+        ckpt_path = self.config[subcommand].get("ckpt_path") if subcommand else None
+        if ckpt_path and (ckpt_path not in LIGHTNING_CKPT_NAMES or Path(ckpt_path).is_file()):
+            what = "checkpoint to resume from" if subcommand == "fit" else "checkpoint to evaluate"
+            hparams = read_checkpoint(ckpt_path, what).get("hyper_parameters")
+            trained = hparams.get("_class_path") if isinstance(hparams, Mapping) else None
+            configured = getattr(self.config[subcommand].get("model"), "class_path", None)
+            if trained and configured and trained != configured:
+                raise InputError(
+                    f"{what} holds a {trained.rsplit('.', 1)[-1]} model but the config's model is "
+                    f"{configured.rsplit('.', 1)[-1]}; give the config it was trained with",
+                    path=ckpt_path,
+                )
+        super()._parse_ckpt_path()
+
     def before_instantiate_classes(self) -> None:
         config = self.config[self.subcommand]
         if config.get("num_threads"):
@@ -478,8 +498,6 @@ class NeuralBrdfCLI(LightningCLI):
         self.run_dir = self._resolve_run_dir(config)
         if self.subcommand == "fit":
             self._prepare_fit_dir(config)
-        elif config.get("ckpt_path") and config.ckpt_path not in ("best", "last", "hpc", "registry"):
-            read_checkpoint(config.ckpt_path, "checkpoint to evaluate")
         self.save_config_kwargs = {"overwrite": True, **self.save_config_kwargs}
 
     def instantiate_trainer(self, **kwargs) -> pl.Trainer:

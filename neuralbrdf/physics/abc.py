@@ -22,6 +22,14 @@ the three denominators are clamped at :data:`COS_EPS` = 1e-4 (within 0.006° of 
 which caps the specular term at ``A/(π · 1e-8)`` and keeps gradients finite.  Above that the
 formula is exact.
 
+**Sharpness and the Gaussian limit.**  For narrow lobes ``(1 + B x)^(-C)`` (``x = 1 - cos θh``)
+depends on ``B`` and ``C`` mostly through their product: near the peak it is ``exp(-B·C·x)``, and
+as ``C -> ∞`` with ``B·C`` fixed it tends to ``exp(-B·C·x) ≈ exp(-B·C·θh²/2)``, a Gaussian in
+``θh``.  Lobes that fall off at least that fast (Beckmann, Blinn–Phong) are fitted best *in that
+limit*.  :func:`abc_brdf_by_sharpness` writes the same BRDF in the coordinates ``sharpness = B·C``
+and ``tail = 1/C``, where ``tail = 0`` is the limit itself, exactly; the fit
+(:mod:`neuralbrdf.fitting.abc_fit`) works in them.
+
 Its importance sampler is the renderer's (:class:`neuralbrdf.render.sampling.AbcLobe`); Löw's
 published fits are read by :func:`neuralbrdf.data.low2012.load_low2012_parameters`.
 
@@ -43,6 +51,10 @@ from neuralbrdf.physics.fresnel import fresnel_dielectric
 
 #: Clamp (dimensionless) on ``cos ti``, ``cos to`` and ``wo·h`` in the specular denominators.
 COS_EPS = 1e-4
+
+#: Below this ``y``, :func:`abc_brdf_by_sharpness` takes ``ln(1 + y) / y`` from its series
+#: ``1 - y/2 + y²/3`` (truncation error below 1e-18).
+LOG1P_SERIES_BELOW = 1e-6
 
 
 def _channel_vector(xp, values, like):
@@ -71,6 +83,31 @@ def abc_brdf(wi, wo, kd, A, B, C, eta):
         Scalars (Python floats or 0-d arrays): distribution width, fall-off exponent, index of
         refraction.
     """
+    return _abc(wi, wo, kd, A, eta, lambda x: (1.0 + B * x) ** (-C))
+
+
+def abc_brdf_by_sharpness(wi, wo, kd, A, sharpness, tail, eta):
+    """:func:`abc_brdf` with ``B = sharpness · tail`` and ``C = 1 / tail`` (module docstring).
+
+    The normal distribution is ``exp(-C ln(1 + B x)) = exp(-sharpness · x · L(sharpness · tail · x))``
+    with ``L(y) = ln(1 + y) / y`` and ``L(0) = 1``: finite, smooth and differentiable down to
+    ``tail = 0``, the Gaussian limit ``exp(-sharpness · (1 - cos θh))``.  ``sharpness > 0``,
+    ``tail >= 0`` (scalars, like :func:`abc_brdf`'s ``B, C``).
+    """
+
+    def distribution(x):
+        xp = array_namespace_of(x)
+        y = sharpness * tail * x
+        small = y < LOG1P_SERIES_BELOW
+        y_safe = xp.where(small, xp.ones_like(y), y)
+        log1p_ratio = xp.where(small, 1.0 - y / 2.0 + y * y / 3.0, xp.log1p(y_safe) / y_safe)
+        return xp.exp(-sharpness * x * log1p_ratio)
+
+    return _abc(wi, wo, kd, A, eta, distribution)
+
+
+def _abc(wi, wo, kd, A, eta, distribution):
+    """The ABC BRDF with the normal distribution ``distribution(1 - cos θh)``."""
     xp = array_namespace_of(wi, wo)
     kd = _channel_vector(xp, kd, wi)
     A = _channel_vector(xp, A, wi)
@@ -95,8 +132,7 @@ def abc_brdf(wi, wo, kd, A, B, C, eta):
         1.0 / (safe_i * safe_o),
         xp.minimum(2.0 * cos_h / (safe_d * safe_i), 2.0 * cos_h / (safe_d * safe_o)),
     )
-    distribution = (1.0 + B * one_minus_cos_h) ** (-C)
-    specular = fresnel_dielectric(cos_d, eta) * g_over_cos * distribution / math.pi
+    specular = fresnel_dielectric(cos_d, eta) * g_over_cos * distribution(one_minus_cos_h) / math.pi
     specular = xp.where(above, specular, xp.zeros_like(specular))
     diffuse = xp.where(above, one / math.pi, xp.zeros_like(cos_i))
     return diffuse[..., None] * kd + specular[..., None] * A
