@@ -78,10 +78,10 @@ class RenderSettings:
     backend: str = "drjit"
 
 
-def check_settings(settings: RenderSettings, render_images: bool = True) -> None:
-    """:class:`InputError` for render settings an evaluation cannot use (module docstring), before
-    any work; with ``render_images`` the variant is selected and the render size checked against
-    this machine."""
+def check_settings(settings: RenderSettings, model_path: Path, render_images: bool = True) -> None:
+    """:class:`InputError` for render settings an evaluation of ``model_path`` cannot use (module
+    docstring), before any work; with ``render_images`` the variant is selected and the render size
+    checked against this machine."""
     if isinstance(settings.seed, bool) or not isinstance(settings.seed, int) or settings.seed < 0:
         raise InputError(f"--seed must be a non-negative integer, got {settings.seed!r}")
     if not render_images:
@@ -93,7 +93,7 @@ def check_settings(settings: RenderSettings, render_images: bool = True) -> None
                          f"(below {MIN_RESOLUTION} the sphere covers too few pixels for the image metrics to score it)")
     from neuralbrdf.render.preview import Material, check_render_size, default_spp_per_pass, set_variant
 
-    wavefront = Material(backend=settings.backend).needs_wavefront
+    wavefront = Material(model=model_path, backend=settings.backend).needs_wavefront
     check_render_size(settings.resolution, min(settings.spp, default_spp_per_pass(settings.resolution, wavefront)),
                       wavefront)
     set_variant(settings.variant)
@@ -184,7 +184,7 @@ def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path
     truth is evaluated with the same settings (a study's models of one material)."""
     model_path, truth_path, out_dir = Path(model_path), Path(truth_path), Path(out_dir)
     started = time.perf_counter()
-    check_settings(settings, render_images)
+    check_settings(settings, model_path, render_images)
     check_outputs(*(out_dir / name for name in FILES[: 5 if render_images else 1]))
     model = OnnxEvaluator(model_path)
     truth = OnnxEvaluator(truth_path) if truth_evaluator is None else truth_evaluator
