@@ -448,6 +448,12 @@ def test_render_command_renders_a_user_scene(ladder, tmp_path):
     assert code == 2 and not (tmp_path / "x.png").exists()
 
 
+GOOD_SCENE = ('<scene version="3.0.0"><integrator type="path"/><sensor type="perspective"><film type="hdrfilm">'
+              '<integer name="width" value="16"/><integer name="height" value="12"/></film></sensor>'
+              '<bsdf type="neuralbrdf" id="m"><string name="filename" value="model.onnx"/></bsdf>'
+              '<shape type="sphere"><ref id="m"/></shape><emitter type="constant"/></scene>')
+
+
 @pytest.mark.parametrize("options, message", [
     (["--tolerance", "inf"], "--tolerance must be a finite number > 0, got inf"),
     (["--tolerance", "nan"], "--tolerance must be a finite number > 0, got nan"),
@@ -468,8 +474,7 @@ def test_select_refuses_bad_settings_and_outputs_before_any_render(tmp_path, cap
     monkeypatch.setattr(selection, "material_coverage", lambda *_: pytest.fail("rendered before the checks"))
     write_lambert(tmp_path / "model.onnx")
     scene = tmp_path / "scene.xml"
-    scene.write_text('<scene version="3.0.0"><bsdf type="neuralbrdf" id="m"><string name="filename" '
-                     'value="model.onnx"/></bsdf><shape type="sphere"><ref id="m"/></shape></scene>')
+    scene.write_text(GOOD_SCENE)
     options = [str(scene) if o == "SCENE" else o for o in options]
     out = ["--out", str(tmp_path / "S.xml")] if "--out" not in options else []
     assert main(["select", str(scene), *out, *options]) == 2
@@ -493,12 +498,6 @@ def test_a_scene_that_cannot_render_is_one_line_naming_it(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err == f"neuralbrdf select: error: {scene}: cannot render the scene: No integrator specified! Add an " \
                   "integrator in the scene description or provide an integrator directly as argument.\n", err
-
-
-GOOD_SCENE = ('<scene version="3.0.0"><integrator type="path"/><sensor type="perspective"><film type="hdrfilm">'
-              '<integer name="width" value="16"/><integer name="height" value="12"/></film></sensor>'
-              '<bsdf type="neuralbrdf" id="m"><string name="filename" value="model.onnx"/></bsdf>'
-              '<shape type="sphere"><ref id="m"/></shape><emitter type="constant"/></scene>')
 
 
 @pytest.mark.parametrize("change, ladder, message", [
