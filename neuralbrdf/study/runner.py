@@ -98,7 +98,8 @@ class CellWorker:
 def _cell_spec(cell: Cell, key: str, profile: Profile, truth: tuple[Path, str]) -> dict:
     material = next(m for m in profile.materials if m.name == cell.material)
     return {"cell": asdict(cell), "key": key, "is_main": is_rendered(cell, profile), "material": asdict(material),
-            "variant": asdict(profile.variant(cell.variant)), "truth": str(truth[0]), "truth_sha256": truth[1],
+            "variant": asdict(profile.variant(cell.variant)), "truth": str(truth[0].resolve()),
+            "truth_sha256": truth[1],
             "render": asdict(profile.render), "cost": asdict(profile.cost)}
 
 
