@@ -272,6 +272,7 @@ def test_seeds_run_only_where_they_change_the_fit(tmp_path):
     assert seeds[("nlb", "DS1", 0.03)] == seeds[("abc", "DS1", 0.0)] == seeds[("abc", "DS2", 0.0)] == [0, 1]
     assert seed_args("abc", 3) == ["--model.seed", "3"] and seed_args("nlb", 3) == seed_args("spectral_mlp", 3) == []
     assert "seed 0 only" in seeding_description("nlb") and "random starts" in seeding_description("abc")
+    assert "seed 0 only" in seeding_description("nlb_spectral") and "seed 0" not in seeding_description("spectral_mlp")
 
 
 def test_the_cell_passes_its_seed_to_the_abc_starts_and_they_differ():
@@ -299,10 +300,13 @@ def test_a_typo_in_a_variants_arguments_is_a_refused_fit_in_one_line(tmp_path):
 
 
 @pytest.mark.slow
-def test_two_seeds_of_a_noise_free_nlb_fit_are_the_same_fit(tmp_path):
-    """Why noise-free NLB cells run one seed: with another --seed_everything the latent fit is the same."""
+@pytest.mark.parametrize("config", ["nlb_latent", "nlb_spectral"])
+def test_two_seeds_of_a_noise_free_nlb_fit_are_the_same_fit(tmp_path, config):
+    """Why noise-free NLB cells run one seed: with another --seed_everything the latent fit is the same
+    (the spectral fit on a spectral DS1 table also draws subsets of samples, from its data.seed)."""
     import torch
 
+    from neuralbrdf.checkpoints import read_checkpoint
     from neuralbrdf.lightning.run import main as train
 
     table = tmp_path / "gold.csv"
@@ -310,9 +314,8 @@ def test_two_seeds_of_a_noise_free_nlb_fit_are_the_same_fit(tmp_path):
     fitted = []
     for seed in (0, 3):
         run = tmp_path / f"run{seed}"
-        assert train(["fit", "--config", "nlb_latent", "--data.path", str(table), "--run_dir", str(run),
+        assert train(["fit", "--config", config, "--data.path", str(table), "--run_dir", str(run),
                       "--seed_everything", str(seed), "--trainer.max_epochs", "1", "--data.steps_per_epoch", "20",
-                      "--model.init_screen_steps", "5", "--trainer.enable_progress_bar", "false"]) == 0
-        state = torch.load(run / "checkpoints" / "fitted.ckpt", map_location="cpu", weights_only=True)["state_dict"]
-        fitted.append(state)
+                      "--trainer.enable_progress_bar", "false"]) == 0
+        fitted.append(read_checkpoint(run / "checkpoints" / "fitted.ckpt")["state_dict"])
     assert fitted[0].keys() == fitted[1].keys() and all(torch.equal(fitted[0][k], fitted[1][k]) for k in fitted[0])
