@@ -42,6 +42,7 @@ own keys, spectral where the kind requires it); renderers and evaluators open mo
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -106,6 +107,13 @@ class OnnxModel:
     details:
         What the kind's module read from its own metadata keys (e.g. the ABC parameters), set
         by :func:`neuralbrdf.kinds.load_model`; ``None`` here.
+    sha256:
+        SHA-256 (hex) of the bytes the model was read from.
+    version:
+        The file as it was read (:func:`~neuralbrdf.atomic.file_version` of the open file): a cache
+        key for everything derived from this model, which a file written later at the same path
+        (another inode, size or time) never shares.  The file is read once; the proto, the digest
+        and this key all describe the same bytes.
     """
 
     path: Path
@@ -117,6 +125,8 @@ class OnnxModel:
     metadata: dict[str, str]
     proto: onnx.ModelProto
     details: object | None = None
+    sha256: str = ""
+    version: tuple = ()
 
     @property
     def n_channels(self) -> int:
@@ -170,9 +180,17 @@ def load_generic_model(path: str | os.PathLike[str]) -> OnnxModel:
     note_input(path)
     check_file_size(path, MAX_ONNX_BYTES, "ONNX model file")
     try:
+        with open(path, "rb") as handle:  # read once: every check and use below sees these bytes
+            info = os.fstat(handle.fileno())
+            data = handle.read(MAX_ONNX_BYTES + 1)
+    except OSError as error:
+        raise InputError(f"cannot read the model file ({error.strerror or error})", path=path) from None
+    if len(data) > MAX_ONNX_BYTES:
+        raise InputError(f"ONNX model file larger than the limit of {MAX_ONNX_BYTES} bytes", path=path)
+    try:
         # External data (weights in other files) is never followed: the contract is one file.
-        proto = onnx.load(str(path), load_external_data=False)
-    except Exception as error:  # onnx raises protobuf DecodeError, OSError, ...
+        proto = onnx.load_model_from_string(data)
+    except Exception as error:  # onnx raises protobuf DecodeError, ...
         raise InputError(f"not an ONNX model ({type(error).__name__}: {error})", path=path) from None
     if not proto.graph.node and not proto.graph.output:
         raise InputError("not an ONNX model (no graph)", path=path)
@@ -199,6 +217,8 @@ def load_generic_model(path: str | os.PathLike[str]) -> OnnxModel:
         provenance=metadata[PROVENANCE_KEY],
         metadata=metadata,
         proto=proto,
+        sha256=hashlib.sha256(data).hexdigest(),
+        version=(str(path.resolve()), info.st_size, info.st_mtime_ns, info.st_ino),
     )
 
 

@@ -57,6 +57,18 @@ def virtual_truth(material: str, plan: str) -> BrdfTable:
     return BrdfTable(*angles, values, GROUND_TRUTH_WAVELENGTHS_NM.copy(), source=f"virtual {material} on {plan}")
 
 
+def load_fit_measurement(path, reference=None) -> BrdfTable:
+    """:func:`~neuralbrdf.data.loading.load_measurement` for a fit: a spectral table must hold two
+    or more wavelengths, since a fitted spectral model covers the range between its data's lowest
+    and highest wavelength (one wavelength is no range: the model would claim wavelengths it never
+    saw, or fail at export)."""
+    table = load_measurement(path, reference)
+    if table.is_spectral and len(table.wavelengths) < 2:
+        raise InputError(f"holds one wavelength ({float(table.wavelengths[0]):g} nm); a spectral fit needs samples at "
+                         "two or more wavelengths, whose range the fitted model covers", path=path)
+    return table
+
+
 def load_material(
     *,
     path: str | None = None,
@@ -76,7 +88,7 @@ def load_material(
     _check_plan(plan, "data.plan")
     _check_plan(eval_plan, "data.eval_plan")
     if path is not None:
-        return MaterialData(name or Path(path).stem, load_measurement(path, reference), None)
+        return MaterialData(name or Path(path).stem, load_fit_measurement(path, reference), None)
     if nbrdf is not None:
         network = NbrdfNetwork.load(nbrdf)
         truth = None if eval_plan is None else sample_plan(network, eval_plan)

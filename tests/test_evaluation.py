@@ -288,7 +288,7 @@ def test_the_model_is_rendered_with_the_truths_proposal(truth_files, tmp_path, m
 
     monkeypatch.setattr(evaluation, "_render", fake_render)
     evaluation.evaluate(truth_files["gold"], truth_files["cyan"], tmp_path / "eval",
-                        evaluation.RenderSettings(spp=2, resolution=2), strata=QUICK_STRATA)
+                        evaluation.RenderSettings(spp=2, resolution=evaluation.MIN_RESOLUTION), strata=QUICK_STRATA)
     assert calls[0] == ("gold.onnx", 0, "cyan.onnx")  # the model: the truth's proposal, matched paths
     assert [c[2] for c in calls[1:]] == [None, None]  # the truth: its own, at two seeds
 
@@ -313,3 +313,72 @@ def test_a_model_sampled_with_another_files_proposal_renders_the_same_expectatio
     noise, _ = image_scores(again, own)
     assert abs(float(other.mean()) / float(own.mean()) - 1.0) < 0.03
     assert changed["image_delta_e2000_mean"] < 2.0 * noise["image_delta_e2000_mean"]
+
+
+@pytest.mark.parametrize("options, message", [
+    (["--resolution", "1"], "--resolution must be 16 to 2048 pixels, got 1"),
+    (["--resolution", "100000"], "--resolution must be 16 to 2048 pixels, got 100000"),
+    (["--spp", "0"], "--spp must be a positive integer, got 0"),
+    (["--seed", "-5"], "--seed must be a non-negative integer, got -5"),
+    (["--variant", "bogus"], "unknown Mitsuba variant 'bogus'"),
+])
+def test_bad_render_settings_are_refused_before_any_work(truth_files, tmp_path, capsys, monkeypatch, options, message):
+    """An image too small to hold the sphere (one background pixel scored ΔE 0), one too large to
+    allocate, a negative seed (a traceback): one line, before a single metric is computed."""
+    from neuralbrdf.evaluation import evaluate as evaluation
+
+    monkeypatch.setattr(evaluation, "direction_scores", lambda *_, **__: pytest.fail("scored before the checks"))
+    out = tmp_path / "eval"
+    gold = str(truth_files["gold"])
+    assert cli(["evaluate", gold, "--truth", gold, "--out-dir", str(out), "--spp", "2", *options]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err, err
+    assert not out.exists()
+
+
+def test_an_output_folder_that_cannot_be_written_is_refused_before_any_work(truth_files, tmp_path, capsys,
+                                                                            monkeypatch):
+    from neuralbrdf.evaluation import evaluate as evaluation
+
+    monkeypatch.setattr(evaluation, "direction_scores", lambda *_, **__: pytest.fail("scored before the checks"))
+    taken = tmp_path / "taken"
+    taken.write_text("mine")
+    gold = str(truth_files["gold"])
+    assert cli(["evaluate", gold, "--truth", gold, "--out-dir", str(taken), "--no-render"]) == 2
+    assert f"{taken / 'evaluation.json'}: cannot write" in capsys.readouterr().err
+    assert taken.read_text() == "mine"
+
+
+def test_a_truth_that_is_not_a_ground_truth_is_noted_and_recorded(tmp_path, capsys):
+    import hashlib
+
+    from onnx_fixtures import write_lambert, write_nlb_like
+
+    model, truth = write_lambert(tmp_path / "model.onnx"), write_nlb_like(tmp_path / "fitted.onnx")
+    out = tmp_path / "eval"
+    assert cli(["evaluate", str(model), "--truth", str(truth), "--out-dir", str(out), "--no-render"]) == 0
+    note = (f"the truth {truth} is a 'nlb' model, not a ground truth (kind 'reference'): the scores measure how two "
+            "models differ, not how far the model is from the material")
+    assert f"note: {note}\n" in capsys.readouterr().err
+    result = json.loads((out / "evaluation.json").read_text())
+    assert result["truth_kind"] == "nlb" and result["model_kind"] == "nlb" and result["notes"] == [note]
+    assert result["truth_sha256"] == hashlib.sha256(truth.read_bytes()).hexdigest()
+    assert result["model_wavelength_range_nm"] is None
+
+
+def test_a_wavelength_range_edited_in_the_file_changes_the_scores_as_it_changes_renders(truth_files, tmp_path):
+    """The renderer clamps wavelengths to the range a file declares; the scores do the same, so a file
+    whose range was narrowed scores the error its renders show (it scored 0)."""
+    import onnx
+
+    proto = onnx.load(str(truth_files["gold"]))
+    for entry in proto.metadata_props:
+        if entry.key in ("neuralbrdf.wavelength_min", "neuralbrdf.wavelength_max"):
+            entry.value = {"neuralbrdf.wavelength_min": "500", "neuralbrdf.wavelength_max": "600"}[entry.key]
+    narrowed = tmp_path / "narrowed.onnx"
+    onnx.save(proto, str(narrowed))
+    truth = OnnxEvaluator(truth_files["gold"])
+    same = direction_scores(OnnxEvaluator(truth_files["gold"]), truth, strata=QUICK_STRATA).metrics
+    edited = direction_scores(OnnxEvaluator(narrowed), truth, strata=QUICK_STRATA).metrics
+    assert same["hemisphere_logcos_rmse"] == 0.0 and edited["hemisphere_logcos_rmse"] > 1e-3
+    assert edited["inplane_glossy_rel_rmse"] > 0.01

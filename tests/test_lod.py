@@ -446,3 +446,83 @@ def test_render_command_renders_a_user_scene(ladder, tmp_path):
     assert code == 0 and out.is_file()
     code = render_command.main(["--scene", str(tmp_path / "missing.xml"), "--out", str(tmp_path / "x.png"), "--quiet"])
     assert code == 2 and not (tmp_path / "x.png").exists()
+
+
+GOOD_SCENE = ('<scene version="3.0.0"><integrator type="path"/><sensor type="perspective"><film type="hdrfilm">'
+              '<integer name="width" value="16"/><integer name="height" value="12"/></film></sensor>'
+              '<bsdf type="neuralbrdf" id="m"><string name="filename" value="model.onnx"/></bsdf>'
+              '<shape type="sphere"><ref id="m"/></shape><emitter type="constant"/></scene>')
+
+
+@pytest.mark.parametrize("options, message", [
+    (["--tolerance", "inf"], "--tolerance must be a finite number > 0, got inf"),
+    (["--tolerance", "nan"], "--tolerance must be a finite number > 0, got nan"),
+    (["--tolerance", "0"], "--tolerance must be a finite number > 0, got 0.0"),
+    (["--tolerance", "-1"], "--tolerance must be a finite number > 0, got -1.0"),
+    (["--object-tolerance", "inf"], "--object-tolerance must be a finite number > 0, got inf"),
+    (["--seed", "-3"], "seed must be a non-negative integer, got -3"),
+    (["--resolution", "1000000"], "resolution must be at most 1024"),
+    (["--out", "SCENE"], "is also an input of this command"),
+])
+def test_select_refuses_bad_settings_and_outputs_before_any_render(tmp_path, capsys, monkeypatch, options, message):
+    """A tolerance of inf ran the whole selection, then failed writing its JSON; a negative seed and a
+    huge resolution were tracebacks; an output that is the scene failed after every render."""
+    from neuralbrdf.cli.main import main
+    from neuralbrdf.lod import select as selection
+    from onnx_fixtures import write_lambert
+
+    monkeypatch.setattr(selection, "material_coverage", lambda *_: pytest.fail("rendered before the checks"))
+    write_lambert(tmp_path / "model.onnx")
+    scene = tmp_path / "scene.xml"
+    scene.write_text(GOOD_SCENE)
+    options = [str(scene) if o == "SCENE" else o for o in options]
+    out = ["--out", str(tmp_path / "S.xml")] if "--out" not in options else []
+    assert main(["select", str(scene), *out, *options]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.onnx", "scene.xml"]
+
+
+def test_a_scene_that_cannot_render_is_one_line_naming_it(tmp_path, capsys):
+    from neuralbrdf.cli.main import main
+    from onnx_fixtures import write_lambert
+
+    write_lambert(tmp_path / "model.onnx")
+    scene = tmp_path / "scene.xml"  # no <integrator>
+    scene.write_text('<scene version="3.0.0"><sensor type="perspective"><film type="hdrfilm"><integer name="width" '
+                     'value="16"/><integer name="height" value="16"/></film></sensor><bsdf type="neuralbrdf" id="m">'
+                     '<string name="filename" value="model.onnx"/></bsdf><shape type="sphere"><ref id="m"/></shape>'
+                     '<emitter type="constant"/></scene>')
+    assert main(["select", str(scene), "--out", str(tmp_path / "S.xml"), "--variant", "llvm_ad_rgb",
+                 "--resolution", "16", "--spp", "2", "--max-spp", "2"]) == 2
+    err = capsys.readouterr().err
+    assert err == f"neuralbrdf select: error: {scene}: cannot render the scene: No integrator specified! Add an " \
+                  "integrator in the scene description or provide an integrator directly as argument.\n", err
+
+
+@pytest.mark.parametrize("change, ladder, message", [
+    (("</scene>", ""), None, "not XML: no element found"),
+    ((GOOD_SCENE, '<shape type="sphere"/>'), None, "the root element is <shape>, expected <scene>"),
+    (('value="model.onnx"', 'value="missing.onnx"'), None, "the model file of neuralbrdf material 'm' does not exist"),
+    (('value="16"', 'value="wide"'), None, "the film's width/height are not numbers"),
+    (("", ""), '{"rungs": [', "ladder.json: not JSON"),
+])
+def test_a_malformed_scene_or_ladder_is_one_line_before_any_render(tmp_path, capsys, monkeypatch, change, ladder,
+                                                                    message):
+    from neuralbrdf.cli.main import main
+    from neuralbrdf.lod import select as selection
+    from onnx_fixtures import write_lambert
+
+    monkeypatch.setattr(selection, "material_coverage", lambda *_: pytest.fail("rendered before the checks"))
+    write_lambert(tmp_path / "model.onnx")
+    scene = tmp_path / "scene.xml"
+    scene.write_text(GOOD_SCENE.replace(*change))
+    extra = []
+    if ladder is not None:
+        (tmp_path / "bad.ladder").mkdir()
+        (tmp_path / "bad.ladder" / "ladder.json").write_text(ladder)
+        extra = ["--ladder", str(tmp_path / "bad.ladder")]
+    assert main(["select", str(scene), "--out", str(tmp_path / "S.xml"), *extra]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err, err
+    assert not (tmp_path / "S.xml").exists()

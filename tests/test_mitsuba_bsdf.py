@@ -232,6 +232,38 @@ def test_spectral_model_in_rgb_variant_integrates_like_the_measurements(files):
     np.testing.assert_allclose(value, np.clip(spectral_to_linear_srgb(spectrum, grid), 0, None), rtol=1e-4)
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_a_model_file_replaced_while_the_scene_loads_is_read_once(tmp_path, monkeypatch, backend, wavefront):
+    """The file is swapped (atomically, spectral for RGB) right after the plugin read it: validation,
+    proposal, sRGB rule and session all come from that one reading, so the BSDF is the spectral
+    model throughout (reading the file again for the session or the proposal mixed the two)."""
+    import os
+
+    from neuralbrdf import kinds
+
+    path = fx.write_spectral_lambert(tmp_path / "model.onnx", wavelength_range=(450.0, 650.0))
+    replacement = fx.write_lambert(tmp_path / "replacement.onnx", albedo=(0.9, 0.1, 0.1))
+    read = kinds.load_model
+
+    def read_then_replace(source):
+        model = read(source)
+        if replacement.exists():
+            os.replace(replacement, path)
+        return model
+
+    monkeypatch.setattr(kinds, "load_model", read_then_replace)
+    mi.set_variant("llvm_ad_rgb")
+    register()
+    bsdf = load(path, backend)
+    assert not replacement.exists() and bsdf.model.is_spectral
+    wi = np.array([[0.0, 0.0, 1.0]], dtype=np.float32)
+    value = spectrum_rows(bsdf.eval(mi.BSDFContext(), interaction(wi), mi.Vector3f(0, 0, 1)))[0]
+    grid = np.arange(400.0, 701.0, 10.0)
+    spectrum = (0.2 + 0.6 * (np.clip(grid, 450.0, 650.0) - 400.0) / 300.0) / math.pi
+    np.testing.assert_allclose(value, np.clip(spectral_to_linear_srgb(spectrum, grid), 0, None), rtol=1e-4)
+    assert "spectral 450-650 nm" in bsdf.to_string()
+
+
 def test_flat_spectrum_renders_as_grey_in_rgb_variant(tmp_path):
     mi.set_variant("llvm_ad_rgb")
     register()

@@ -351,17 +351,21 @@ def test_tiny_study_end_to_end(tmp_path, capsys):
 
 
 def test_killed_cell_is_rerun(tmp_path):
-    """A cell folder without result.json (a killed run) is cleared and rerun; one with it is reused."""
+    """A cell folder without result.json (a killed run) is cleared and rerun; one with its result is reused."""
+    from neuralbrdf.study.cache import Repairs
     from neuralbrdf.study.runner import run_one
 
     cell = Cell("gold", "abc", "DS1", 0.0, 0)
+    spec = {"key": "k", "truth_sha256": "t", "is_main": True}
     folder = tmp_path / "k"
     folder.mkdir()
     (folder / "stale.txt").write_text("left over")
-    (folder / "result.json").write_text(json.dumps({"cached": True}))
-    assert run_one(cell, "k", {}, tmp_path) == ({"cached": True}, False)
+    cached = {**vars(cell), "is_main": True, "key": "k", "truth_sha256": "t", "failure": None, "message": None,
+              "cost": {}, "error": {}}
+    (folder / "result.json").write_text(json.dumps(cached))
+    assert run_one(cell, spec, tmp_path, Repairs(tmp_path)) == (cached, False)
     (folder / "result.json").unlink()
-    result, ran = run_one(cell, "k", {"is_main": True, "not": "a cell"}, tmp_path)
+    result, ran = run_one(cell, {**spec, "not": "a cell"}, tmp_path, Repairs(tmp_path))
     assert ran and result["failure"] == "cell_crashed" and not (folder / "stale.txt").exists()
     assert result["is_main"]  # as the spec said: a crashed main cell still marks its (material, variant)
 
@@ -377,16 +381,21 @@ def test_a_cell_that_kills_its_worker_is_reported_and_the_worker_replaced(tmp_pa
     cell runs in a new process, and a worker serves several cells."""
     import sys
 
+    from neuralbrdf.study.cache import Repairs
     from neuralbrdf.study.runner import CellWorker, run_one
 
+    def spec(key):
+        return {"key": key, "truth_sha256": "t", "is_main": False}
+
     worker = CellWorker((sys.executable, "-c", FAKE_CELL))
+    repairs = Repairs(tmp_path)
     try:
-        first, ran = run_one(Cell("gold", "abc", "DS1", 0.0, 0), "ok1", {}, tmp_path, worker)
-        second, _ = run_one(Cell("gold", "abc", "DS1", 0.0, 1), "ok2", {}, tmp_path, worker)
+        first, ran = run_one(Cell("gold", "abc", "DS1", 0.0, 0), spec("ok1"), tmp_path, repairs, worker)
+        second, _ = run_one(Cell("gold", "abc", "DS1", 0.0, 1), spec("ok2"), tmp_path, repairs, worker)
         assert ran and first["pid"] == second["pid"]  # one process ran both
-        crashed, ran = run_one(Cell("gold", "abc", "DS2", 0.0, 0), "crash", {"is_main": False}, tmp_path, worker)
+        crashed, ran = run_one(Cell("gold", "abc", "DS2", 0.0, 0), spec("crash"), tmp_path, repairs, worker)
         assert ran and crashed["failure"] == "cell_crashed" and "worker process died" in crashed["message"]
-        after, _ = run_one(Cell("gold", "abc", "DS3", 0.0, 0), "ok3", {}, tmp_path, worker)
+        after, _ = run_one(Cell("gold", "abc", "DS3", 0.0, 0), spec("ok3"), tmp_path, repairs, worker)
         assert after["pid"] != first["pid"]
     finally:
         worker.close()

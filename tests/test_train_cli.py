@@ -14,6 +14,7 @@ from neuralbrdf.data.plans import in_plane_plan, spectral_mlp_split
 from neuralbrdf.data.table import write_table
 from neuralbrdf.evaluation.scores import inplane_scores
 from neuralbrdf.lightning.measurement_data import MeasurementDataModule
+from neuralbrdf.cli.main import main as cli
 from neuralbrdf.lightning.run import MetricsJson, main
 from neuralbrdf.lightning.spectral_mlp_module import SpectralMlpModule
 from neuralbrdf.virtual import instrument
@@ -252,6 +253,57 @@ def test_overwrite_replaces_a_run_but_a_failed_start_puts_it_back(short_run, gcm
     assert read_metrics(short_run)["status"] == "ok"
     assert _snapshot(short_run) != before
     assert not [p for p in short_run.iterdir() if "neuralbrdf-tmp" in p.name]
+
+
+@pytest.mark.parametrize("config", ["spectral_mlp", "abc"])
+def test_a_single_wavelength_table_is_refused_before_a_fit(tmp_path, capsys, config):
+    """One wavelength is no range: the spectral MLP exported a model claiming 400-700 nm, ABC a
+    best.ckpt that export refused."""
+    import csv
+
+    full = tmp_path / "full.csv"
+    assert cli(["simulate", "--material", "gold", "--truth", "--out", str(full)]) == 0
+    with open(full, newline="") as handle:
+        rows = list(csv.reader(handle))
+    keep = [0, 1, 2, 3, rows[0].index("550")]
+    table = tmp_path / "550.csv"
+    with open(table, "w", newline="") as handle:
+        csv.writer(handle).writerows([[row[i] for i in keep] for row in rows])
+    capsys.readouterr()
+    run_dir = tmp_path / "run"
+    assert main(["fit", "--config", config, "--data.path", str(table), "--run_dir", str(run_dir)]) == 2
+    assert capsys.readouterr().err == (f"error: {table}: holds one wavelength (550 nm); a spectral fit needs samples "
+                                       "at two or more wavelengths, whose range the fitted model covers\n")
+    assert not run_dir.exists()
+
+
+def test_a_run_directory_is_locked_while_a_command_runs_in_it(short_run, gcms_session, monkeypatch, capsys):
+    """Two fits into one run directory at once (with or without --overwrite/--resume): the second is
+    refused in one line, before it touches anything, and the first ends as if alone."""
+    attempts = []
+    finish = MetricsJson.on_fit_end
+
+    def second_command_meanwhile(self, trainer, module):
+        for extra in ([], ["--overwrite"], ["--resume"]):
+            attempts.append(_fit(short_run, gcms_session, *extra))
+        finish(self, trainer, module)
+
+    monkeypatch.setattr(MetricsJson, "on_fit_end", second_command_meanwhile)
+    assert _fit(short_run, gcms_session, "--overwrite", "--seed_everything", "1") == 0
+    assert attempts == [2, 2, 2]
+    err = capsys.readouterr().err
+    assert err.count(f"error: {short_run}: in use by another training run (process ") == 3, err
+    assert read_metrics(short_run)["status"] == "ok"
+    assert [row.split(",")[0] for row in (short_run / "metrics.csv").read_text().splitlines()][:1] == ["epoch"]
+    monkeypatch.undo()
+    assert _fit(short_run, gcms_session, "--overwrite") == 0  # the lock ends with the command
+
+
+def test_a_refused_start_leaves_no_folder_it_created(tmp_path, gcms_session):
+    run_dir = tmp_path / "new" / "deeper" / "run"
+    assert main(["fit", "--config", str(CONFIG), *quick("--run_dir", str(run_dir)),
+                 "--data.path", str(tmp_path / "missing.csv")]) == 2
+    assert not (tmp_path / "new").exists()
 
 
 def test_resume_continues_from_last_appending_the_log_and_summing_wall_time(short_run, gcms_session):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import sys
 import dataclasses
 from pathlib import Path
 
@@ -118,10 +119,9 @@ def evaluate(args) -> None:
     from neuralbrdf.evaluation.evaluate import evaluate as run_evaluation
 
     settings = RenderSettings(args.variant, args.spp, args.resolution, args.seed, args.backend)
-    for name in ("spp", "resolution"):
-        if getattr(settings, name) < 1:
-            raise InputError(f"--{name} must be a positive integer, got {getattr(settings, name)}")
     result = run_evaluation(args.model, args.truth, args.out_dir, settings, render_images=not args.no_render)
+    for note in result["notes"]:
+        print(f"note: {note}", file=sys.stderr)
     print(format_table(result))
     print(f"-> {args.out_dir}/evaluation.json" + ("" if args.no_render else ", model.png, truth.png, error_map.png, comparison.png"))
 

@@ -262,14 +262,14 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with warnings.catch_warnings(), command_inputs():
             warnings.simplefilter("default")
-            args.func(args)
+            status = args.func(args)  # a command that can fail after its work returns its exit status
     except InputError as err:
         print(f"neuralbrdf {args.command}: error: {err}", file=sys.stderr)
         return 2
     except OSError as err:
         print(f"neuralbrdf {args.command}: error: {err}", file=sys.stderr)
         return 2
-    return 0
+    return status or 0
 
 
 if __name__ == "__main__":

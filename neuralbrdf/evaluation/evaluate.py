@@ -18,6 +18,14 @@ whatever its accuracy (the quick study's NLB nylon: ΔE 4.85 at a noise of 4.3, 
 Outputs in ``DIR`` (all written together, or none: :func:`neuralbrdf.atomic.atomic_paths`): ``evaluation.json`` (strict JSON),
 ``model.png``, ``truth.png``, ``error_map.png`` (ΔE2000 per pixel, colour bar in ΔE units) and
 ``comparison.png`` (truth | model | ΔE side by side).
+
+**Checked first** (:func:`check_settings`, before any metric is computed): the render settings
+— an image :data:`MIN_RESOLUTION` to :data:`MAX_RESOLUTION` pixels wide that this machine can
+render, a positive sample count, a non-negative seed, a Mitsuba variant that starts — and that
+every output can be written.  ``evaluation.json`` records what was compared: both files' kinds,
+materials, wavelength ranges and SHA-256, and ``notes`` for what a reader must know (a truth that
+is not a ground truth, kind ``reference``, SPEC §9: then the scores measure a difference between
+two models).
 """
 
 from __future__ import annotations
@@ -30,7 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-from neuralbrdf.atomic import atomic_paths, file_version
+from neuralbrdf.atomic import atomic_paths, check_outputs, file_version
+from neuralbrdf.errors import InputError
 from neuralbrdf.evaluation.images import IMAGE_METRICS, displayed, image_scores
 from neuralbrdf.evaluation.scores import DIRECTION_METRICS, HEMISPHERE_STRATA, Evaluator, OnnxEvaluator, direction_scores
 
@@ -47,6 +56,15 @@ NOISE_DESCRIPTION = (
     "difference; a model error well below this level is still resolved"
 )
 FILES = ("evaluation.json", "model.png", "truth.png", "error_map.png", "comparison.png")
+#: Narrowest evaluation image: the preview's sphere spans about 59 % of the width (a disc of about
+#: 27 % of the pixels), so 16 pixels give it about 70; at a few pixels the image metrics score the
+#: background.
+MIN_RESOLUTION = 16
+#: Widest evaluation image: the image metrics hold about twenty float64 copies of an image
+#: (~0.5 KB per pixel), ~2 GB at 2048 x 2048.
+MAX_RESOLUTION = 2048
+#: The kind of a ground truth (SPEC §9).
+REFERENCE_KIND = "reference"
 
 
 @dataclass(frozen=True)
@@ -58,6 +76,27 @@ class RenderSettings:
     resolution: int = DEFAULT_RESOLUTION
     seed: int = 0
     backend: str = "drjit"
+
+
+def check_settings(settings: RenderSettings, model_path: Path, render_images: bool = True) -> None:
+    """:class:`InputError` for render settings an evaluation of ``model_path`` cannot use (module
+    docstring), before any work; with ``render_images`` the variant is selected and the render size
+    checked against this machine."""
+    if isinstance(settings.seed, bool) or not isinstance(settings.seed, int) or settings.seed < 0:
+        raise InputError(f"--seed must be a non-negative integer, got {settings.seed!r}")
+    if not render_images:
+        return
+    if settings.spp < 1:
+        raise InputError(f"--spp must be a positive integer, got {settings.spp}")
+    if not MIN_RESOLUTION <= settings.resolution <= MAX_RESOLUTION:
+        raise InputError(f"--resolution must be {MIN_RESOLUTION} to {MAX_RESOLUTION} pixels, got {settings.resolution} "
+                         f"(below {MIN_RESOLUTION} the sphere covers too few pixels for the image metrics to score it)")
+    from neuralbrdf.render.preview import Material, check_render_size, default_spp_per_pass, set_variant
+
+    wavefront = Material(model=model_path, backend=settings.backend).needs_wavefront
+    check_render_size(settings.resolution, min(settings.spp, default_spp_per_pass(settings.resolution, wavefront)),
+                      wavefront)
+    set_variant(settings.variant)
 
 
 def _render(path: Path, settings: RenderSettings, seed: int, proposal: Path | None = None) -> np.ndarray:
@@ -145,6 +184,8 @@ def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path
     truth is evaluated with the same settings (a study's models of one material)."""
     model_path, truth_path, out_dir = Path(model_path), Path(truth_path), Path(out_dir)
     started = time.perf_counter()
+    check_settings(settings, model_path, render_images)
+    check_outputs(*(out_dir / name for name in FILES[: 5 if render_images else 1]))
     model = OnnxEvaluator(model_path)
     truth = OnnxEvaluator(truth_path) if truth_evaluator is None else truth_evaluator
     directions = direction_scores(model, truth, strata=strata)
@@ -152,9 +193,9 @@ def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path
     result = {
         "model": str(model_path),
         "truth": str(truth_path),
-        "model_kind": model.model.kind,
-        "model_material": model.model.material,
-        "truth_material": truth.model.material,
+        **_described("model", model.model),
+        **_described("truth", truth.model),
+        "notes": _notes(truth.model),
         **{name: directions.metrics[name] for name in DIRECTION_METRICS},
     }
     images = None
@@ -181,6 +222,20 @@ def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path
     result = {key: _json_number(value) if isinstance(value, float) else value for key, value in result.items()}
     _write_outputs(result, images, (model_path.name, truth_path.name), out_dir)
     return result
+
+
+def _described(role: str, model) -> dict:
+    """What ``evaluation.json`` records of the model or the truth file (module docstring)."""
+    return {f"{role}_kind": model.kind, f"{role}_material": model.material,
+            f"{role}_wavelength_range_nm": None if model.wavelength_range_nm is None else list(model.wavelength_range_nm),
+            f"{role}_sha256": model.sha256}
+
+
+def _notes(truth) -> list[str]:
+    if truth.kind == REFERENCE_KIND:
+        return []
+    return [f"the truth {truth.path} is a {truth.kind!r} model, not a ground truth (kind {REFERENCE_KIND!r}): the "
+            "scores measure how two models differ, not how far the model is from the material"]
 
 
 def _write_outputs(result: dict, images, names: tuple[str, str], out_dir: Path) -> None:

@@ -36,6 +36,7 @@ import torch
 
 from neuralbrdf.data.colorimetry import spectral_to_linear_srgb
 from neuralbrdf.data.plans import is_glossy
+from neuralbrdf.errors import InputError
 from neuralbrdf.geometry import inplane_to_vectors, spherical_to_vector
 from neuralbrdf.metrics import DEFAULT_FLOOR, hemisphere_logcos_rmse, masked_relative_rmse
 
@@ -45,6 +46,9 @@ COMPARISON_WAVELENGTHS_NM = np.arange(400.0, 701.0, 10.0)
 HEMISPHERE_MAX_THETA_DEG = 80.0
 #: ``(cos θ, φ)`` strata per direction; pairs = (product)².
 HEMISPHERE_STRATA = (16, 20)
+#: Most hemisphere pairs :func:`hemisphere_pairs` makes (ten times the default's 102 400: a spectral
+#: comparison holds 31 float64 values per pair and side, ~250 MB each at this size).
+MAX_HEMISPHERE_PAIRS = 1_048_576
 #: In-plane grid: signed angles within ±limit, every step (degrees).
 INPLANE_LIMIT_DEG = 60.0
 INPLANE_STEP_DEG = 1.0
@@ -68,7 +72,9 @@ class Evaluator(Protocol):
 
 
 class OnnxEvaluator:
-    """An ``.onnx`` model file (SPEC §6) evaluated with onnxruntime."""
+    """An ``.onnx`` model file (SPEC §6) evaluated with onnxruntime; a spectral model at wavelengths
+    clamped to its declared range, as the renderer evaluates it (SPEC §7), so the scores measure
+    what renders."""
 
     def __init__(self, path: str | Path) -> None:
         import onnxruntime
@@ -84,7 +90,7 @@ class OnnxEvaluator:
     def values(self, wi, wo, wavelength=None):
         feeds = {"wi": wi.astype(np.float32), "wo": wo.astype(np.float32)}
         if self.is_spectral:
-            feeds["wavelength"] = wavelength.astype(np.float32)
+            feeds["wavelength"] = np.clip(wavelength, *self.model.wavelength_range_nm).astype(np.float32)
         return self.session.run(["f"], feeds)[0].astype(np.float64)
 
 
@@ -140,8 +146,19 @@ class MemoEvaluator:
         return value
 
 
+def check_strata(strata: tuple[int, int], key: str = "hemisphere strata") -> None:
+    """:class:`InputError` unless ``strata`` are two positive integers giving at most
+    :data:`MAX_HEMISPHERE_PAIRS` pairs."""
+    if len(strata) != 2 or any(isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1 for n in strata):
+        raise InputError(f"{key}: expected two positive integers [n_cos, n_phi], got {list(strata)}")
+    pairs = (int(strata[0]) * int(strata[1])) ** 2
+    if pairs > MAX_HEMISPHERE_PAIRS:
+        raise InputError(f"{key} {list(strata)} give {pairs} direction pairs; at most {MAX_HEMISPHERE_PAIRS}")
+
+
 def hemisphere_pairs(seed: int = 0, strata: tuple[int, int] = HEMISPHERE_STRATA) -> tuple[np.ndarray, np.ndarray]:
     """Stratified direction pairs ``wi, wo`` ``[N, 3]`` (module docstring), ``N = (16·20)²`` by default."""
+    check_strata(strata)
     rng = np.random.default_rng(seed)
     n_cos, n_phi = strata
     per_direction = n_cos * n_phi

@@ -47,7 +47,7 @@ import pytorch_lightning as pl
 import torch
 from torch.utils.data import BatchSampler, DataLoader, Dataset, RandomSampler, SequentialSampler
 
-from neuralbrdf.data.loading import load_measurement
+from neuralbrdf.sources import load_fit_measurement
 from neuralbrdf.data.plans import SPECTRAL_MLP_TEST_THETA_I, every_third_theta_i_split, spectral_mlp_split
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
@@ -131,9 +131,9 @@ def load_inplane_spectral(path, reference=None) -> tuple[BrdfTable, np.ndarray, 
     """A spectral measurement and its signed in-plane angles ``(table, theta_i, theta_r)``.
 
     ``path`` is a spectral BRDF table or a GCMS raw file (then ``reference`` is its Munsell N9
-    file, see :func:`~neuralbrdf.data.loading.load_measurement`).
+    file, see :func:`~neuralbrdf.sources.load_fit_measurement`).
     """
-    table = load_measurement(path, reference)
+    table = load_fit_measurement(path, reference)
     if not table.is_spectral:
         raise InputError("is an RGB table; the spectral MLP needs one column per wavelength (nm)", path=path)
     out_of_plane = np.flatnonzero(~table.in_plane_mask())

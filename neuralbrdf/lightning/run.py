@@ -23,6 +23,11 @@ there:
 and ``<run>/test/`` so the training logs survive, and merge their metrics into the same
 ``metrics.json``.
 
+**One command per run directory.** Every ``fit``, ``validate`` and ``test`` holds an exclusive lock
+on its run directory from start to end (:func:`~neuralbrdf.folder_lock.folder_lock`): a second
+command on the same directory while one runs is refused at once with status 2 (two fits into one
+``--run_dir`` would interleave their logs; two ``--overwrite`` fits would each replace the other).
+
 **A run never overwrites another run.** ``fit`` into a directory that already holds a run
 (:data:`RUN_ENTRIES`) is refused unless ``--resume`` (continue from its
 ``checkpoints/last.ckpt``, or ``--ckpt_path``; ``metrics.csv`` is appended to, ``metrics.json``
@@ -75,6 +80,7 @@ from neuralbrdf.errors import InputError
 from neuralbrdf.errors import one_line
 from neuralbrdf.checkpoints import read_checkpoint
 from neuralbrdf.configs_dir import overlay_base, resolve_config
+from neuralbrdf.folder_lock import folder_lock, outermost_missing
 from neuralbrdf.lightning.common import WritesKind
 from neuralbrdf.lightning.train_help import help_text
 
@@ -344,14 +350,20 @@ def _prepend_csv_log(path: Path, header: list[str], rows: list[dict]) -> None:
         writer.writerows([*rows, *new_rows])
 
 
-def _fresh_run_dir(config_paths) -> Path:
+def _fresh_run_dir(config_paths) -> tuple[Path, Path]:
+    """A new folder ``runs/<config stem>/<timestamp>[-N]``, created here (two commands started in the
+    same second get two folders), and the outermost folder created for it."""
     stem = Path(str(config_paths[-1])).stem if config_paths else "run"
     base = RUNS_ROOT / stem / datetime.now().strftime("%Y%m%d-%H%M%S")
     candidate, suffix = base, 0
-    while candidate.exists():
-        suffix += 1
-        candidate = base.with_name(f"{base.name}-{suffix}")
-    return candidate
+    while True:
+        created = outermost_missing(candidate)
+        try:
+            candidate.mkdir(parents=True)
+            return candidate, created or candidate
+        except FileExistsError:
+            suffix += 1
+            candidate = base.with_name(f"{base.name}-{suffix}")
 
 
 class NeuralBrdfCLI(LightningCLI):
@@ -362,18 +374,20 @@ class NeuralBrdfCLI(LightningCLI):
         kwargs.setdefault("subclass_mode_data", True)
         kwargs.setdefault("auto_configure_optimizers", False)
         self.run_dir: Path | None = None
-        self._created_run_dir = False
+        self._created_folder: Path | None = None  # the outermost folder made for the run directory
         self._set_aside: Path | None = None
         self._earlier_log: tuple[list[str], list[dict]] | None = None
-        try:
-            super().__init__(*args, **kwargs)
-        except BaseException as exc:
+        self._run_dir_lock = contextlib.ExitStack()
+        with self._run_dir_lock:  # held from before_instantiate_classes to the end of the command
+            try:
+                super().__init__(*args, **kwargs)
+            except BaseException as exc:
+                self._restore_earlier_log()
+                self._after_failure(exc)
+                exc.neuralbrdf_run_dir = self.run_dir  # where a failed fit's metrics.json says why
+                raise
             self._restore_earlier_log()
-            self._after_failure(exc)
-            exc.neuralbrdf_run_dir = self.run_dir  # where a failed fit's metrics.json says why
-            raise
-        self._restore_earlier_log()
-        self._drop_set_aside()
+            self._drop_set_aside()
 
     def _restore_earlier_log(self) -> None:
         """A resumed run's ``metrics.csv``: the earlier sessions' rows, then this one's."""
@@ -388,8 +402,8 @@ class NeuralBrdfCLI(LightningCLI):
         if self.run_dir is None or _input_error(exc) is None:
             self._drop_set_aside()
             return
-        if self._created_run_dir:
-            shutil.rmtree(self.run_dir, ignore_errors=True)
+        if self._created_folder is not None:
+            shutil.rmtree(self._created_folder, ignore_errors=True)
             return
         if self._set_aside is not None:
             for entry in RUN_ENTRIES:
@@ -436,7 +450,6 @@ class NeuralBrdfCLI(LightningCLI):
             for entry in RUN_ENTRIES:
                 if (run_dir / entry).exists() or (run_dir / entry).is_symlink():
                     os.replace(run_dir / entry, self._set_aside / entry)
-        self._created_run_dir = not run_dir.exists()
 
     @staticmethod
     def subcommands() -> dict[str, set[str]]:
@@ -463,14 +476,15 @@ class NeuralBrdfCLI(LightningCLI):
             "fails to start on bad input).",
         )
 
-    def _resolve_run_dir(self, config) -> Path:
+    def _resolve_run_dir(self, config) -> tuple[Path, Path | None]:
+        """The run directory (module docstring) and, for a fresh one, the outermost folder made for it."""
         if config.get("run_dir"):
-            return Path(config.run_dir)
+            return Path(config.run_dir), None
         if config.trainer.get("default_root_dir"):
-            return Path(config.trainer.default_root_dir)
+            return Path(config.trainer.default_root_dir), None
         ckpt_path = config.get("ckpt_path")
         if self.subcommand != "fit" and ckpt_path and Path(ckpt_path).parent.name == "checkpoints":
-            return Path(ckpt_path).parent.parent
+            return Path(ckpt_path).parent.parent, None
         return _fresh_run_dir(config.get("config"))
 
     def _parse_ckpt_path(self) -> None:
@@ -495,7 +509,9 @@ class NeuralBrdfCLI(LightningCLI):
         config = self.config[self.subcommand]
         if config.get("num_threads"):
             torch.set_num_threads(config.num_threads)
-        self.run_dir = self._resolve_run_dir(config)
+        self.run_dir, fresh = self._resolve_run_dir(config)
+        lock = self._run_dir_lock.enter_context(folder_lock(self.run_dir, "training run"))
+        self._created_folder = fresh or lock.created
         if self.subcommand == "fit":
             self._prepare_fit_dir(config)
         self.save_config_kwargs = {"overwrite": True, **self.save_config_kwargs}

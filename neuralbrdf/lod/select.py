@@ -64,6 +64,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import math
 import os
 import time
 from dataclasses import asdict, dataclass
@@ -71,7 +72,7 @@ from pathlib import Path
 
 import numpy as np
 
-from neuralbrdf.atomic import atomic_paths
+from neuralbrdf.atomic import atomic_paths, check_outputs
 from neuralbrdf.errors import InputError
 from neuralbrdf.evaluation.images import delta_e2000_map
 from neuralbrdf.lod.ladder import FULL_RUNG, Ladder, Rung, file_sha256, read_ladder
@@ -81,6 +82,10 @@ from neuralbrdf.render.scene_file import SceneFile, material_coverage, render_sc
 LADDER_SUFFIX = ".ladder"
 #: Most combinations the exhaustive choice enumerates.
 MAX_COMBINATIONS = 200_000
+#: Widest selection render (the selection measures at low resolution; the shipped width is 96).
+MAX_RESOLUTION = 1024
+#: Most camera rays of the coverage (pixels x ``coverage_subpixels``², each ~50 bytes while cast).
+MAX_COVERAGE_RAYS = 2**24
 
 
 @dataclass(frozen=True)
@@ -109,13 +114,18 @@ class SelectSettings:
 
     def check(self) -> None:
         """:class:`InputError` for a setting no selection can run with."""
-        if not self.tolerance > 0:
-            raise InputError(f"--tolerance must be > 0, got {self.tolerance}")
-        if not self.object_bound > 0:
-            raise InputError(f"--object-tolerance must be > 0, got {self.object_tolerance}")
+        if not 0 < self.tolerance < math.inf:
+            raise InputError(f"--tolerance must be a finite number > 0, got {self.tolerance}")
+        if not 0 < self.object_bound < math.inf:
+            raise InputError(f"--object-tolerance must be a finite number > 0, got {self.object_tolerance}")
         for name in ("resolution", "spp", "max_spp", "timing_repeats", "coverage_subpixels"):
             if getattr(self, name) < 1:
                 raise InputError(f"{name.replace('_', '-')} must be a positive integer, got {getattr(self, name)}")
+        if self.resolution > MAX_RESOLUTION:
+            raise InputError(f"resolution must be at most {MAX_RESOLUTION} (the selection renders at low resolution), "
+                             f"got {self.resolution}")
+        if self.seed < 0:
+            raise InputError(f"seed must be a non-negative integer, got {self.seed}")
         if not 0 < self.noise_fraction <= 1:
             raise InputError(f"noise_fraction must be in (0, 1], got {self.noise_fraction}")
 
@@ -279,9 +289,14 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
         raise InputError("the output must be an .xml file (SELECTED.json is written beside it)", path=out_xml)
     out_json = out_xml.with_suffix(".json")
     scene = SceneFile(scene_path)
+    check_outputs(out_xml, out_json)  # before the renders, not after them (the scene is an input now)
     materials = scene.materials()
     if not materials:
         raise InputError("the scene has no neuralbrdf material to select models for", path=scene.path)
+    rays = settings.resolution * max(1, round(settings.resolution * film_aspect(scene))) * settings.coverage_subpixels**2
+    if rays > MAX_COVERAGE_RAYS:
+        raise InputError(f"resolution {settings.resolution} with {settings.coverage_subpixels}² coverage rays per "
+                         f"pixel casts {rays} rays; at most {MAX_COVERAGE_RAYS}", path=scene.path)
     ladders = find_ladders(scene, list(ladder_dirs or []))
     full = {m.name: Rung(FULL_RUNG, m.model, "", 1.0, 0.0) for m in materials}
     parents = {m.name: m.model for m in materials}

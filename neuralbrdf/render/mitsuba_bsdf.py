@@ -512,25 +512,24 @@ def _proposal_path(props: mi.Properties) -> Path | None:
     return path
 
 
-#: Load-time work per model file (:func:`_load_time_work`), keyed by the file's identity.
-_LOAD_TIME_CACHE: dict[tuple, tuple] = {}
+#: Load-time work per model file (:func:`_load_time_work`), keyed by the file as it was read
+#: (:attr:`~neuralbrdf.onnx_contract.OnnxModel.version`).
+_LOAD_TIME_CACHE: dict[tuple, object] = {}
 #: Entries kept; the oldest goes first.
 _LOAD_TIME_CACHE_SIZE = 64
 
 
-def _file_identity(path: Path) -> tuple:
-    if not path.is_file():
-        raise InputError("no such ONNX model file", path=path)
-    return file_version(path)
-
-
 def validated_model(path: Path) -> OnnxModel:
     """:func:`neuralbrdf.kinds.load_model` of ``path``, reused while the file is unchanged (same size,
-    time, inode)."""
-    key = ("model", _file_identity(path))
-    if key not in _LOAD_TIME_CACHE:
-        _remember(key, kinds.load_model(path))
-    return _LOAD_TIME_CACHE[key]
+    time, inode).  The file is read once per version: a file replaced while a scene loads is either
+    the old model or the new one, never parts of both."""
+    if not path.is_file():
+        raise InputError("no such ONNX model file", path=path)
+    found = _LOAD_TIME_CACHE.get(("model", file_version(path)))
+    if found is None:
+        found = kinds.load_model(path)
+        _remember(("model", found.version), found)
+    return found
 
 
 def _remember(key: tuple, value) -> None:
@@ -539,31 +538,29 @@ def _remember(key: tuple, value) -> None:
     _LOAD_TIME_CACHE[key] = value
 
 
-def _load_time_work(path: Path, rgb_tolerance: float,
-                    proposal: Path | None = None) -> tuple[OnnxModel, LobeMixture, ReducedQuadrature | None]:
-    """The validated model, the fitted sampling proposal (of the ``proposal`` file if given, else
-    of the model itself) and (spectral model, RGB variant) its sRGB rule.  Each is computed once
-    per unchanged file — the proposal per file alone (it depends on neither variant nor
-    tolerance), the rule per file and tolerance — so a scene loaded again (the selector of
+def _load_time_work(model: OnnxModel, rgb_tolerance: float,
+                    proposal: OnnxModel | None = None) -> tuple[LobeMixture, ReducedQuadrature | None]:
+    """The fitted sampling proposal (of the ``proposal`` model if given, else of the model itself)
+    and (spectral model, RGB variant) its sRGB rule, from the models as they were read.  Each is
+    computed once per file version — the proposal per file alone (it depends on neither variant
+    nor tolerance), the rule per file and tolerance — so a scene loaded again (the selector of
     :mod:`neuralbrdf.lod.select` loads one scene many times, with stand-ins sampling like their
     parent) skips the probing, and a model sampled with another file's proposal never fits its own."""
-    model = validated_model(path)
-    mixture = _fitted_proposal(proposal or path)
+    mixture = _fitted_proposal(proposal or model)
     rgb_rule = None
     if model.is_spectral and not mi.is_spectral:
-        key = ("rgb_rule", _file_identity(path), rgb_tolerance)
+        key = ("rgb_rule", model.version, rgb_tolerance)
         if key not in _LOAD_TIME_CACHE:
-            _remember(key, fit_rgb_rule(model, _session(path), rgb_tolerance))
+            _remember(key, fit_rgb_rule(model, _session(model.proto), rgb_tolerance))
         rgb_rule = _LOAD_TIME_CACHE[key]
-    return model, mixture, rgb_rule
+    return mixture, rgb_rule
 
 
-def _fitted_proposal(path: Path) -> LobeMixture:
-    """The sampling proposal of the model file ``path`` (its kind's), fitted to onnxruntime probes."""
-    key = ("proposal", _file_identity(path))
+def _fitted_proposal(model: OnnxModel) -> LobeMixture:
+    """The sampling proposal of ``model`` (its kind's), fitted to onnxruntime probes."""
+    key = ("proposal", model.version)
     if key not in _LOAD_TIME_CACHE:
-        model = validated_model(path)
-        probe = _probe_function(model, _session(path))
+        probe = _probe_function(model, _session(model.proto))
         _remember(key, fit_proposal(kinds.get(model.kind).proposal, probe, model.details))
     return _LOAD_TIME_CACHE[key]
 
@@ -579,9 +576,12 @@ def _bsdf_class(variant: str) -> type:
         def __init__(self, props: mi.Properties) -> None:
             mi.BSDF.__init__(self, props)
             path, backend, rgb_tolerance = _read_properties(props)
-            self.model, self.mixture, self.rgb_rule = _load_time_work(path, rgb_tolerance, _proposal_path(props))
+            proposal = _proposal_path(props)
+            self.model = validated_model(path)  # everything below uses this one reading of the file
+            self.mixture, self.rgb_rule = _load_time_work(
+                self.model, rgb_tolerance, None if proposal is None else validated_model(proposal))
             if backend == "onnxruntime":
-                self.backend = _OnnxRuntimeBackend(self.model, _session(path))
+                self.backend = _OnnxRuntimeBackend(self.model, _session(self.model.proto))
             else:
                 self.backend = _DrJitBackend(self.model)
             self._spectral_variant = mi.is_spectral

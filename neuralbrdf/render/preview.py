@@ -183,9 +183,9 @@ def load_scene(material: Material, resolution: int, max_depth: int = DEFAULT_MAX
     """The material-preview scene with ``material``, for the current variant, loaded in file order
     (:data:`FILE_ORDER_LOADING`)."""
     if material.model is not None:
-        from neuralbrdf.kinds import load_model
+        from neuralbrdf.render.mitsuba_bsdf import validated_model
 
-        load_model(material.model)  # one clear InputError before Mitsuba wraps it
+        validated_model(material.model)  # one clear InputError before Mitsuba wraps it (the plugin reuses it)
     try:
         return mi.load_file(
             str(SCENE_FILE), **FILE_ORDER_LOADING, resolution=str(resolution), max_depth=str(max_depth),

@@ -223,7 +223,13 @@ def render_scene_file(scene_file: SceneFile, spp: int, seed: int = 0, spp_per_pa
     per_pass = spp_per_pass or max(1, (preview.PASS_LANES_WAVEFRONT if wavefront else preview.PASS_LANES_SYMBOLIC)
                                    // int(width * height))
     start = time.perf_counter()
-    image = preview.render_passes(scene, spp, per_pass, seed, wavefront, progress)
+    try:
+        image = preview.render_passes(scene, spp, per_pass, seed, wavefront, progress)
+    except Exception as error:  # Mitsuba: RuntimeError from its core, plain Exception from its Python layer
+        if type(error) not in (Exception, RuntimeError):  # ("No integrator specified!"); anything else is a bug
+            raise
+        reason = " ".join(str(error).split())[:300] or type(error).__name__
+        raise InputError(f"cannot render the scene: {reason}", path=scene_file.path) from None
     return image, time.perf_counter() - start
 
 

@@ -3,9 +3,10 @@
     python -m neuralbrdf.study.cell CELL_DIR      # one cell
     python -m neuralbrdf.study.cell --serve       # a worker: one CELL_DIR per stdin line
 
-``CELL_DIR/cell.json`` (written by the runner) holds the cell, the material and variant entries
-of the profile, the truth file and the render/cost settings; this writes ``CELL_DIR/result.json``
-last (atomically), so a cell whose ``result.json`` exists is finished and any other is rerun from
+``CELL_DIR/cell.json`` (written by the runner) holds the cell, its key, the material and variant
+entries of the profile, the truth file and its SHA-256, and the render/cost settings; this writes
+``CELL_DIR/result.json`` (recording the key and the truth's SHA-256, by which the runner checks a
+cached result) last (atomically), so a cell whose ``result.json`` exists is finished and any other is rerun from
 scratch.  A worker (:func:`serve`) imports torch, Lightning, onnxruntime and Mitsuba once (about
 14 CPU-seconds, more than a typical stability cell's own work) and runs cells one after another,
 each with its output (stdout and stderr, file descriptors included) in ``CELL_DIR/log.txt``; it
@@ -21,7 +22,8 @@ once per worker) and the truth's two renders (:data:`TRUTH_RENDERS`).  Steps:
    (:func:`neuralbrdf.data.nbrdf.sample_plan`) and given the same multiplicative Gaussian noise;
    a user's table is used as it is.
 2. **Fit** with ``train.py``'s entry (:func:`neuralbrdf.lightning.run.main`): the variant's config
-   and overrides, the data, ``--seed_everything SEED``; wall time measured.
+   and overrides, the data, ``--seed_everything SEED`` and the method's own seed options
+   (:data:`~neuralbrdf.study.cells.SEEDING`: ABC's ``--model.seed``); wall time measured.
 3. **Export** through the checkpoint's kind (:func:`neuralbrdf.onnx_export.export_checkpoint`, what
    ``neuralbrdf export`` runs); a graph that fails its validation is "export refused".
 4. **Evaluate** with :func:`neuralbrdf.evaluation.evaluate.evaluate` (direction metrics; for the
@@ -32,7 +34,8 @@ once per worker) and the truth's two renders (:data:`TRUTH_RENDERS`).  Steps:
 Failure causes recorded (``failure``): ``non_finite_loss`` (a logged loss or the fit's own loss is
 NaN/inf), ``optimizer_failure`` (the fit reported failure, e.g. ABC's ``success: false``, or
 training stopped with an error), ``fit_refused`` (the fit rejected the data as bad input, exit
-status 2: e.g. a plan without samples in a required split), ``export_refused``,
+status 2: e.g. a plan without samples in a required split, or arguments of the variant the
+command line does not accept), ``export_refused``,
 ``evaluation_error``.  The fourth cause of
 the failure map, error above twice the method's DS1 noise-free error, is decided across cells
 by :mod:`neuralbrdf.study.aggregate`.
@@ -139,18 +142,38 @@ def _non_finite_logged_loss(run_dir: Path) -> bool:
     return False
 
 
+def fit_arguments(spec: dict, table: Path, run_dir: Path) -> list[str]:
+    """``train.py``'s arguments for the cell (step 2): the variant's config and overrides, the data,
+    the run directory and the cell's seed (:data:`~neuralbrdf.study.cells.SEEDING`)."""
+    from neuralbrdf.study.cells import seed_args
+
+    variant, cell = spec["variant"], spec["cell"]
+    return ["fit", "--config", variant["config"], *variant["args"], *_data_args(variant["method"], table),
+            "--run_dir", str(run_dir), "--seed_everything", str(cell["seed"]),
+            *seed_args(variant["method"], cell["seed"]), "--trainer.enable_progress_bar", "false"]
+
+
+def _refusal(output: str) -> str:
+    """The one line that says why ``train.py`` refused its arguments (its ``error:`` line, or the
+    option its parser named as not accepted)."""
+    lines = [line.strip() for line in output.splitlines()]
+    named = [line for line in lines if "is not accepted" in line or "unrecognized arguments" in line]
+    errors = [line for line in lines if line.startswith("error:")]
+    return (named or errors or ["the fit refused its arguments"])[-1][:300]
+
+
 def fit(spec: dict, table: Path, run_dir: Path) -> tuple[float, dict]:
     """Train the variant (step 2); ``(wall time s, metrics.json)`` or :class:`CellFailure`."""
     from neuralbrdf.lightning.run import main as train
 
-    variant, cell = spec["variant"], spec["cell"]
-    args = ["fit", "--config", variant["config"], *variant["args"], *_data_args(variant["method"], table),
-            "--run_dir", str(run_dir), "--seed_everything", str(cell["seed"]), "--trainer.enable_progress_bar", "false"]
     started = time.perf_counter()
     captured = io.StringIO()
     try:
         with contextlib.redirect_stderr(captured):
-            status = train(args)
+            status = train(fit_arguments(spec, table, run_dir))
+    except SystemExit as refused:  # the command-line parser: an option of the variant's args it does not know
+        raise CellFailure("fit_refused", f"the variant's arguments: {_refusal(captured.getvalue())} "
+                                         f"(exit status {refused.code})") from None
     except Exception as error:  # the fit's own exception: its message says why
         message = f"{type(error).__name__}: {error}"
         cause = "non_finite_loss" if _non_finite_logged_loss(run_dir) or "finite" in message.lower() \
@@ -263,8 +286,8 @@ def run_cell(cell_dir: Path) -> dict:
 
     spec = json.loads((cell_dir / "cell.json").read_text())
     cell = spec["cell"]
-    result = {**cell, "is_main": spec["is_main"], "failure": None, "message": None, "cost": {}, "error": {},
-              "per_angle": None, "renders": None}
+    result = {**cell, "is_main": spec["is_main"], "key": spec["key"], "truth_sha256": spec["truth_sha256"],
+              "failure": None, "message": None, "cost": {}, "error": {}, "per_angle": None, "renders": None}
     started, cpu_started = time.perf_counter(), time.process_time()
     steps, cpu_steps = result["step_times_s"], result["step_cpu_times_s"] = {}, {}
 

@@ -14,6 +14,13 @@ spectral MLP needs spectral samples) as a main cell; for the stability variants 
 no noise and every noise level on DS1, at every seed (noise and plan sweeps need the virtual
 instrument or an NBRDF proxy; a user's own table is fitted as it is); for grouped variants
 (γ, angle unit, latent size) every seed at DS1 without noise.
+
+**Seeds.** A cell's seed changes what :data:`SEEDING` says for its method — the spectral MLP's
+initial weights and batch order, ABC's random starts — and, with noise, the noise drawn.  The
+NLB latent fits take nothing random from the seed (screened starts from pretrained codes; the
+RGB fit's full-batch steps, the spectral fit's subsets drawn from its config's ``data.seed``), so
+their noise-free cells run at seed 0 only: a spread over seeds that were all the same fit would
+be no evidence of stability.
 """
 
 from __future__ import annotations
@@ -37,6 +44,54 @@ CELL_FORMAT = 4
 #: Bump when the renders change: only rendered cells rerun (2: the preview scene's lights load in
 #: file order, so model and truth share their paths; :func:`neuralbrdf.render.preview.load_scene`).
 RENDER_FORMAT = 2
+
+
+@dataclass(frozen=True)
+class Seeding:
+    """How a cell's seed enters a method's fit: the options that take it (``--seed_everything``
+    is always given) and what it changes there; ``varies=None`` for a deterministic fit, with
+    ``why`` it is."""
+
+    args: tuple[str, ...]
+    varies: str | None
+    why: str = ""
+
+
+#: Per method (module docstring, "Seeds"); written to ``study.json`` as ``seeding``.
+SEEDING = {
+    "spectral_mlp": Seeding((), "the network's initial weights and the order of its training batches "
+                                "(--seed_everything)"),
+    "abc": Seeding(("--model.seed",), "the random starts of the fit (--model.seed; the first start, the centre "
+                                      "of the start box, is the same for every seed)"),
+    "nlb": Seeding((), None, "the latent fit starts from screened pretrained codes and steps on the full batch "
+                             "of every study plan"),
+    "nlb_spectral": Seeding((), None, "the latent fit starts from screened codes and draws any subsets of samples "
+                                      "its steps see from the config's data.seed"),
+}
+#: What the seed changes in every cell with noise (:func:`neuralbrdf.study.cell.write_data`).
+NOISE_SEEDING = "the measurement noise drawn"
+
+
+def seeding_description(method: str) -> str:
+    """What a cell's seed changes for ``method`` (``study.json``'s ``seeding``)."""
+    seeding = SEEDING[method]
+    if seeding.varies is None:
+        return (f"nothing in a noise-free cell ({seeding.why}), so noise-free cells run at seed {MAIN_SEED} only; "
+                f"with noise, {NOISE_SEEDING}")
+    return f"{seeding.varies}; with noise also {NOISE_SEEDING}"
+
+
+def seed_args(method: str, seed: int) -> list[str]:
+    """The fit options (beyond ``--seed_everything``) that pass a cell's seed to ``method``'s fit."""
+    return [word for option in SEEDING[method].args for word in (option, str(seed))]
+
+
+def cell_seeds(profile: Profile, variant: VariantSpec, noise: float) -> tuple[int, ...]:
+    """The seeds a variant's cells run at ``noise``: the stability seeds, or seed 0 alone where the
+    seed changes nothing (a deterministic method without noise)."""
+    if noise == 0.0 and SEEDING[variant.method].varies is None:
+        return (MAIN_SEED,)
+    return profile.stability.seeds
 
 
 @dataclass(frozen=True)
@@ -121,6 +176,9 @@ def cell_settings(cell: Cell, profile: Profile) -> dict:
     overlays = overlay_digests(variant)
     if overlays:  # only then: the keys of variants without overlays stay what they were
         settings["variant"]["overlays"] = overlays
+    seeded = seed_args(variant.method, cell.seed)
+    if seeded:  # likewise: only the methods whose fit takes the seed as an option
+        settings["variant"]["seed_args"] = seeded
     if variant.method in NETWORK_DEFAULTS:  # a retrained network changes every NLB result
         network = resolve_pretrained(pretrained_network(variant), NETWORK_DEFAULTS[variant.method])
         settings["variant"]["pretrained"] = file_digest(str(network))
@@ -164,10 +222,12 @@ def plan_cells(profile: Profile) -> list[Cell]:
         if variant.name in s.variants:
             for seed in s.seeds:
                 for plan in s.plans if sweeps else (MAIN_PLAN,):
-                    add(Cell(material.name, variant.name, plan, MAIN_NOISE, seed))
+                    if seed in cell_seeds(profile, variant, MAIN_NOISE):
+                        add(Cell(material.name, variant.name, plan, MAIN_NOISE, seed))
                 for noise in s.noise if sweeps else (MAIN_NOISE,):
-                    add(Cell(material.name, variant.name, MAIN_PLAN, noise, seed))
+                    if seed in cell_seeds(profile, variant, noise):
+                        add(Cell(material.name, variant.name, MAIN_PLAN, noise, seed))
         if variant.group is not None:
-            for seed in s.seeds:
+            for seed in cell_seeds(profile, variant, MAIN_NOISE):
                 add(Cell(material.name, variant.name, MAIN_PLAN, MAIN_NOISE, seed))
     return cells

@@ -9,7 +9,10 @@ DESCRIPTION = (
     "sampling plan, relative noise level and seed), score each fit against the material's truth, time it against "
     "Mitsuba's roughconductor, and write DIR/study.json, DIR/figures/*.png and DIR/index.html (SPEC §10). "
     "Finished cells are cached under DIR/cells/ by their settings: a rerun does only what is new, a killed run "
-    "resumes. PROFILE is a shipped profile (quick, full, latent_prior: configs/study/) or your own YAML file."
+    "resumes; cached files that are damaged or belong elsewhere are redone. One study at a time runs in DIR. "
+    "PROFILE is a shipped profile (quick, full, latent_prior: configs/study/) or your own YAML file. Exit status: "
+    "0 when every cell gave a model; 1 when a cell crashed (the study is incomplete; a rerun retries it) or a fit "
+    "failed (unless --allow-failures); 2 for bad input. The report and study.json's health say which cells."
 )
 
 
@@ -18,17 +21,30 @@ def add_arguments(parser) -> None:
     parser.add_argument("--out", required=True, help="output folder (cache, figures, study.json, index.html)")
     parser.add_argument("--jobs", type=int, default=1, help="cells run at once, one core each (default 1)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--allow-failures", action="store_true",
+                        help="exit 0 although some fits failed or were refused (expected in a stability sweep on "
+                        "sparse plans; the failure map records them); a crashed cell still exits 1")
 
 
-def run(args) -> None:
+def run(args) -> int:
+    """Run the study; the exit status of its ``health`` (:mod:`neuralbrdf.study.health`)."""
+    import sys
+
     from neuralbrdf.errors import InputError
     from neuralbrdf.study.runner import run_study
 
     if args.jobs < 1:
-        raise InputError(f"--jobs must be >= 1, got {args.jobs}", column="--jobs")
-    study = run_study(args.profile, args.out, args.jobs, command=f"neuralbrdf study --profile {args.profile} --out {args.out} --jobs {args.jobs}",
-                      progress=not args.no_progress)
-    failed = sum(1 for p in study["points"] if p["failure"])
-    print(f"{len(study['points'])} cells ({study['run']['cells_run']} run, {study['run']['cells_cached']} cached, "
-          f"{failed} failed) in {study['run']['wall_time_s']:.0f} s -> {args.out}/index.html")
+        raise InputError(f"--jobs must be >= 1, got {args.jobs}")
+    allow = " --allow-failures" if args.allow_failures else ""
+    study = run_study(args.profile, args.out, args.jobs, progress=not args.no_progress, allow_failures=args.allow_failures,
+                      command=f"neuralbrdf study --profile {args.profile} --out {args.out} --jobs {args.jobs}{allow}")
+    health = study["health"]
+    above = sum(1 for p in study["points"] if p["failure"] == "error_above_2x_ds1")
+    print(f"{len(study['points'])} cells ({study['run']['cells_run']} run, {study['run']['cells_cached']} cached; "
+          f"{len(health['failed'])} failed, {len(health['crashed'])} crashed, {above} with an error above 2x DS1) in "
+          f"{study['run']['wall_time_s']:.0f} s -> {args.out}/index.html")
     print("Pareto (ΔE vs render cost, pooled): " + (", ".join(study["pareto"]["render_ratio"]["pooled"]) or "none"))
+    if health["status"] != "complete":
+        label = "error" if health["exit_status"] else "note"
+        print(f"neuralbrdf study: {label}: {health['summary']}", file=sys.stderr)
+    return health["exit_status"]

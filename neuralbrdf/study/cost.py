@@ -25,6 +25,9 @@ from pathlib import Path
 import numpy as np
 
 SEED = 0
+#: Largest query batch of :func:`bench_throughput` (a spectral batch holds 7 float32 per query:
+#: ~470 MB at this size, times the backends' own buffers).
+MAX_BATCH = 2**24
 
 
 def timed(fn) -> float:

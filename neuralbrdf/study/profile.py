@@ -28,7 +28,13 @@ with a ``group`` are also run at every stability seed (DS1, no noise) and box-pl
 rendered nor timed, so it is no point of the speed–accuracy charts (the γ variants of the full
 profile: the same 3×10 network as ``spectral_mlp``, so the same cost).  ``materials: [NAME, …]``
 fits a variant to those materials only (default: every material it applies to).
-Every error names the profile file and the key (``materials[1].truth``).
+Every error names the profile file and the key (``materials[1].truth``): among others a virtual
+material that does not exist, a truth ``.onnx`` that is not a valid ground truth (kind
+``reference``, ``neuralbrdf export-truth``), render sizes outside what an evaluation accepts
+(:data:`~neuralbrdf.evaluation.evaluate.MIN_RESOLUTION` to
+:data:`~neuralbrdf.evaluation.evaluate.MAX_RESOLUTION`), more hemisphere pairs than
+:data:`~neuralbrdf.evaluation.scores.MAX_HEMISPHERE_PAIRS` and a throughput batch above
+:data:`~neuralbrdf.study.cost.MAX_BATCH`.
 """
 
 from __future__ import annotations
@@ -41,7 +47,10 @@ import yaml
 from neuralbrdf.configs_dir import CONFIGS_DIR, resolve_config
 from neuralbrdf.data.plans import PLAN_NAMES
 from neuralbrdf.errors import InputError
-from neuralbrdf.evaluation.scores import HEMISPHERE_STRATA
+from neuralbrdf.study.cost import MAX_BATCH
+from neuralbrdf.evaluation.evaluate import MAX_RESOLUTION, MIN_RESOLUTION, REFERENCE_KIND
+from neuralbrdf.evaluation.scores import HEMISPHERE_STRATA, check_strata
+from neuralbrdf.virtual.materials import MATERIALS
 
 METHODS = ("spectral_mlp", "abc", "nlb", "nlb_spectral")
 BUILTIN_DIR = CONFIGS_DIR / "study"
@@ -151,10 +160,33 @@ class _Reader:
                 self.fail(f"{key}.{name}" if key else name, "missing")
         return value
 
-    def integer(self, value, key: str, low: int = 1) -> int:
-        if isinstance(value, bool) or not isinstance(value, int) or value < low:
-            self.fail(key, f"expected an integer >= {low}, got {value!r}")
+    def integer(self, value, key: str, low: int = 1, high: int | None = None) -> int:
+        if isinstance(value, bool) or not isinstance(value, int) or value < low or (high is not None and value > high):
+            within = f">= {low}" if high is None else f"from {low} to {high}"
+            self.fail(key, f"expected an integer {within}, got {value!r}")
         return value
+
+    def truth(self, value, key: str) -> str:
+        """A truth source: ``virtual:NAME`` of a shipped material, an NBRDF ``.h5`` or a ground truth ``.onnx``."""
+        truth = self.file(value, key)
+        if truth.startswith("virtual:"):
+            if truth.split(":", 1)[1] not in MATERIALS:
+                self.fail(key, f"no virtual material {truth.split(':', 1)[1]!r}; expected one of "
+                               f"{', '.join('virtual:' + name for name in MATERIALS)}")
+            return truth
+        if Path(truth).suffix not in (".h5", ".onnx"):
+            self.fail(key, "expected virtual:NAME, an NBRDF .h5 or a reference .onnx")
+        if Path(truth).suffix == ".onnx":
+            from neuralbrdf.kinds import load_model
+
+            try:
+                kind = load_model(truth).kind
+            except InputError as error:
+                self.fail(key, f"not a valid model file: {error.reason}")
+            if kind != REFERENCE_KIND:
+                self.fail(key, f"is a {kind!r} model; a truth is a ground truth of kind {REFERENCE_KIND!r} "
+                               "(neuralbrdf export-truth), not a fitted model")
+        return truth
 
     def string(self, value, key: str) -> str:
         if not isinstance(value, str) or not value.strip():
@@ -205,9 +237,7 @@ def load_profile(name_or_path: str) -> Profile:
     for i, entry in enumerate(r.sequence(raw["materials"], "materials")):
         key = f"materials[{i}]"
         entry = r.mapping(entry, key, ("name", "truth", "table"), ("name", "truth"))
-        truth = r.file(entry["truth"], f"{key}.truth")
-        if not truth.startswith("virtual:") and Path(truth).suffix not in (".h5", ".onnx"):
-            r.fail(f"{key}.truth", "expected virtual:NAME, an NBRDF .h5 or a reference .onnx")
+        truth = r.truth(entry["truth"], f"{key}.truth")
         if Path(truth).suffix == ".onnx" and "table" not in entry:
             r.fail(f"{key}.table", "a truth given as .onnx needs the measured table to fit")
         table = r.file(entry["table"], f"{key}.table") if "table" in entry else None
@@ -247,6 +277,10 @@ def load_profile(name_or_path: str) -> Profile:
     if not isinstance(strata, list) or len(strata) != 2:
         r.fail("hemisphere_strata", f"expected [n_cos, n_phi], got {strata!r}")
     strata = tuple(r.integer(n, f"hemisphere_strata[{i}]") for i, n in enumerate(strata))
+    try:
+        check_strata(strata)
+    except InputError as error:
+        r.fail("hemisphere_strata", error.reason)
     stability = StabilitySpec()
     if "stability" in raw:
         s = r.mapping(raw["stability"], "stability", ("variants", "plans", "noise", "seeds"))
@@ -264,9 +298,9 @@ def load_profile(name_or_path: str) -> Profile:
                                   tuple(float(n) for n in s.get("noise", [0.0])), tuple(seeds))
     return Profile(
         path=path,
-        render=RenderSpec(r.integer(render["spp"], "render.spp"), r.integer(render["resolution"], "render.resolution"),
-                          strata),
-        cost=CostSpec(r.integer(cost["spp"], "cost.spp"), r.integer(cost["resolution"], "cost.resolution"),
-                      r.integer(cost["repeats"], "cost.repeats"), r.integer(cost["batch"], "cost.batch")),
+        render=RenderSpec(r.integer(render["spp"], "render.spp"),
+                          r.integer(render["resolution"], "render.resolution", MIN_RESOLUTION, MAX_RESOLUTION), strata),
+        cost=CostSpec(r.integer(cost["spp"], "cost.spp"), r.integer(cost["resolution"], "cost.resolution", 1, MAX_RESOLUTION),
+                      r.integer(cost["repeats"], "cost.repeats"), r.integer(cost["batch"], "cost.batch", 1, MAX_BATCH)),
         materials=tuple(materials), variants=tuple(variants), stability=stability,
     )

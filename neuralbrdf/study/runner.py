@@ -1,12 +1,19 @@
 """``neuralbrdf study``: run a profile's cells (cached, resumable, in parallel) and write the report.
 
 Layout of ``DIR``: ``cells/KEY/`` (one finished cell: ``cell.json``, ``result.json``, its data,
-run, model and evaluation; :mod:`neuralbrdf.study.cells`), ``truths/NAME.onnx`` (each material's
-truth, exported once), ``figures/*.png``, ``study.json`` and ``index.html``.  A cell with a
-``result.json`` is reused; any other cell folder is left over from a killed run and is cleared
-and rerun.  Cells run as child processes (``python -m neuralbrdf.study.cell``), ``jobs`` at a
-time, one thread each, with a progress bar; a cell whose process dies without a result is
-reported as ``cell_crashed`` (its log in ``cells/KEY/log.txt``) and rerun next time.
+run, model and evaluation; :mod:`neuralbrdf.study.cells`), ``truths/`` (each material's truth,
+exported once), ``figures/*.png``, ``study.json``, ``index.html`` and ``runs.jsonl``.  A cell
+whose ``result.json`` is a finished result of that cell is reused (checked:
+:mod:`neuralbrdf.study.cache`); any other cell folder is left over from a killed run or damaged,
+and is cleared and rerun.  Cells run as child processes (``python -m neuralbrdf.study.cell``),
+``jobs`` at a time, one thread each, with a progress bar; a cell whose process dies without a
+result is reported as ``cell_crashed`` (its log in ``cells/KEY/log.txt``) and rerun next time.
+
+One study at a time runs in ``DIR``: it holds the folder's lock
+(:func:`~neuralbrdf.folder_lock.folder_lock`) from start to end, and so do its cell workers, so
+a worker still finishing its cell after the study was killed keeps a new run out until it ends.
+``study.json``'s ``health`` (:mod:`neuralbrdf.study.health`) says whether every cell gave a
+model; it sets the command's exit status.
 """
 
 from __future__ import annotations
@@ -27,9 +34,12 @@ from pathlib import Path
 from tqdm import tqdm
 
 from neuralbrdf.atomic import atomic_write
+from neuralbrdf.folder_lock import folder_lock
 from neuralbrdf.study import aggregate, charts
+from neuralbrdf.study.cache import Repairs, cached_result, read_runs, truth_file, write_runs
 from neuralbrdf.study.cell import WORKER_THREADS
-from neuralbrdf.study.cells import Cell, cell_key, is_rendered, plan_cells
+from neuralbrdf.study.cells import Cell, cell_key, is_rendered, plan_cells, seeding_description
+from neuralbrdf.study.health import health
 from neuralbrdf.study.profile import Profile, load_profile
 
 STUDY_FORMAT = 1
@@ -40,10 +50,12 @@ WORKER_COMMAND = (sys.executable, "-m", "neuralbrdf.study.cell", "--serve")
 
 class CellWorker:
     """One worker process (:func:`neuralbrdf.study.cell.serve`), started on first use and again
-    after it died or ran :data:`CELLS_PER_WORKER` cells."""
+    after it died or ran :data:`CELLS_PER_WORKER` cells; ``keep_fds``: descriptors it inherits
+    (the study folder's lock)."""
 
-    def __init__(self, command: tuple[str, ...] = WORKER_COMMAND) -> None:
-        self.command = command
+    def __init__(self, command: tuple[str, ...] | None = None, keep_fds: tuple[int, ...] = ()) -> None:
+        self.command = WORKER_COMMAND if command is None else command
+        self.keep_fds = keep_fds
         self.process: subprocess.Popen | None = None
         self.cells = 0
 
@@ -51,7 +63,8 @@ class CellWorker:
         self.close()
         env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONWARNINGS": "ignore"}
         self.process = subprocess.Popen(self.command, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                        stderr=subprocess.DEVNULL, env=env, text=True, bufsize=1)
+                                        stderr=subprocess.DEVNULL, env=env, text=True, bufsize=1,
+                                        pass_fds=self.keep_fds)
         self.cells = 0
 
     def run(self, folder: Path) -> bool:
@@ -82,33 +95,25 @@ class CellWorker:
             self.process = None
 
 
-def truth_path(profile: Profile, material: str, out_dir: Path) -> Path:
-    """The material's truth as an ``.onnx`` file, exported under ``out_dir/truths`` once."""
-    from neuralbrdf.evaluation.truth import export_truth
-
-    spec = next(m for m in profile.materials if m.name == material)
-    if spec.truth.endswith(".onnx"):
-        return Path(spec.truth)
-    path = out_dir / "truths" / f"{material}.onnx"
-    if not path.is_file():
-        export_truth(spec.truth, path)
-    return path
-
-
-def _cell_spec(cell: Cell, profile: Profile, truth: Path) -> dict:
+def _cell_spec(cell: Cell, key: str, profile: Profile, truth: tuple[Path, str]) -> dict:
     material = next(m for m in profile.materials if m.name == cell.material)
-    return {"cell": asdict(cell), "is_main": is_rendered(cell, profile), "material": asdict(material),
-            "variant": asdict(profile.variant(cell.variant)), "truth": str(truth),
+    return {"cell": asdict(cell), "key": key, "is_main": is_rendered(cell, profile), "material": asdict(material),
+            "variant": asdict(profile.variant(cell.variant)), "truth": str(truth[0].resolve()),
+            "truth_sha256": truth[1],
             "render": asdict(profile.render), "cost": asdict(profile.cost)}
 
 
-def run_one(cell: Cell, key: str, spec: dict, cells_dir: Path, worker: CellWorker | None = None) -> tuple[dict, bool]:
-    """``(result, ran)``: the cached result, or the result of running the cell now in ``worker``
+def run_one(cell: Cell, spec: dict, cells_dir: Path, repairs: Repairs,
+            worker: CellWorker | None = None) -> tuple[dict, bool]:
+    """``(result, ran)``: the cached result of the cell ``spec`` describes (checked:
+    :func:`~neuralbrdf.study.cache.cached_result`), or the result of running it now in ``worker``
     (a worker of its own when none is given)."""
+    key = spec["key"]
     folder = cells_dir / key
     result_path = folder / "result.json"
-    if result_path.is_file():
-        return json.loads(result_path.read_text()), False
+    cached = cached_result(folder, cell, key, spec["truth_sha256"], repairs)
+    if cached is not None:
+        return cached, False
     if folder.exists():
         shutil.rmtree(folder)
     folder.mkdir(parents=True)
@@ -129,22 +134,25 @@ def run_one(cell: Cell, key: str, spec: dict, cells_dir: Path, worker: CellWorke
             "message": f"{what}: {tail[0][:300]} (log: cells/{key}/log.txt)", "cost": {}, "error": {}}, True
 
 
-def run_cells(profile: Profile, out_dir: Path, jobs: int, progress: bool = True) -> tuple[list[dict], int]:
-    """Every cell's result in :func:`plan_cells` order, and how many ran now."""
+def run_cells(profile: Profile, out_dir: Path, jobs: int, repairs: Repairs, progress: bool = True,
+              keep_fds: tuple[int, ...] = ()) -> tuple[list[dict], int]:
+    """Every cell's result in :func:`plan_cells` order, and how many ran now; ``keep_fds``: what the
+    workers inherit (the study folder's lock)."""
     cells = plan_cells(profile)
-    truths = {m.name: truth_path(profile, m.name, out_dir) for m in profile.materials}
+    truths = {m.name: truth_file(m, out_dir, repairs) for m in profile.materials}
     materials = [m.name for m in profile.materials]
     keys = [cell_key(c, profile) for c in cells]
     results: list[dict | None] = [None] * len(cells)
     ran = 0
     workers: queue.SimpleQueue[CellWorker] = queue.SimpleQueue()
     for _ in range(jobs):
-        workers.put(CellWorker())
+        workers.put(CellWorker(keep_fds=keep_fds))
 
     def run_in_a_worker(cell: Cell, key: str) -> tuple[dict, bool]:
         worker = workers.get()
         try:
-            return run_one(cell, key, _cell_spec(cell, profile, truths[cell.material]), out_dir / "cells", worker)
+            return run_one(cell, _cell_spec(cell, key, profile, truths[cell.material]), out_dir / "cells", repairs,
+                           worker)
         finally:
             workers.put(worker)
 
@@ -152,6 +160,8 @@ def run_cells(profile: Profile, out_dir: Path, jobs: int, progress: bool = True)
     order = sorted(range(len(cells)), key=lambda i: (materials.index(cells[i].material), not cells[i].is_main))
     with ThreadPoolExecutor(max_workers=jobs) as pool, tqdm(total=len(cells), unit="cell", desc="study",
                                                             disable=not progress, file=sys.stderr) as bar:
+        if progress:
+            repairs.say = lambda line: bar.write(line, file=sys.stderr)
         futures = {pool.submit(run_in_a_worker, cells[i], keys[i]): i for i in order}
         for future in as_completed(futures):
             i = futures[future]
@@ -226,9 +236,14 @@ def group_members(profile: Profile) -> dict[str, list[tuple[str, str]]]:
 
 
 def _group_figure(labelled: list[dict], labels: list[str], group: str, materials: list[str], path: Path) -> str:
+    """Box plot of a group's members over the seeds they ran (one seed: a deterministic fit,
+    :data:`~neuralbrdf.study.cells.SEEDING`) and the shared materials."""
     points = [dict(p, condition=p["model"], model=group) for p in labelled]
+    seeds = sorted({p["seed"] for p in labelled})
+    over = (f"over seeds {', '.join(map(str, seeds))} on" if len(seeds) > 1
+            else "one seed (a deterministic fit), over")
     return charts.box_by_condition(points, [group], labels, lambda p: p["condition"], str,
-                                   f"{group}: error over seeds on {', '.join(materials)} (DS1, no noise)", path)
+                                   f"{group}: error {over} {', '.join(materials)} (DS1, no noise)", path)
 
 
 def _shown_path(path: Path) -> str:
@@ -241,37 +256,35 @@ def _shown_path(path: Path) -> str:
         return str(path)
 
 
-#: One line per ``neuralbrdf study`` run into a folder (JSON Lines): how its cells came about.
-RUNS_LOG = "runs.jsonl"
 _RUN_FIELDS = ("started", "command", "jobs", "cells_run", "cells_cached", "wall_time_s", "cells_cpu_time_s")
 
 
-def _record_run(out_dir: Path, run: dict) -> list[dict]:
-    """Append this run to ``out_dir/runs.jsonl`` and return every run recorded there: a report made
-    from cached cells still shows the run that computed them (its wall time, above all)."""
-    log = out_dir / RUNS_LOG
-    entry = {key: run[key] for key in _RUN_FIELDS}
-    with log.open("a", encoding="utf-8") as handle:
-        handle.write(json.dumps(entry) + "\n")
-    return [json.loads(line) for line in log.read_text(encoding="utf-8").splitlines() if line.strip()]
-
-
 def run_study(profile_name: str, out_dir: str | Path, jobs: int = 1, command: str | None = None,
-              progress: bool = True) -> dict:
-    """Run (or resume) the study of ``profile_name`` into ``out_dir``; the content of ``study.json``."""
+              progress: bool = True, allow_failures: bool = False) -> dict:
+    """Run (or resume) the study of ``profile_name`` into ``out_dir``; the content of ``study.json``
+    (its ``health`` says whether every cell gave a model; ``allow_failures``: failed fits do not
+    fail the run, :mod:`neuralbrdf.study.health`)."""
+    profile = load_profile(profile_name)  # a bad profile is refused before the folder exists
+    with folder_lock(out_dir, "study") as lock:
+        return _run_locked(profile, profile_name, Path(out_dir), jobs, command, progress, allow_failures, lock.fd)
+
+
+def _run_locked(profile: Profile, profile_name: str, out_dir: Path, jobs: int, command: str | None,
+                progress: bool, allow_failures: bool, lock_fd: int) -> dict:
     from neuralbrdf.study.cost import machine
 
     started_at = datetime.now(timezone.utc).isoformat(timespec="seconds")
     started = time.perf_counter()
-    profile = load_profile(profile_name)
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    results, ran = run_cells(profile, out_dir, jobs, progress)
+    repairs = Repairs(out_dir)
+    history = read_runs(out_dir, repairs)  # one line per earlier run (a report made from cached cells
+    # still shows the run that computed them, its wall time above all)
+    results, ran = run_cells(profile, out_dir, jobs, repairs, progress, keep_fds=(lock_fd,))
     methods = {v.name: v.method for v in profile.variants}
     points = aggregate.points_from_results(results, methods)
     failure_rows = aggregate.failures(points)
     study = {
         "format": STUDY_FORMAT,
+        "health": health(points, repairs.entries, allow_failures),
         "points": points,
         "pareto": aggregate.pareto(points),
         "failures": failure_rows,
@@ -280,6 +293,7 @@ def run_study(profile_name: str, out_dir: str | Path, jobs: int = 1, command: st
         "groups": aggregate.groups(points, group_members(profile), [m.name for m in profile.materials]),
         "sentences": aggregate.method_sentences(points, failure_rows),
         "machine": machine(),
+        "seeding": {method: seeding_description(method) for method in dict.fromkeys(methods.values())},
         "run": {"profile": _shown_path(profile.path), "command": command or f"neuralbrdf study --profile {profile_name}",
                 "jobs": jobs, "threads_per_job": WORKER_THREADS,
                 "seeds": sorted({p["seed"] for p in points}), "started": started_at,
@@ -290,7 +304,8 @@ def run_study(profile_name: str, out_dir: str | Path, jobs: int = 1, command: st
     }
     study["figures"] = write_figures(profile, results, study, out_dir)
     study["run"]["wall_time_s"] = time.perf_counter() - started
-    study["run"]["history"] = _record_run(out_dir, study["run"])
+    study["run"]["history"] = [*history, {key: study["run"][key] for key in _RUN_FIELDS}]
+    write_runs(out_dir, study["run"]["history"])
     with atomic_write(out_dir / "study.json", encoding="utf-8") as handle:
         json.dump(study, handle, indent=1, allow_nan=False)
     from neuralbrdf.study.report import write_report
