@@ -45,7 +45,6 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-import numpy as np
 import onnx
 
 from neuralbrdf.atomic import atomic_paths
@@ -270,26 +269,11 @@ def _entry(name, file, kind, approximates, error, cost_ns, relative, build_s, pr
             "build_time_s": build_s, "bsdf_properties": properties or {}, "variants": variants}
 
 
-class ReducedRgbEvaluator:
-    """A spectral model's linear sRGB through a reduced rule (what the plugin returns in RGB variants)."""
-
-    is_spectral = False
-
-    def __init__(self, parent: OnnxEvaluator, rule) -> None:
-        self.parent, self.rule = parent, rule
-
-    def values(self, wi, wo, wavelength=None):
-        n, k = len(wi), self.rule.size
-        spectra = self.parent.values(np.tile(wi, (k, 1)), np.tile(wo, (k, 1)),
-                                     np.repeat(np.asarray(self.rule.wavelengths_nm), n)).reshape(k, n)
-        return np.clip(np.clip(spectra, 0.0, None).T @ self.rule.weights, 0.0, None)
-
-
 def _rgb_rule_rungs(parent: OnnxEvaluator, reference, model_path: Path, full_cost_ns: float,
                     settings: LadderSettings) -> list[dict]:
     """``full_rgbT`` rungs (module docstring)."""
     from neuralbrdf.render.mitsuba_bsdf import fit_rgb_rule
-    from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE
+    from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE, RuleRgbEvaluator
 
     default = fit_rgb_rule(parent.model, parent.session, DEFAULT_RMS_TOLERANCE)
     out = []
@@ -298,7 +282,7 @@ def _rgb_rule_rungs(parent: OnnxEvaluator, reference, model_path: Path, full_cos
         rule = fit_rgb_rule(parent.model, parent.session, tolerance)
         if rule.size >= default.size:
             continue  # no fewer wavelengths than the default rule: not cheaper
-        scores = hemisphere_scores(ReducedRgbEvaluator(parent, rule), reference, strata=settings.error_strata)
+        scores = hemisphere_scores(RuleRgbEvaluator(parent, rule), reference, strata=settings.error_strata)
         error = float(scores["hemisphere_logcos_rmse"])
         relative = rule.size / default.size
         out.append(_entry(

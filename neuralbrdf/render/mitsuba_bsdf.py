@@ -87,7 +87,6 @@ import numpy as np
 import onnx
 import onnxruntime
 
-from neuralbrdf.data.colorimetry import XYZ_TO_LINEAR_SRGB, xyz_weights
 from neuralbrdf import kinds
 from neuralbrdf.atomic import file_version
 from neuralbrdf.errors import InputError
@@ -105,16 +104,15 @@ from neuralbrdf.render.onnx_split import split_at_wavelength
 from neuralbrdf.render.sampling import LobeMixture, fit_proposal, probe_direction_pairs
 from neuralbrdf.render.spectral_quadrature import (
     DEFAULT_RMS_TOLERANCE,
+    SRGB_GRID_NM,
     ReducedQuadrature,
     fit_reduced_quadrature,
+    srgb_weights,
 )
 
 PLUGIN_NAME = "neuralbrdf"
 BACKENDS = ("drjit", "onnxruntime")
 DEFAULT_BACKEND = "drjit"
-
-#: Wavelengths (nm) at which a spectral model is integrated to sRGB in RGB variants (SPEC §2.3).
-SPECTRAL_TO_RGB_GRID_NM = np.arange(400.0, 701.0, 10.0)
 
 
 #: Wavelengths (nm, spread over the model's range) averaged when probing a spectral model.
@@ -374,9 +372,9 @@ def _numpy_spectra(session: onnxruntime.InferenceSession, wi: np.ndarray, wo: np
 def fit_rgb_rule(model: OnnxModel, session: onnxruntime.InferenceSession, rms_tolerance: float) -> ReducedQuadrature:
     """The reduced spectrum → linear sRGB rule of a spectral model (module docstring)."""
     low, high = model.wavelength_range_nm
-    grid = np.clip(SPECTRAL_TO_RGB_GRID_NM, low, high)
+    grid = np.clip(SRGB_GRID_NM, low, high)
     spectra = _numpy_spectra(session, *probe_direction_pairs(), grid).T
-    return fit_reduced_quadrature(spectra, grid, _spectral_to_srgb_weights(), rms_tolerance)
+    return fit_reduced_quadrature(spectra, grid, srgb_weights(), rms_tolerance)
 
 
 def _probe_function(model: OnnxModel, session: onnxruntime.InferenceSession):
@@ -474,11 +472,6 @@ def _upsampler() -> _SrgbUpsampler:
     if variant not in _UPSAMPLERS:
         _UPSAMPLERS[variant] = _SrgbUpsampler()
     return _UPSAMPLERS[variant]
-
-
-def _spectral_to_srgb_weights() -> np.ndarray:
-    """``[W, 3]`` weights from values on :data:`SPECTRAL_TO_RGB_GRID_NM` to linear sRGB."""
-    return xyz_weights(SPECTRAL_TO_RGB_GRID_NM) @ XYZ_TO_LINEAR_SRGB.T
 
 
 # --------------------------------------------------------------------------- the BSDF
