@@ -30,6 +30,11 @@ Properties
     spectrum → sRGB rule fitted at load (default 1e-3; ``0`` integrates all 31 wavelengths
     exactly, at 31 network evaluations per query).  See *Colour* below.
 
+``rgb_head``, ``fast``
+    Booleans choosing a fast path of the file instead of ``f`` (default: the RGB head of a
+    spectral model in RGB variants when the file has one; ``fast`` off):
+    :mod:`~neuralbrdf.render.fast_paths`.  ``to_string`` names the output evaluated.
+
 ``proposal``
     Optional: another model file whose sampling proposal this BSDF uses instead of its own
     (resolved like ``filename``).  Any valid proposal leaves the image's expectation unchanged;
@@ -100,6 +105,7 @@ from neuralbrdf.onnx_contract import (
     OnnxModel,
     matrix_multiply_adds,
 )
+from neuralbrdf.render.fast_paths import FAST_PROPERTY, RGB_HEAD_PROPERTY, chosen_output, flag
 from neuralbrdf.render.onnx_split import split_at_wavelength
 from neuralbrdf.render.sampling import LobeMixture, fit_proposal, probe_direction_pairs
 from neuralbrdf.render.spectral_quadrature import (
@@ -532,21 +538,26 @@ def _remember(key: tuple, value) -> None:
     _LOAD_TIME_CACHE[key] = value
 
 
-def _load_time_work(path: Path, rgb_tolerance: float,
-                    proposal: Path | None = None) -> tuple[OnnxModel, LobeMixture, ReducedQuadrature | None]:
-    """The validated model, the fitted sampling proposal (of the ``proposal`` file if given, else
-    of the model itself) and (spectral model, RGB variant) its sRGB rule.  Each is computed once
-    per unchanged file — the proposal per file alone (it depends on neither variant nor
-    tolerance), the rule per file and tolerance — so a scene loaded again (the selector of
-    :mod:`neuralbrdf.lod.select` loads one scene many times, with stand-ins sampling like their
-    parent) skips the probing, and a model sampled with another file's proposal never fits its own."""
-    model = validated_model(path)
+def _load_time_work(path: Path, rgb_tolerance: float, proposal: Path | None = None,
+                    output: str = OUTPUT_F) -> tuple[OnnxModel, LobeMixture, ReducedQuadrature | None]:
+    """The validated model cut to the ``output`` the plugin evaluates (``f`` or a fast path,
+    :meth:`~neuralbrdf.onnx_contract.OnnxModel.output_view`), the fitted sampling proposal (of the
+    ``proposal`` file if given, else of the model's ``f``) and (spectral output, RGB variant) its
+    sRGB rule.  Each is computed once per unchanged file — the proposal per file alone (it depends
+    on neither variant nor tolerance), the rule per file, output and tolerance — so a scene loaded
+    again (the selector of :mod:`neuralbrdf.lod.select` loads one scene many times, with stand-ins
+    sampling like their parent) skips the probing, and a model sampled with another file's
+    proposal never fits its own."""
+    view_key = ("output", _file_identity(path), output)
+    if view_key not in _LOAD_TIME_CACHE:
+        _remember(view_key, validated_model(path).output_view(output))
+    model = _LOAD_TIME_CACHE[view_key]
     mixture = _fitted_proposal(proposal or path)
     rgb_rule = None
     if model.is_spectral and not mi.is_spectral:
-        key = ("rgb_rule", _file_identity(path), rgb_tolerance)
+        key = ("rgb_rule", _file_identity(path), output, rgb_tolerance)
         if key not in _LOAD_TIME_CACHE:
-            _remember(key, fit_rgb_rule(model, _session(path), rgb_tolerance))
+            _remember(key, fit_rgb_rule(model, _session(model.proto), rgb_tolerance))
         rgb_rule = _LOAD_TIME_CACHE[key]
     return model, mixture, rgb_rule
 
@@ -572,9 +583,12 @@ def _bsdf_class(variant: str) -> type:
         def __init__(self, props: mi.Properties) -> None:
             mi.BSDF.__init__(self, props)
             path, backend, rgb_tolerance = _read_properties(props)
-            self.model, self.mixture, self.rgb_rule = _load_time_work(path, rgb_tolerance, _proposal_path(props))
+            self.output = chosen_output(validated_model(path), mi.is_spectral, flag(props, FAST_PROPERTY, False),
+                                        flag(props, RGB_HEAD_PROPERTY, True))
+            self.model, self.mixture, self.rgb_rule = _load_time_work(path, rgb_tolerance, _proposal_path(props),
+                                                                      self.output)
             if backend == "onnxruntime":
-                self.backend = _OnnxRuntimeBackend(self.model, _session(path))
+                self.backend = _OnnxRuntimeBackend(self.model, _session(self.model.proto))
             else:
                 self.backend = _DrJitBackend(self.model)
             self._spectral_variant = mi.is_spectral
@@ -652,6 +666,7 @@ def _bsdf_class(variant: str) -> type:
                 "NeuralBRDF[\n"
                 f"  filename = {str(model.path)!r},\n"
                 f"  kind = {model.kind}, material = {model.material!r}, {spectral},\n"
+                f"  output = {self.output},\n"
                 f"  backend = {self.backend.name},\n"
                 f"  proposal = {self.mixture.describe()}\n"
                 + (f"  to sRGB = {self.rgb_rule.describe()}\n" if self.rgb_rule else "")

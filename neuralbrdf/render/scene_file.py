@@ -116,7 +116,7 @@ class SceneFile:
 
     @staticmethod
     def set_property(element: ElementTree.Element, key: str, value: str) -> None:
-        tag = "float" if key == "rgb_tolerance" else "string"
+        tag = {"rgb_tolerance": "float", "fast": "boolean", "rgb_head": "boolean"}.get(key, "string")
         existing = _property(element, key)
         if existing is not None:
             element.remove(existing)
