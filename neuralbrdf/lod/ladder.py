@@ -20,6 +20,12 @@ colour variants and the sampler render it unchanged:
   network evaluations per RGB query.  Its error is the hemisphere log-cos RMSE of its linear
   sRGB against the exact 31-wavelength integral, its cost the ratio of the rules' wavelength
   counts (the network evaluations per RGB query).  No new file: the ladder records the property.
+  Not offered when the parent has an RGB head (fast path ``f_rgb``), which the plugin uses in RGB
+  variants instead of any rule;
+* ``fast`` — a parent with a fast path ``f_fast`` (``neuralbrdf export --fast``,
+  :mod:`neuralbrdf.lod.fast_paths`): the parent file itself with the plugin property ``fast``, its
+  error and cost measured like a rung file's.  A model file without a ladder folder still offers
+  this rung to ``neuralbrdf select`` (:func:`embedded_ladder`, numbers from its metadata).
 
 Each rung records in its ``metadata_props`` (keys :data:`RUNG_KEY` …) what it approximates (the
 parent's file name and SHA-256), its error against the parent — ``hemisphere_logcos_rmse``
@@ -56,9 +62,13 @@ from neuralbrdf.kinds import abc as abc_kind
 from neuralbrdf.kinds.table import nodes_text
 from neuralbrdf.lod.bake import bake_table
 from neuralbrdf.lod.distill import ABC_WAVELENGTHS_NM, DistillSettings, abc_table, distill_spectral_mlp, teacher_samples
+from neuralbrdf.onnx_contract import OUTPUT_F, OUTPUT_FAST, OUTPUT_RGB
 from neuralbrdf.onnx_export import write_model
+from neuralbrdf.render.fast_paths import FAST_PROPERTY
 
 LADDER_FILE = "ladder.json"
+#: The rung of a parent's own fast path (its ``f_fast`` output, plugin property ``fast``).
+FAST_RUNG = "fast"
 LADDER_FORMAT = "neuralbrdf.ladder/1"
 #: Rung metadata keys (all strings, beside the contract's own keys).
 RUNG_KEY = "neuralbrdf.ladder.rung"
@@ -182,9 +192,10 @@ def drjit_costs(protos: dict[str, onnx.ModelProto], spectral: bool, batches: tup
             for name in graphs}
 
 
-def parent_error(rung: Path, parent, strata: tuple[int, int] = HEMISPHERE_STRATA) -> float:
-    """``hemisphere_logcos_rmse`` of the model file ``rung`` against the parent (module docstring)."""
-    return float(hemisphere_scores(OnnxEvaluator(rung), parent, strata=strata)["hemisphere_logcos_rmse"])
+def parent_error(rung: Path, parent, strata: tuple[int, int] = HEMISPHERE_STRATA, output: str = OUTPUT_F) -> float:
+    """``hemisphere_logcos_rmse`` of the model file ``rung`` (its ``output``) against the parent
+    (module docstring)."""
+    return float(hemisphere_scores(OnnxEvaluator(rung, output), parent, strata=strata)["hemisphere_logcos_rmse"])
 
 
 # --------------------------------------------------------------------------- the ladder
@@ -223,7 +234,17 @@ def build_ladder(model_path: str | Path, out_dir: str | Path, settings: LadderSe
             log(f"{name}: built in {built[name][2]:.1f} s")
         errors = {name: parent_error(path, reference, settings.error_strata) for name, (path, _, _) in built.items()}
         protos = {FULL_RUNG: parent.model.proto, **{name: load_model(path).proto for name, (path, _, _) in built.items()}}
+        fast = OUTPUT_FAST in parent.file.fast_paths
+        if fast:  # the parent's own fast path: its f_fast output
+            protos[FAST_RUNG] = parent.file.output_view(OUTPUT_FAST).proto
         costs = drjit_costs(protos, parent.is_spectral, settings.cost_batches, settings.cost_rounds)
+        if fast:
+            start = time.perf_counter()
+            error = parent_error(model_path, reference, settings.error_strata, output=OUTPUT_FAST)
+            rungs.append(_entry(FAST_RUNG, str(model_path), parent.model.kind,
+                                f"{model_path.name}'s own fast path: {parent.file.fast_paths[OUTPUT_FAST].approximates}",
+                                error, costs[FAST_RUNG], costs[FAST_RUNG] / costs[FULL_RUNG],
+                                time.perf_counter() - start, properties={FAST_PROPERTY: "true"}))
         rungs.append(_entry(FULL_RUNG, str(model_path), parent.model.kind, "the parent itself", 0.0,
                             costs[FULL_RUNG], 1.0, 0.0))
         payloads = {}
@@ -235,7 +256,7 @@ def build_ladder(model_path: str | Path, out_dir: str | Path, settings: LadderSe
             })
             rungs.append(_entry(name, f"{name}.onnx", load_model(path).kind, describes, errors[name], costs[name],
                                 relative, seconds))
-        if parent.is_spectral:
+        if parent.is_spectral and OUTPUT_RGB not in parent.file.fast_paths:  # an RGB head is cheaper than any rule
             rungs += _rgb_rule_rungs(parent, reference, model_path, costs[FULL_RUNG], settings)
     from neuralbrdf.study.cost import machine
 
@@ -358,3 +379,19 @@ def read_ladder(folder: str | Path) -> Ladder:
     if not ladder.rungs or ladder.rungs[0].name != FULL_RUNG:
         raise InputError("a ladder lists its full model as rung 'full'", path=path, column="rungs")
     return ladder
+
+
+def embedded_ladder(model_path: str | Path) -> Ladder | None:
+    """The ladder of a model file without a ladder folder whose file has a fast path ``f_fast``:
+    the full model and that fast path (plugin property ``fast``), with the error and relative cost
+    its metadata records; ``None`` for a file without one."""
+    model = load_model(model_path)
+    if OUTPUT_FAST not in model.fast_paths:
+        return None
+    path = Path(model_path).resolve()
+    recorded = model.fast_paths[OUTPUT_FAST]
+    return Ladder(path, file_sha256(path), (
+        Rung(FULL_RUNG, path, model.kind, 1.0, 0.0),
+        Rung(FAST_RUNG, path, model.kind, recorded.relative_cost, recorded.hemisphere_logcos_rmse,
+             ((FAST_PROPERTY, "true"),)),
+    ))

@@ -74,7 +74,7 @@ import numpy as np
 from neuralbrdf.atomic import atomic_paths
 from neuralbrdf.errors import InputError
 from neuralbrdf.evaluation.images import delta_e2000_map
-from neuralbrdf.lod.ladder import FULL_RUNG, Ladder, Rung, file_sha256, read_ladder
+from neuralbrdf.lod.ladder import FULL_RUNG, Ladder, Rung, embedded_ladder, file_sha256, read_ladder
 from neuralbrdf.render.scene_file import SceneFile, material_coverage, render_scene_file
 
 #: Default ladder folder of ``MODEL.onnx``: ``MODEL.ladder`` beside it.
@@ -126,14 +126,16 @@ def default_ladder_dir(model: Path) -> Path:
 
 def find_ladders(scene: SceneFile, extra_dirs: list[Path]) -> dict[str, Ladder | None]:
     """Per material name, the ladder whose parent has the model file's SHA-256: among
-    ``extra_dirs`` and ``MODEL.ladder`` beside each model (``None``: no ladder, stays full)."""
+    ``extra_dirs`` and ``MODEL.ladder`` beside each model, else the model file's own fast path
+    (:func:`~neuralbrdf.lod.ladder.embedded_ladder`; ``None``: no ladder, stays full)."""
     candidates = [read_ladder(d) for d in extra_dirs]
     found = {}
     for material in scene.materials():
         sha = file_sha256(material.model)
         own = default_ladder_dir(material.model)
         pool = candidates + ([read_ladder(own)] if (own / "ladder.json").is_file() else [])
-        found[material.name] = next((ladder for ladder in pool if ladder.parent_sha256 == sha), None)
+        found[material.name] = next((ladder for ladder in pool if ladder.parent_sha256 == sha), None) \
+            or embedded_ladder(material.model)
     return found
 
 
