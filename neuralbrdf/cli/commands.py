@@ -117,7 +117,7 @@ def evaluate(args) -> None:
     from neuralbrdf.evaluation.evaluate import RenderSettings, format_table
     from neuralbrdf.evaluation.evaluate import evaluate as run_evaluation
 
-    settings = RenderSettings(args.variant, args.spp, args.resolution, args.seed, args.backend)
+    settings = RenderSettings(args.variant, args.spp, args.resolution, args.seed, args.backend, args.fast)
     for name in ("spp", "resolution"):
         if getattr(settings, name) < 1:
             raise InputError(f"--{name} must be a positive integer, got {getattr(settings, name)}")
