@@ -31,7 +31,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -71,12 +71,12 @@ class RenderSettings:
 
 
 def _render(path: Path, settings: RenderSettings, seed: int, proposal: Path | None = None,
-            fast_paths: bool = True) -> np.ndarray:
-    """One render of the preview scene; ``fast_paths=False``: the model's ``f`` itself."""
+            rgb_head: bool = True) -> np.ndarray:
+    """One render of the preview scene (``settings.fast``: the file's fast path ``f_fast``;
+    ``rgb_head=False``: a spectral file's ``f`` even in RGB variants)."""
     from neuralbrdf.render.preview import Material, render
 
-    material = Material(model=path, backend=settings.backend, proposal=proposal,
-                        fast=settings.fast and fast_paths, rgb_head=fast_paths)
+    material = Material(model=path, backend=settings.backend, proposal=proposal, fast=settings.fast, rgb_head=rgb_head)
     image = render(material, settings.variant, settings.spp, settings.resolution, seed)
     if not np.all(np.isfinite(image)):
         raise ValueError(f"the render of {path} is not finite")
@@ -84,13 +84,15 @@ def _render(path: Path, settings: RenderSettings, seed: int, proposal: Path | No
 
 
 def _render_kept(kept: dict | None, path: Path, settings: RenderSettings, seed: int) -> np.ndarray:
-    """:func:`_render`, or its image kept in ``kept`` from an earlier call for the same file (path,
-    size, modification time, inode: :func:`~neuralbrdf.atomic.file_version`), settings and seed (read-only: shared by later calls)."""
+    """:func:`_render` of a truth (its ``f``: ``--fast`` is the model's), or its image kept in
+    ``kept`` from an earlier call for the same file (path, size, modification time, inode:
+    :func:`~neuralbrdf.atomic.file_version`), settings and seed (read-only: shared by later calls)."""
+    own = replace(settings, fast=False)
     if kept is None:
-        return _render(path, settings, seed)
-    key = (file_version(path), settings, seed)
+        return _render(path, own, seed)
+    key = (file_version(path), own, seed)
     if key not in kept:
-        image = _render(path, settings, seed)
+        image = _render(path, own, seed)
         image.flags.writeable = False
         kept[key] = image
     return kept[key]
@@ -185,7 +187,8 @@ def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path
         result["noise"] = {**noise, "what": NOISE_DESCRIPTION}
         images = (model_image, truth_image, delta_e)
         if output != OUTPUT_F:  # what the fast path changes in the picture: f at the same seed and paths
-            f_image = _render(model_path, settings, settings.seed, proposal=truth_path, fast_paths=False)
+            f_image = _render(model_path, replace(settings, fast=False), settings.seed, proposal=truth_path,
+                              rgb_head=False)
             fast_paths[output]["image_against_f"] = image_against_f(model_image, f_image)
     result.update(
         variant=settings.variant if render_images else None,

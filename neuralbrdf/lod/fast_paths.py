@@ -41,7 +41,7 @@ from neuralbrdf.errors import InputError
 from neuralbrdf.evaluation.scores import HEMISPHERE_STRATA, OnnxEvaluator, TorchEvaluator, hemisphere_scores
 from neuralbrdf.kinds import Exportable, load_model
 from neuralbrdf.lod.distill import DistillSettings, distill_student, rgb_teacher, teacher_samples
-from neuralbrdf.onnx_contract import OUTPUT_F, OUTPUT_FAST, OUTPUT_RGB, fast_path_key
+from neuralbrdf.onnx_contract import OUTPUT_F, OUTPUT_FAST, OUTPUT_RGB, FastPath, fast_path_key
 from neuralbrdf.onnx_export import ExportValidationError, trace, validate, with_fast_paths
 
 
@@ -73,36 +73,22 @@ class FastPathSettings:
     error_strata: tuple[int, int] = HEMISPHERE_STRATA
 
 
-@dataclass(frozen=True)
-class FastPathReport:
-    """One embedded fast path: its output, what it is, its error and cost (as recorded)."""
-
-    output: str
-    approximates: str
-    hemisphere_logcos_rmse: float
-    relative_cost: float
-
-
 def _student(parent: OnnxEvaluator, output: str, settings: FastPathSettings) -> tuple[Exportable, str, float]:
     """The distilled student of ``output`` as an exportable model, its description and its error."""
     model = parent.model
     teacher = rgb_teacher(parent) if output == OUTPUT_RGB else parent
-    spectral = teacher.is_spectral
+    range_nm = model.wavelength_range_nm if teacher.is_spectral else None
     shape = settings.rgb_head if output == OUTPUT_RGB else settings.fast
-    samples = teacher_samples(teacher, settings.distill.n_pairs, settings.distill.seed,
-                              model.wavelength_range_nm if spectral else None)
-    module = distill_student(samples, shape.hidden, shape.hidden_layers, shape.activation, settings.distill,
-                             model.wavelength_range_nm if spectral else None)
-    error = float(hemisphere_scores(TorchEvaluator(module, spectral), teacher, strata=settings.error_strata)
+    samples = teacher_samples(teacher, settings.distill.n_pairs, settings.distill.seed, range_nm)
+    module = distill_student(samples, shape.hidden, shape.hidden_layers, shape.activation, settings.distill, range_nm)
+    error = float(hemisphere_scores(TorchEvaluator(module, teacher.is_spectral), teacher, strata=settings.error_strata)
                   ["hemisphere_logcos_rmse"])
     what = "linear sRGB (31-wavelength integral, SPEC §2.3)" if output == OUTPUT_RGB else "f"
-    describes = (f"{module.describe()} distilled from {settings.distill.n_pairs} samples of {model.path.name}'s "
-                 f"{what}")
+    describes = f"{module.describe()} distilled from {settings.distill.n_pairs} samples of {model.path.name}'s {what}"
     if not error <= settings.max_hemisphere_logcos_rmse:
         raise FastPathError(f"the {output} student's error against the model, hemisphere log-cos RMSE {error:.3g}, "
                             f"is above the bound {settings.max_hemisphere_logcos_rmse:g} (fast_paths."
                             "max_hemisphere_logcos_rmse)")
-    range_nm = model.wavelength_range_nm if spectral else None
     # only traced to be merged into the model's graph: the file keeps the model's own metadata
     return Exportable(module, model.kind, model.material, {}, range_nm), describes, error
 
@@ -116,7 +102,7 @@ def _rgb_rule_size(parent: OnnxEvaluator) -> int:
 
 
 def add_fast_paths(model_path: str | Path, out: str | Path, outputs: tuple[str, ...], settings: FastPathSettings,
-                   log=print) -> list[FastPathReport]:
+                   log=print) -> list[FastPath]:
     """Write ``out``: the model file ``model_path`` with the fast paths ``outputs`` (``f_rgb``,
     ``f_fast``) added (module docstring), atomically and only after the contract check accepted
     it; nothing is written on failure (:class:`FastPathError`, :class:`ExportValidationError`,
@@ -135,6 +121,7 @@ def add_fast_paths(model_path: str | Path, out: str | Path, outputs: tuple[str, 
             raise InputError(f"the model already has the fast path {output!r}", path=model_path)
     traced, entries, reports = {}, {}, []
     for output in outputs:
+        log(f"{output}: distilling ({settings.distill.steps} steps) ...")
         exportable, describes, error = _student(parent, output, settings)
         proto = trace(exportable)
         validate(proto, exportable)  # onnxruntime reproduces the student: ExportValidationError otherwise
@@ -153,7 +140,7 @@ def add_fast_paths(model_path: str | Path, out: str | Path, outputs: tuple[str, 
         metadata.update({fast_path_key(output, "approximates"): describes,
                          fast_path_key(output, "hemisphere_logcos_rmse"): repr(error),
                          fast_path_key(output, "relative_cost"): repr(relative)})
-        reports.append(FastPathReport(output, describes, error, relative))
+        reports.append(FastPath(output, describes, error, relative))
     combined = with_fast_paths(parent.file.proto, traced, metadata)
     out = Path(out)
     with atomic_path(out) as tmp:
