@@ -462,9 +462,14 @@ def test_a_spectral_parent_with_an_rgb_head_gets_no_rgb_rule_rungs(lambert_files
     settings = dataclasses.replace(CONFIG.ladder, students=(), tables=(), abc_pairs=256, abc_starts=1,
                                    cost_batches=(2**10, 2**12), cost_rounds=1, error_strata=(6, 8),
                                    rgb_tolerances=(0.5,))
-    names = {r["name"] for r in build_ladder(lambert_files["spectral+paths"], tmp_path / "a", settings,
-                                             log=lambda *_: None)["rungs"]}
-    assert FAST_RUNG in names and not any(n.startswith("full_rgb") for n in names)
+    rungs = {r["name"]: r for r in build_ladder(lambert_files["spectral+paths"], tmp_path / "a", settings,
+                                                log=lambda *_: None)["rungs"]}
+    assert FAST_RUNG in rungs and not any(n.startswith("full_rgb") for n in rungs)
+    # in RGB variants the parent renders through its head: its stand-ins are for spectral variants
+    assert all(r["variants"] == "spectral" for n, r in rungs.items() if n != "full")
+    fast = embedded_ladder(lambert_files["spectral+paths"]).rungs[1]
+    assert fast.applies_in(rgb_variant=False) and not fast.applies_in(rgb_variant=True)
+    assert embedded_ladder(lambert_files["rgb+fast"]).rungs[1].applies_in(rgb_variant=True)
 
 
 def test_evaluate_reports_the_fast_paths(lambert_files, tmp_path):
@@ -486,3 +491,23 @@ def test_evaluate_reports_the_fast_paths(lambert_files, tmp_path):
     spectral = evaluate(lambert_files["spectral+paths"], truth, tmp_path / "eval2",
                         RenderSettings("llvm_ad_spectral", spp=2, resolution=16), strata=(6, 8))
     assert spectral["rendered_output"] == OUTPUT_F and "image_against_f" not in spectral["fast_paths"][OUTPUT_RGB]
+
+
+def test_evaluate_fast_renders_the_models_fast_path_and_the_truth_as_it_is(lambert_files, tmp_path):
+    from neuralbrdf.evaluation.evaluate import RenderSettings, evaluate
+
+    result = evaluate(lambert_files["rgb+fast"], lambert_files["rgb"], tmp_path / "eval",
+                      RenderSettings("llvm_ad_rgb", spp=2, resolution=16, fast=True), strata=(6, 8))
+    assert result["rendered_output"] == OUTPUT_FAST
+    assert result["fast_paths"][OUTPUT_FAST]["image_against_f"]["image_delta_e2000_mean"] > 1.0
+
+
+def test_drjit_costs_time_the_kernel_not_the_python_around_it(lambert_files, tmp_path):
+    """A 16-wide network costs more per query than a constant, whatever the Python around each
+    call (which a slope of wall times on a loaded machine drowned: a head's cost came out 0)."""
+    from neuralbrdf.lod.ladder import drjit_costs
+
+    protos = {"constant": load_model(lambert_files["rgb"]).proto,
+              "network": load_model(fx.write_nlb_like(tmp_path / "nlb.onnx")).proto}
+    costs = drjit_costs(protos, False, (2**14, 2**16), rounds=3)
+    assert costs["network"] > 2 * costs["constant"] > 0

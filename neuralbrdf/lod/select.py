@@ -289,7 +289,7 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
     parents = {m.name: m.model for m in materials}
     rgb_variant = "_rgb" in settings.variant
     candidates = {
-        name: [] if ladder is None else [r for r in ladder.rungs[1:] if rgb_variant or not r.rgb_only]
+        name: [] if ladder is None else [r for r in ladder.rungs[1:] if r.applies_in(rgb_variant)]
         for name, ladder in ladders.items()
     }
     cheapest = {name: min([full[name], *rungs], key=lambda r: r.relative_cost) for name, rungs in candidates.items()}
