@@ -511,3 +511,24 @@ def test_drjit_costs_time_the_kernel_not_the_python_around_it(lambert_files, tmp
               "network": load_model(fx.write_nlb_like(tmp_path / "nlb.onnx")).proto}
     costs = drjit_costs(protos, False, (2**14, 2**16), rounds=3)
     assert costs["network"] > 2 * costs["constant"] > 0
+
+
+def test_any_spectral_file_gets_its_fast_paths_the_spectral_nlb_too(tmp_path, capsys):
+    """The fast paths are distilled from the file, whatever its kind: a spectral NLB (latent codes,
+    a ``wavelength`` input) gets an RGB head and a spectral compact copy."""
+    from neuralbrdf.kinds import contract_metadata
+    from neuralbrdf.models.directional import SpectralNlbWithCodes
+    from neuralbrdf.models.nlb_spectral import SpectralNlbNetwork
+    from neuralbrdf.onnx_export import Exportable, write_model
+
+    torch.manual_seed(0)
+    network = SpectralNlbNetwork(shared_dim=4, channel_dim=3, width=16, depth=3)
+    module = SpectralNlbWithCodes(network, 0.3 * torch.randn(4), 0.3 * torch.randn(4, 3), (400.0, 500.0, 600.0, 700.0))
+    metadata = contract_metadata("nlb_spectral", "random", "test", wavelength_range_nm=module.wavelength_range_nm)
+    source = write_model(Exportable(module.eval(), "nlb_spectral", "random", metadata, module.wavelength_range_nm),
+                         tmp_path / "nlb_spectral.onnx").path
+    out = tmp_path / "with_paths.onnx"
+    assert export_command.main(["--model", str(source), "--out", str(out), "--fast", "--config", str(tiny_config(tmp_path))]) == 0
+    model = load_model(out)
+    assert model.kind == "nlb_spectral" and set(model.fast_paths) == {OUTPUT_RGB, OUTPUT_FAST}
+    assert model.output_view(OUTPUT_FAST).is_spectral and not model.output_view(OUTPUT_RGB).is_spectral
