@@ -16,7 +16,7 @@
    ``llvm_ad_rgb``; the NLB's fast path against the full NLB in ``llvm_ad_rgb`` and
    ``llvm_ad_spectral``.  A fast path is an output of its parent's own file, so both sample the
    same paths and the difference is the fast path's error, not Monte Carlo noise.  Mean and p95
-   CIEDE2000 per material, and the fast path's recorded error and relative cost.
+   CIEDE2000 per material, and the fast path's recorded error (its cost: ``benchmarks/run.py``).
 3. Writes ``--out`` (strict JSON) and, beside it, ``fast_paths_<fast path>_<variant>.png``: per material the
    parent, the fast path and their ΔE2000 map (colour scale 0–2).
 
@@ -166,12 +166,11 @@ def main(argv: list[str] | None = None) -> int:
         metrics, parent, stand_in = compare(path, variant, args.resolution, args.spp, fast)
         recorded = load_model(path).fast_paths["f_fast" if fast else "f_rgb"]
         results.append({"fast_path": what, "material": name, "variant": variant, **metrics,
-                        "recorded_hemisphere_logcos_rmse": recorded.hemisphere_logcos_rmse,
-                        "relative_cost": recorded.relative_cost})
+                        "recorded_hemisphere_logcos_rmse": recorded.hemisphere_logcos_rmse})
         pictures.setdefault((what, variant), []).append((name, parent, stand_in))
         print(f"{what:<14} {name:<24} {variant:<17} ΔE2000 mean {metrics['image_delta_e2000_mean']:.3f} "
-              f"p95 {metrics['image_delta_e2000_p95']:.3f}  (log-cos {recorded.hemisphere_logcos_rmse:.4f}, "
-              f"cost {recorded.relative_cost:.2f})", flush=True)
+              f"p95 {metrics['image_delta_e2000_p95']:.3f}  (recorded log-cos RMSE {recorded.hemisphere_logcos_rmse:.4f})",
+              flush=True)
     out = Path(args.out)
     for (what, variant), rows in pictures.items():
         mosaic(rows, f"{what} against its parent, {variant}, {args.resolution} px, {args.spp} spp, matched paths",
