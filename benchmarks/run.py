@@ -1,57 +1,56 @@
-"""Speed of the exported models, in one run, as ratios against a named baseline (SPEC §5, §7, §8).
+"""Speed of the exported models and their fast paths, in one run, as ratios against Mitsuba's
+``roughconductor`` rendered in the same run (SPEC §5, §7, §8, §11).
 
-    python benchmarks/run.py [--quick] [--out benchmarks/results.json]
+    python benchmarks/run.py [--quick] [--repeats N] [--out benchmarks/results.json]
 
-1. **Model.** Trains the spectral MLP on the shipped virtual gold measurement
-   (``train.py fit --config configs/spectral_mlp.yaml``, fewer epochs with ``--quick``) and
-   exports it (``neuralbrdf export``); likewise a ReLU ablation of it
-   (``--model.activation relu``: the cheapest activation, less accurate) to show what the
-   activation costs.
-2. **Renders.** For each variant (``llvm_ad_rgb``, ``llvm_ad_spectral``) the material-preview
-   scene of ``export/render.py`` is rendered at one resolution and sample count with
+1. **Models.**
 
-   * ``roughconductor/symbolic`` — Mitsuba's built-in rough gold, Dr.Jit's default mode;
-   * ``roughconductor/wavefront`` — the same with symbolic loops and calls off;
-   * ``drjit/symbolic`` — the model through the ``drjit`` backend (fused kernel);
-   * ``onnxruntime/wavefront`` — the model through ``onnxruntime`` (one batched call per
-     wavefront; needs wavefront mode);
-   * ``flat_model_drjit/symbolic`` — a nearly free spectral model (:class:`FlatSpectrum`)
-     through ``drjit``: the plugin's cost without a network;
-   * ``relu_model_drjit/symbolic`` — the ReLU ablation through ``drjit``.
+   * ``spectral_mlp`` — the spectral MLP trained on the shipped virtual gold measurement
+     (``train.py fit --config configs/spectral_mlp.yaml``, fewer epochs with ``--quick``), exported
+     with its RGB head ``f_rgb`` (``neuralbrdf export``; :mod:`neuralbrdf.lod.fast_paths`);
+   * ``nlb`` — the default NLB network (``nlb_latent32_blends``) with the latent of its pretraining
+     material :data:`NLB_MATERIAL`, exported with its fast path ``f_fast`` (``neuralbrdf export --fast``);
+   * ``abc`` — an ABC model with fixed parameters (:data:`ABC_BENCH_PARAMETERS`);
+   * ``flat`` — a nearly free spectral model (:class:`FlatSpectrum`): the plugin's own cost.
 
-   The first render of each (scene already loaded; kernel tracing and compilation, possibly a
-   hit in Dr.Jit's on-disk kernel cache) is timed separately, then the median of ``repeats``
-   renders, taken round-robin over the configurations (each scene reloaded), is reported
-   (``--quick``: the repeats follow the first render on the loaded scene, no reloads).  Every
-   configuration uses the same pass split (the wavefront budget of ``export/render.py``), and
-   only one scene is loaded at a time.  The figures are the ratios
-   ``drjit/symbolic : roughconductor/symbolic``, ``onnxruntime/wavefront :
-   roughconductor/wavefront``, ``onnxruntime/wavefront : roughconductor/symbolic``,
-   ``flat_model_drjit/symbolic : roughconductor/symbolic`` and
-   ``relu_model_drjit/symbolic : roughconductor/symbolic``.
-3. **Throughput.** Raw model evaluation, queries per second at one batch size (10⁶; one query
-   is one ``(wi, wo[, λ])``), for PyTorch (the :mod:`neuralbrdf.models.directional` module),
-   onnxruntime (the exported file) and Dr.Jit (:class:`~neuralbrdf.render.drjit_onnx.DrJitGraph`
-   on ``drjit.llvm`` arrays, ``dr.eval`` timed, tracing included) — for the spectral MLP, the
-   compact NLB (the shipped pretrained network if present, else random weights of the same size:
-   speed does not depend on the values, as long as none is zero), the ABC model and the ReLU
-   spectral MLP.  Warm-up call first (its time
-   reported as ``first_call_s``), then the median of ``repeats`` calls.
+   The fast paths are distilled with the settings of ``configs/lod/default.yaml`` (``fast_paths``;
+   ``--quick``: a few hundred steps).
+2. **Renders.**  For each variant (``llvm_ad_rgb``, ``llvm_ad_spectral``) the material-preview
+   scene of ``export/render.py`` is rendered with each configuration of :func:`render_configs`:
+   Mitsuba's ``roughconductor`` (GGX gold, α = 0.2) in symbolic and wavefront mode, every model
+   through the ``drjit`` backend (symbolic mode; the spectral MLP also through ``onnxruntime``, in
+   wavefront mode), the NLB full and through its fast path, and — RGB variant — the spectral MLP
+   integrated to sRGB by the plugin's rule (``rgb_head`` off: what the RGB head replaces).  The
+   first render of each (tracing and compilation) is timed apart; then ``repeats`` renders are
+   taken round-robin over the configurations (each scene reloaded, one scene alive at a time), so
+   that load from other processes hits all alike; median and shortest are reported, and the
+   ratios of each against ``roughconductor`` of the same mode (onnxruntime against wavefront)
+   for both.  Every configuration uses the same pass split.
+3. **Fast-path image error.**  A fast path and its parent are the same file, so they sample the
+   same paths: their first renders (same seed) differ by the fast path's own error: mean and p95
+   CIEDE2000 of the RGB head against the spectral integration (RGB variant) and of the NLB's fast
+   path against the full NLB (both variants).
+4. **Throughput.**  Raw model evaluation, queries per second at one batch size (10⁶; one query is
+   one ``(wi, wo[, λ])``), for PyTorch (where the module is at hand), onnxruntime (the exported
+   output), Dr.Jit (:class:`~neuralbrdf.render.drjit_onnx.DrJitGraph` on ``drjit.llvm`` arrays,
+   ``dr.eval`` timed, tracing included) and ``drjit_kernel``: the same fused kernel's own run time
+   from Dr.Jit's kernel history, tracing and compilation excluded
+   (:func:`~neuralbrdf.study.cost.drjit_kernel_seconds`).  Warm-up call first, then the median of
+   ``repeats`` calls.
 
-Targets quoted beside the results (not asserted; :data:`TARGETS`, issue 11): Dr.Jit render
-≤ 1.10× roughconductor in ``llvm_ad_spectral`` and ≤ 1.30× in ``llvm_ad_rgb``; onnxruntime ≤
-1.40× roughconductor in wavefront mode; fastest backend ≥ 150 M queries/s for the spectral MLP
-and ≥ 10 M queries/s for the compact NLB on two cores.  Results go to a JSON file (``--out``,
-default ``benchmarks/results.json``) and a printed table; the machine, versions, thread counts,
-configuration and seed are recorded with them.
+Targets quoted beside the results (:data:`TARGETS`, not asserted).  Results go to a JSON file
+(``--out``) and a printed table, with the machine, versions, thread counts, load average before
+and after, configuration and seed.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import gc
 import json
 import math
+import os
 import resource
 import statistics
 import subprocess
@@ -68,47 +67,70 @@ import torch
 from neuralbrdf import kinds, onnx_export
 from neuralbrdf.atomic import atomic_write
 from neuralbrdf.kinds import abc as abc_kind
-from neuralbrdf.physics.abc import AbcParameters
-from neuralbrdf.models.directional import NlbWithLatent
-from neuralbrdf.models.nlb import NlbNetwork
-from neuralbrdf.render import preview
-from neuralbrdf.shipped import PRETRAINED_DIR
 from neuralbrdf.kinds import contract_metadata
+from neuralbrdf.models.directional import NlbWithLatent
+from neuralbrdf.onnx_contract import OUTPUT_F, OUTPUT_FAST, OUTPUT_RGB
+from neuralbrdf.physics.abc import AbcParameters
+from neuralbrdf.render import preview
+from neuralbrdf.shipped import PRETRAINED_DEFAULT
 from neuralbrdf.study.cost import bench_throughput, machine
 from neuralbrdf.study.cost import timed as _timed
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 0
 VARIANTS = ("llvm_ad_rgb", "llvm_ad_spectral")
-#: (name, model: None for roughconductor / "trained" / "flat", backend, wavefront mode)
-RENDER_CONFIGS = (
-    ("roughconductor/symbolic", None, None, False),
-    ("roughconductor/wavefront", None, None, True),
-    ("drjit/symbolic", "trained", "drjit", False),
-    ("onnxruntime/wavefront", "trained", "onnxruntime", True),
-    ("flat_model_drjit/symbolic", "flat", "drjit", False),
-    ("relu_model_drjit/symbolic", "relu", "drjit", False),
-)
-RATIOS = {
-    "drjit_vs_roughconductor_symbolic": ("drjit/symbolic", "roughconductor/symbolic"),
-    "flat_model_drjit_vs_roughconductor_symbolic": ("flat_model_drjit/symbolic", "roughconductor/symbolic"),
-    "relu_model_drjit_vs_roughconductor_symbolic": ("relu_model_drjit/symbolic", "roughconductor/symbolic"),
-    "onnxruntime_vs_roughconductor_wavefront": ("onnxruntime/wavefront", "roughconductor/wavefront"),
-    "onnxruntime_vs_roughconductor_symbolic": ("onnxruntime/wavefront", "roughconductor/symbolic"),
-}
-TARGETS = {
-    "llvm_ad_spectral/drjit_vs_roughconductor_symbolic": "<= 1.10",
-    "llvm_ad_rgb/drjit_vs_roughconductor_symbolic": "<= 1.30",
-    "llvm_ad_spectral/onnxruntime_vs_roughconductor_wavefront": "<= 1.40",
-    "llvm_ad_rgb/onnxruntime_vs_roughconductor_wavefront": "<= 1.40",
-    "spectral_mlp/fastest_backend_queries_per_s": ">= 150e6 on 2 cores",
-    "nlb_compact/fastest_backend_queries_per_s": ">= 10e6 on 2 cores",
-}
-#: Löw et al.-like parameters of the ABC throughput model (speed only).
+#: The pretraining material of the default NLB network whose latent the benchmark's NLB uses.
+NLB_MATERIAL = "merl:gold-metallic-paint2"
+#: Löw et al.-like parameters of the ABC model (speed only).
 ABC_BENCH_PARAMETERS = AbcParameters(kd=[0.1, 0.08, 0.05], A=[1.0, 0.8, 0.6], B=200.0, C=1.1, eta=1.5)
-#: The 48×3 graph of the throughput row; the default network (nlb_latent32_blends) is the same
-#: graph, its latent folded into the input bias, so it costs the same.
-PRETRAINED_NLB = PRETRAINED_DIR / "nlb_compact.ckpt"
+TARGETS = {
+    "llvm_ad_rgb/spectral_mlp/drjit": "<= 1.2",
+    "llvm_ad_rgb/spectral_mlp/onnxruntime": "<= 1.4",
+    "llvm_ad_rgb/spectral_mlp rgb head image dE2000 mean": "<= 0.5",
+    "llvm_ad_spectral/spectral_mlp/drjit": "<= 1.05",
+    "llvm_ad_rgb/nlb_fast/drjit": "<= 1.3",
+    "llvm_ad_spectral/nlb_fast/drjit": "<= 1.3",
+    "nlb fast path image dE2000 mean": "<= 1.0",
+}
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """One timed render: ``model`` (``None``: roughconductor), backend, Dr.Jit mode, plugin
+    properties (``fast``, ``rgb_head``), variants it applies to."""
+
+    name: str
+    model: str | None
+    backend: str = "drjit"
+    wavefront: bool = False
+    fast: bool = False
+    rgb_head: bool = True
+    variants: tuple[str, ...] = VARIANTS
+
+    @property
+    def baseline(self) -> str:
+        return "roughconductor/wavefront" if self.wavefront else "roughconductor/symbolic"
+
+
+def render_configs() -> tuple[RenderConfig, ...]:
+    return (
+        RenderConfig("roughconductor/symbolic", None),
+        RenderConfig("roughconductor/wavefront", None, wavefront=True),
+        RenderConfig("spectral_mlp/drjit", "spectral_mlp"),
+        RenderConfig("spectral_mlp/onnxruntime", "spectral_mlp", backend="onnxruntime", wavefront=True),
+        RenderConfig("spectral_mlp_integrated/drjit", "spectral_mlp", rgb_head=False, variants=("llvm_ad_rgb",)),
+        RenderConfig("abc/drjit", "abc"),
+        RenderConfig("nlb/drjit", "nlb"),
+        RenderConfig("nlb_fast/drjit", "nlb", fast=True),
+        RenderConfig("flat_model/drjit", "flat"),
+    )
+
+
+#: Image comparisons at matched paths: (fast path, its parent, variants).
+IMAGE_PAIRS = (
+    ("spectral_mlp/drjit", "spectral_mlp_integrated/drjit", ("llvm_ad_rgb",)),
+    ("nlb_fast/drjit", "nlb/drjit", VARIANTS),
+)
 
 
 @dataclass(frozen=True)
@@ -118,50 +140,74 @@ class Settings:
     spp: int
     repeats: int
     batch: int
-    #: Timed renders round-robin over the configurations, each scene reloaded (a neural scene
-    #: takes ~1 s to load: the proposal and sRGB rule are fitted); ``False`` (``--quick``, a
-    #: smoke test) repeats the renders on the scene already loaded.
+    #: Distillation steps of the fast paths (``None``: the config's).
+    distill_steps: int | None = None
+    #: Timed renders round-robin over the configurations, each scene reloaded; ``False``
+    #: (``--quick``, a smoke test) repeats the renders on the scene already loaded.
     round_robin: bool = True
 
     @classmethod
-    def for_mode(cls, quick: bool) -> Settings:
+    def for_mode(cls, quick: bool, repeats: int | None) -> Settings:
         if quick:
-            return cls(epochs=2, resolution=48, spp=4, repeats=2, batch=2**16, round_robin=False)
-        return cls(epochs=30, resolution=256, spp=64, repeats=5, batch=10**6)
+            return cls(epochs=2, resolution=48, spp=4, repeats=repeats or 2, batch=2**16, distill_steps=200,
+                       round_robin=False)
+        return cls(epochs=30, resolution=256, spp=64, repeats=repeats or 5, batch=10**6)
 
 
-# --------------------------------------------------------------------------- model
+# --------------------------------------------------------------------------- models
 
 
-def train_and_export(settings: Settings, workdir: Path, activation: str = "tanh") -> dict:
-    """Train the spectral MLP with train.py (config as shipped, or another hidden activation)
-    and export it; paths and wall times."""
-    run_dir = workdir / f"spectral_mlp_{activation}_run"
+def _fast_path_settings(settings: Settings):
+    from neuralbrdf.lod.config import load_lod_config
+
+    config = load_lod_config().fast_paths
+    if settings.distill_steps is None:
+        return config
+    small = dataclasses.replace(config.distill, steps=settings.distill_steps, n_pairs=8192, batch=1024)
+    return dataclasses.replace(config, distill=small, cost_batches=(2**14, 2**16), cost_rounds=1, error_strata=(8, 10),
+                               max_hemisphere_logcos_rmse=math.inf)
+
+
+def with_fast_path(model: Path, output: str, settings: Settings) -> tuple[Path, dict]:
+    """``model`` with its fast path ``output`` added (as ``neuralbrdf export`` does); the new file
+    and what the fast path recorded."""
+    from neuralbrdf.lod.fast_paths import add_fast_paths
+
+    out = model.with_name(f"{model.stem}_{output}.onnx")
+    start = time.perf_counter()
+    (report,) = add_fast_paths(model, out, (output,), _fast_path_settings(settings), log=lambda _: None)
+    return out, {**dataclasses.asdict(report), "build_s": time.perf_counter() - start}
+
+
+def train_spectral_mlp(settings: Settings, workdir: Path) -> dict:
+    """Train the spectral MLP with train.py (config as shipped) and export it; paths and wall times."""
+    run_dir = workdir / "spectral_mlp_run"
     command = [
         sys.executable, str(ROOT / "train.py"), "fit", "--config", str(ROOT / "configs" / "spectral_mlp.yaml"),
         "--trainer.max_epochs", str(settings.epochs), "--run_dir", str(run_dir), "--seed_everything", str(SEED),
-        "--model.activation", activation,
     ]
     train_s = _timed(lambda: subprocess.run(command, cwd=ROOT, check=True, capture_output=True, text=True))
     metrics = json.loads((run_dir / "metrics.json").read_text())
-    model = workdir / f"gold_spectral_mlp_{activation}.onnx"
+    model = workdir / "gold_spectral_mlp.onnx"
     checkpoint = run_dir / "checkpoints" / "best.ckpt"
     start = time.perf_counter()
     report = onnx_export.export_checkpoint(checkpoint, model)
-    export_s = time.perf_counter() - start
     return {
-        "activation": activation,
-        "path": str(model),
-        "checkpoint": str(checkpoint),
-        "epochs": settings.epochs,
-        "train_command_s": train_s,
+        "path": str(model), "checkpoint": str(checkpoint), "epochs": settings.epochs, "train_command_s": train_s,
         "val_rel_rmse_glossy_median": metrics.get("fit/val/rel_rmse_glossy_median"),
-        "export_s": export_s,
-        "export_max_rel_error": report.max_rel_error,
+        "export_s": time.perf_counter() - start, "export_max_rel_error": report.max_rel_error,
     }
 
 
-# --------------------------------------------------------------------------- renders
+def nlb_exportable() -> onnx_export.Exportable:
+    """The default NLB network with the latent of :data:`NLB_MATERIAL`."""
+    from neuralbrdf.lightning.nlb_module import load_pretrained
+
+    pretrained = load_pretrained(PRETRAINED_DEFAULT)
+    latent = pretrained.latents[list(pretrained.names).index(NLB_MATERIAL)]
+    module = NlbWithLatent(pretrained.network, latent).eval()
+    metadata = contract_metadata("nlb", NLB_MATERIAL, f"benchmarks/run.py: {PRETRAINED_DEFAULT.name}, latent of {NLB_MATERIAL}")
+    return onnx_export.Exportable(module, "nlb", NLB_MATERIAL, metadata, None)
 
 
 class FlatSpectrum(torch.nn.Module):
@@ -180,185 +226,186 @@ def write_flat_model(path: Path) -> Path:
     return path
 
 
+# --------------------------------------------------------------------------- renders
+
+
+def _evaluated(scene) -> dict:
+    """Which output the scene's ``neuralbrdf`` BSDF evaluates and, for a spectral output in an RGB
+    variant, the wavelengths of its sRGB rule (none for roughconductor)."""
+    for shape in scene.shapes():
+        bsdf = shape.bsdf()
+        if hasattr(bsdf, "output"):
+            rule = bsdf.rgb_rule
+            return {"output": bsdf.output, **({"rgb_rule_wavelengths_nm": list(rule.wavelengths_nm)} if rule else {})}
+    return {}
+
 
 def bench_renders(models: dict[str, Path], variant: str, settings: Settings) -> dict:
-    """First-call and median render times of :data:`RENDER_CONFIGS` in ``variant``.
+    """First-call, median and shortest render times of the configurations of ``variant``, their
+    ratios, and the image errors of :data:`IMAGE_PAIRS` (module docstring)."""
+    from neuralbrdf.evaluation.images import image_scores
 
-    One scene is alive at a time: in symbolic mode Dr.Jit traces every registered BSDF
-    instance into a virtual call, so a scene left loaded would both slow the next one's kernel
-    and, with the onnxruntime backend, break its symbolic render.  The timed renders go
-    round-robin over the configurations (each scene reloaded, its kernels served from Dr.Jit's
-    cache), so load from other processes hits every configuration alike.
-    """
     preview.set_variant(variant)
-    # Same pass split for every configuration: the wavefront budget (the smallest).
-    spp_per_pass = preview.default_spp_per_pass(settings.resolution, wavefront=True)
+    spp_per_pass = preview.default_spp_per_pass(settings.resolution, wavefront=True)  # one split for all
     paths = settings.resolution * settings.resolution * settings.spp
+    configs = {c.name: c for c in render_configs() if variant in c.variants}
     materials = {
-        name: preview.Material(reference_bsdf="roughconductor")
-        if model is None
-        else preview.Material(model=models[model], backend=backend)
-        for name, model, backend, _ in RENDER_CONFIGS
+        name: preview.Material(reference_bsdf="roughconductor") if c.model is None else
+        preview.Material(model=models[c.model], backend=c.backend, fast=c.fast, rgb_head=c.rgb_head)
+        for name, c in configs.items()
     }
-    results = {name: {"wavefront": wavefront, "times_s": []} for name, _, _, wavefront in RENDER_CONFIGS}
+    results = {name: {"wavefront": c.wavefront, "times_s": []} for name, c in configs.items()}
+    first_images = {}
 
-    def load_and_render(name: str, seeds: list[int]) -> tuple[float, list[float]]:
-        """``(load_s, render_s per seed)``; the scene is dropped before returning."""
+    def load_and_render(name: str, seeds: list[int]) -> tuple[float, list[float], np.ndarray]:
+        """``(load_s, render_s per seed, first image)``; the scene is dropped before returning."""
         start = time.perf_counter()
         scene = preview.load_scene(materials[name], settings.resolution)
         load_s = time.perf_counter() - start
-        rules = [rule for shape in scene.shapes() if (rule := getattr(shape.bsdf(), "rgb_rule", None))]
-        if rules:  # a spectral model in an RGB variant: how many wavelengths it costs
-            results[name]["rgb_rule"] = {
-                "wavelengths_nm": list(rules[0].wavelengths_nm),
-                "rms_relative_error": rules[0].rms_relative_error,
-                "max_relative_error": rules[0].max_relative_error,
-            }
-        times = []
+        results[name].update(_evaluated(scene))
+        times, image = [], None
         for seed in seeds:
             start = time.perf_counter()
-            image = preview.render_passes(scene, settings.spp, spp_per_pass, seed, results[name]["wavefront"])
+            rendered = preview.render_passes(scene, settings.spp, spp_per_pass, seed, results[name]["wavefront"])
             times.append(time.perf_counter() - start)
-            if not np.all(np.isfinite(image)):
+            if not np.all(np.isfinite(rendered)):
                 raise RuntimeError(f"{variant} {name}: the render is not finite")
+            image = rendered if image is None else image
         del scene
         gc.collect()
-        return load_s, times
+        return load_s, times, image
 
     repeat_seeds = [SEED + 1 + repeat for repeat in range(settings.repeats)]
     for name in results:
         seeds = [SEED] if settings.round_robin else [SEED, *repeat_seeds]
-        results[name]["scene_load_s"], times = load_and_render(name, seeds)
+        results[name]["scene_load_s"], times, first_images[name] = load_and_render(name, seeds)
         results[name]["first_call_s"], results[name]["times_s"] = times[0], times[1:]
     for seed in repeat_seeds if settings.round_robin else []:
         for name in results:
             results[name]["times_s"].extend(load_and_render(name, [seed])[1])
     for entry in results.values():
         entry["median_s"] = statistics.median(entry["times_s"])
+        entry["shortest_s"] = min(entry["times_s"])
         entry["ns_per_path_sample"] = entry["median_s"] / paths * 1e9
-    ratios = {key: results[a]["median_s"] / results[b]["median_s"] for key, (a, b) in RATIOS.items()}
-    return {"configs": results, "ratios": ratios, "spp_per_pass": spp_per_pass}
+    ratios = {}
+    for name, config in configs.items():
+        if config.model is None:
+            continue
+        base = results[config.baseline]
+        ratios[name] = {"median": results[name]["median_s"] / base["median_s"],
+                        "shortest": results[name]["shortest_s"] / base["shortest_s"], "baseline": config.baseline}
+    images = {}
+    for fast, parent, variants in IMAGE_PAIRS:
+        if variant in variants:
+            metrics, _ = image_scores(first_images[fast], first_images[parent])
+            images[f"{fast} vs {parent}"] = metrics
+    return {"configs": results, "ratios": ratios, "image_errors": images, "spp_per_pass": spp_per_pass}
 
 
 # --------------------------------------------------------------------------- throughput
 
 
-def nlb_module() -> tuple[torch.nn.Module, str]:
-    """The compact NLB with one latent: the shipped pretrained network, else untrained weights."""
-    if PRETRAINED_NLB.is_file():
-        from neuralbrdf.lightning.nlb_module import load_pretrained
-
-        pretrained = load_pretrained(PRETRAINED_NLB)
-        return NlbWithLatent(pretrained.network, pretrained.latent_mean), "pretrained compact network"
-    torch.manual_seed(SEED)
-    network = NlbNetwork()
-    with torch.no_grad():  # random everywhere: a zero layer would let Dr.Jit drop the network
-        for parameter in network.parameters():
-            parameter.copy_(torch.randn_like(parameter) * 0.2)
-    latent = torch.randn(network.latent_dim)
-    return NlbWithLatent(network, latent), "random weights of the compact size (speed only)"
-
-
-def _nlb_exportable(module: torch.nn.Module):
-    """The NLB built here (not from a checkpoint) in the exporter's form."""
-    metadata = contract_metadata("nlb", "benchmark", "benchmarks/run.py")
-    return onnx_export.Exportable(module.eval(), "nlb", "benchmark", metadata, None)
+def bench_models_throughput(models: dict[str, Path], modules: dict[str, torch.nn.Module], settings: Settings) -> dict:
+    """Throughput of every model's ``f`` and of each fast path (module docstring, 4)."""
+    out = {}
+    cases = (("spectral_mlp", "spectral_mlp", OUTPUT_F), ("spectral_mlp rgb head", "spectral_mlp", OUTPUT_RGB),
+             ("nlb", "nlb", OUTPUT_F), ("nlb fast path", "nlb", OUTPUT_FAST), ("abc", "abc", OUTPUT_F))
+    for name, model, output in cases:
+        view = kinds.load_model(models[model]).output_view(output)
+        module = modules.get(model) if output == OUTPUT_F else None
+        backends = bench_throughput(view.proto, view.is_spectral, settings.batch, settings.repeats, module,
+                                    kernel_time=True)
+        out[name] = {"output": output, "backends": backends,
+                     "fastest": max(backends, key=lambda b: backends[b]["queries_per_s"])}
+    return out
 
 
 # --------------------------------------------------------------------------- report
 
 
 def _table(results: dict) -> str:
-    lines = []
-    lines.append(
-        f"machine: {results['machine']['cpu']}, {results['machine']['cores']} cores; "
-        f"scene {results['settings']['resolution']}^2 x {results['settings']['spp']} spp, "
-        f"median of {results['settings']['repeats']}"
-    )
-    for key in ("model", "relu_model"):
-        model = results[key]
-        lines.append(
-            f"spectral MLP ({model['activation']}): {model['epochs']} epochs, "
-            f"val glossy rel. RMSE {model['val_rel_rmse_glossy_median']:.3g}"
-        )
-    lines.append("")
-    lines.append(f"{'variant':<18}{'configuration':<26}{'first call s':>13}{'median s':>10}{'ns/sample':>11}")
+    load = results["load_average"]
+    lines = [
+        f"machine: {results['machine']['cpu']}, {results['machine']['cores']} cores; load average (1 min) "
+        f"{load['before'][0]:.1f} before, {load['after'][0]:.1f} after; scene {results['settings']['resolution']}^2 x "
+        f"{results['settings']['spp']} spp, {results['settings']['repeats']} renders each, round-robin",
+        f"spectral MLP: {results['models']['spectral_mlp']['epochs']} epochs, val glossy rel. RMSE "
+        f"{results['models']['spectral_mlp']['val_rel_rmse_glossy_median']:.3g}",
+    ]
+    for output, fast in results["fast_paths"].items():
+        lines.append(f"{output}: {fast['approximates']}; log-cos RMSE {fast['hemisphere_logcos_rmse']:.4f}, "
+                     f"relative cost {fast['relative_cost']:.2f} (built in {fast['build_s']:.0f} s)")
+    lines += ["", f"{'variant':<18}{'configuration':<32}{'output':<8}{'first s':>9}{'median s':>10}{'short s':>9}"
+                  f"{'x rc median':>12}{'x rc short':>11}  target"]
     for variant, entry in results["render"].items():
         for name, r in entry["configs"].items():
-            rule = r.get("rgb_rule")
+            ratio = entry["ratios"].get(name)
+            target = TARGETS.get(f"{variant}/{name}", "")
             lines.append(
-                f"{variant:<18}{name:<26}{r['first_call_s']:>13.2f}{r['median_s']:>10.3f}"
-                f"{r['ns_per_path_sample']:>11.0f}"
-                + (f"  (sRGB from {len(rule['wavelengths_nm'])} of 31 wavelengths)" if rule else "")
+                f"{variant:<18}{name:<32}{r.get('output', ''):<8}{r['first_call_s']:>9.2f}{r['median_s']:>10.3f}"
+                f"{r['shortest_s']:>9.3f}" + (f"{ratio['median']:>12.2f}{ratio['shortest']:>11.2f}  {target}" if ratio else "")
             )
-        for key, value in entry["ratios"].items():
-            target = TARGETS.get(f"{variant}/{key}", "")
-            lines.append(f"{'':<18}{key:<44}{value:>8.2f}x  {('target ' + target) if target else ''}")
-    lines.append("")
-    lines.append(f"{'model':<20}{'backend':<14}{'first call s':>13}{'median s':>10}{'M queries/s':>13}")
+        for pair, metrics in entry["image_errors"].items():
+            lines.append(f"{variant:<18}image {pair}: dE2000 mean {metrics['image_delta_e2000_mean']:.3f}, "
+                         f"p95 {metrics['image_delta_e2000_p95']:.3f}")
+    lines += ["", "(x rc: render time over roughconductor's in the same mode; onnxruntime against wavefront mode)", "",
+              f"{'model':<24}{'backend':<14}{'median s':>10}{'M queries/s':>13}"]
     for name, entry in results["throughput"].items():
         for backend, r in entry["backends"].items():
-            lines.append(
-                f"{name:<20}{backend:<14}{r['first_call_s']:>13.3f}{r['median_s']:>10.4f}"
-                f"{r['queries_per_s'] / 1e6:>13.1f}"
-            )
-    targets = ", ".join(f"{key.split('/')[0]} {value}" for key, value in TARGETS.items() if "queries" in key)
-    lines.append(f"(batch {results['settings']['batch']}; targets, fastest backend: {targets})")
+            lines.append(f"{name:<24}{backend:<14}{r['median_s']:>10.4f}{r['queries_per_s'] / 1e6:>13.1f}")
+    lines.append(f"(batch {results['settings']['batch']}; drjit: one traced call; drjit_kernel: the fused kernel's own "
+                 "run time from Dr.Jit's kernel history, tracing and compilation excluded)")
     return "\n".join(lines)
 
 
-def run(quick: bool, out: Path) -> dict:
-    settings = Settings.for_mode(quick)
+def run(quick: bool, out: Path, repeats: int | None = None) -> dict:
+    settings = Settings.for_mode(quick, repeats)
     started = time.perf_counter()
     results = {
         "command": "python benchmarks/run.py" + (" --quick" if quick else ""),
         "quick": quick,
         "seed": SEED,
         "machine": machine(),
+        "load_average": {"before": list(os.getloadavg())},
         "settings": settings.__dict__,
         "targets": TARGETS,
     }
     with tempfile.TemporaryDirectory(prefix="neuralbrdf-bench-") as tmp:
         workdir = Path(tmp)
-        results["model"] = train_and_export(settings, workdir)
-        results["relu_model"] = train_and_export(settings, workdir, activation="relu")
-        render_models = {
-            "trained": Path(results["model"]["path"]),
-            "flat": write_flat_model(workdir / "flat.onnx"),
-            "relu": Path(results["relu_model"]["path"]),
-        }
-        results["render"] = {variant: bench_renders(render_models, variant, settings) for variant in VARIANTS}
-
-        spectral = kinds.load_exportable(results["model"]["checkpoint"])
-        spectral_relu = kinds.load_exportable(results["relu_model"]["checkpoint"])
-        nlb, nlb_note = nlb_module()
-        models = {
-            "spectral_mlp": (spectral, "trained above"),
-            "spectral_mlp_relu": (spectral_relu, "ReLU ablation, trained above"),
-            "nlb_compact": (_nlb_exportable(nlb), nlb_note),
-            "abc": (abc_kind.exportable(ABC_BENCH_PARAMETERS, "benchmark", "benchmarks/run.py"),
-                    "analytic, fixed parameters"),
-        }
-        results["throughput"] = {}
-        for name, (exportable, note) in models.items():
-            proto = onnx_export.trace(exportable)
-            backends = bench_throughput(proto, exportable.is_spectral, settings.batch, settings.repeats, exportable.module)
-            fastest = max(backends, key=lambda b: backends[b]["queries_per_s"])
-            results["throughput"][name] = {"note": note, "backends": backends, "fastest": fastest}
+        spectral = train_spectral_mlp(settings, workdir)
+        nlb = nlb_exportable()
+        nlb_path = onnx_export.write_model(nlb, workdir / "nlb.onnx").path
+        abc = abc_kind.exportable(ABC_BENCH_PARAMETERS, "benchmark", "benchmarks/run.py")
+        abc_path = onnx_export.write_model(abc, workdir / "abc.onnx").path
+        spectral_path, rgb_head = with_fast_path(Path(spectral["path"]), OUTPUT_RGB, settings)
+        nlb_fast_path, nlb_fast = with_fast_path(nlb_path, OUTPUT_FAST, settings)
+        results["models"] = {"spectral_mlp": spectral, "nlb": {"network": PRETRAINED_DEFAULT.name, "latent": NLB_MATERIAL},
+                             "abc": ABC_BENCH_PARAMETERS.to_dict()}
+        results["fast_paths"] = {"spectral_mlp " + OUTPUT_RGB: rgb_head, "nlb " + OUTPUT_FAST: nlb_fast}
+        models = {"spectral_mlp": spectral_path, "nlb": nlb_fast_path, "abc": abc_path,
+                  "flat": write_flat_model(workdir / "flat.onnx")}
+        results["render"] = {variant: bench_renders(models, variant, settings) for variant in VARIANTS}
+        modules = {"spectral_mlp": kinds.load_exportable(spectral["checkpoint"]).module, "nlb": nlb.module,
+                   "abc": abc.module}
+        results["throughput"] = bench_models_throughput(models, modules, settings)
+    results["load_average"]["after"] = list(os.getloadavg())
     results["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     results["wall_time_s"] = time.perf_counter() - started
     with atomic_write(out) as handle:
-        json.dump(results, handle, indent=2)
+        json.dump(results, handle, indent=2, allow_nan=False)
         handle.write("\n")
     return results
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="benchmarks/run.py", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--quick", action="store_true", help="tiny scene, 2 epochs, small batch (smoke test)")
+    parser.add_argument("--quick", action="store_true", help="tiny scene, 2 epochs, short distillations (smoke test)")
+    parser.add_argument("--repeats", type=int, default=None, help="timed renders per configuration (default 5; quick 2)")
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results.json"), help="JSON results file")
     args = parser.parse_args(argv)
-    results = run(args.quick, Path(args.out))
+    if args.repeats is not None and args.repeats < 1:
+        parser.error("--repeats must be a positive integer")
+    results = run(args.quick, Path(args.out), args.repeats)
     print(_table(results))
     print(f"\nwrote {args.out} ({results['wall_time_s']:.0f} s)")
     return 0

@@ -13,6 +13,14 @@ Graph interface
   models), in sr⁻¹, without the cosine factor, and 0 when either direction is below the horizon.
 * everything needed to evaluate is inside the graph (input normalisation, in-plane mapping,
   baked latent, output activation); initialisers must be finite.
+* optional **fast paths**, further outputs that stand in for ``f`` at a fraction of its cost
+  (SPEC §11), each under the same rules as ``f`` (shape, finite, >= 0, 0 below the horizon):
+  ``f_rgb`` ``float32 [N, 3]`` (spectral models only; computed from ``wi`` and ``wo`` alone): the
+  model's linear sRGB as the renderer integrates it in RGB variants (SPEC §2.3), evaluated once per
+  query; ``f_fast``: a cheaper copy of ``f`` (same inputs, same shape).  Each is described by
+  metadata entries ``neuralbrdf.<output>.*`` (:data:`FAST_PATH_KEYS`, :func:`fast_path_key`):
+  what it approximates, its error against ``f`` and its relative cost.  :func:`output_model`
+  cuts one output out of the graph, as a model whose only output is ``f``.
 
 Metadata (``ModelProto.metadata_props``, all values strings)
 ------------------------------------------------------------
@@ -28,6 +36,10 @@ key                                value
 ``neuralbrdf.wavelength_max``      spectral models only: highest valid wavelength, nm (> min)
 ``neuralbrdf.<kind>.*``            keys of one kind, read and checked by that kind's module
                                    (e.g. the ABC parameters of :mod:`neuralbrdf.kinds.abc`)
+``neuralbrdf.<output>.*``          one fast path's entries (``f_rgb``, ``f_fast``): ``approximates``
+                                   (free text), ``hemisphere_logcos_rmse`` (error against ``f``,
+                                   its linear sRGB for ``f_rgb``; >= 0), ``relative_cost``
+                                   (Dr.Jit cost per query over ``f``'s; > 0)
 =================================  ===========================================================
 
 Spectral models are those with a ``wavelength`` input.  Exporters build the metadata with
@@ -42,6 +54,7 @@ own keys, spectral where the kind requires it); renderers and evaluators open mo
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -81,6 +94,32 @@ INPUT_WI = "wi"
 INPUT_WO = "wo"
 INPUT_WAVELENGTH = "wavelength"
 OUTPUT_F = "f"
+#: The fast paths (module docstring): a spectral model's linear sRGB, once per query ...
+OUTPUT_RGB = "f_rgb"
+#: ... and a cheaper copy of ``f``.
+OUTPUT_FAST = "f_fast"
+FAST_PATH_OUTPUTS = (OUTPUT_RGB, OUTPUT_FAST)
+#: Metadata fields of a fast path, ``neuralbrdf.<output>.<field>`` (:func:`fast_path_key`).
+FAST_PATH_KEYS = ("approximates", "hemisphere_logcos_rmse", "relative_cost")
+
+
+def fast_path_key(output: str, field: str) -> str:
+    """The metadata key ``neuralbrdf.<output>.<field>`` of a fast path's entry."""
+    return f"neuralbrdf.{output}.{field}"
+
+
+@dataclass(frozen=True)
+class FastPath:
+    """A fast-path output of a model file and what its metadata says about it."""
+
+    output: str
+    approximates: str
+    hemisphere_logcos_rmse: float
+    relative_cost: float
+
+    def describe(self) -> str:
+        return (f"{self.output}: {self.approximates} (log-cos RMSE {self.hemisphere_logcos_rmse:.2g} against "
+                f"{'the sRGB integral of f' if self.output == OUTPUT_RGB else 'f'}, cost {self.relative_cost:.2f} of f)")
 
 
 @dataclass(frozen=True)
@@ -114,6 +153,8 @@ class OnnxModel:
         key for everything derived from this model, which a file written later at the same path
         (another inode, size or time) never shares.  The file is read once; the proto, the digest
         and this key all describe the same bytes.
+    fast_paths:
+        The file's fast-path outputs by name (module docstring), checked like ``f``.
     """
 
     path: Path
@@ -127,11 +168,25 @@ class OnnxModel:
     details: object | None = None
     sha256: str = ""
     version: tuple = ()
+    fast_paths: Mapping[str, FastPath] = dataclasses.field(default_factory=dict)
 
     @property
     def n_channels(self) -> int:
         """3 for RGB models, 1 for spectral ones (one value per wavelength)."""
         return 1 if self.is_spectral else 3
+
+    def output_view(self, output: str = OUTPUT_F) -> OnnxModel:
+        """This model with ``output`` as its only output ``f`` (:func:`output_model`): what a renderer
+        evaluates to use a fast path (``f_rgb`` is an RGB model), or ``f`` without the fast paths."""
+        if output != OUTPUT_F and output not in self.fast_paths:
+            raise InputError(f"the model has no output {output!r}; it has {[OUTPUT_F, *self.fast_paths]}",
+                             path=self.path)
+        if output == OUTPUT_F and not self.fast_paths:
+            return self
+        rgb = output == OUTPUT_RGB
+        return dataclasses.replace(
+            self, proto=output_model(self.proto, output), fast_paths={},
+            is_spectral=self.is_spectral and not rgb, wavelength_range_nm=None if rgb else self.wavelength_range_nm)
 
 
 def generic_metadata(
@@ -205,9 +260,12 @@ def load_generic_model(path: str | os.PathLike[str]) -> OnnxModel:
     is_spectral = _check_interface(proto.graph, path)
     metadata = {entry.key: entry.value for entry in proto.metadata_props}
     kind, wavelength_range = _check_metadata(metadata, path, is_spectral)
+    fast_paths = _fast_paths(metadata, [vi.name for vi in proto.graph.output[1:]], path)
     _check_finite_constants(proto.graph, path)
     _check_constant_shapes(proto.graph, path)
-    _check_trial_evaluation(proto, path, wavelength_range)
+    _check_trial_evaluation(proto if not fast_paths else output_model(proto, OUTPUT_F), path, wavelength_range)
+    for output in fast_paths:
+        _check_fast_path(proto, output, path, wavelength_range)
     return OnnxModel(
         path=path,
         kind=kind,
@@ -219,6 +277,7 @@ def load_generic_model(path: str | os.PathLike[str]) -> OnnxModel:
         proto=proto,
         sha256=hashlib.sha256(data).hexdigest(),
         version=(str(path.resolve()), info.st_size, info.st_mtime_ns, info.st_ino),
+        fast_paths=fast_paths,
     )
 
 
@@ -282,10 +341,17 @@ def _check_interface(graph: onnx.GraphProto, path) -> bool:
         _check_tensor(inputs[INPUT_WAVELENGTH], (None,), "input", path)
 
     outputs = [vi.name for vi in graph.output]
-    if outputs != [OUTPUT_F]:
-        raise InputError(f"graph outputs are {outputs}; expected exactly ['f']", path=path)
+    if (not outputs or outputs[0] != OUTPUT_F or len(set(outputs)) != len(outputs)
+            or any(name not in FAST_PATH_OUTPUTS for name in outputs[1:])):
+        raise InputError(f"graph outputs are {outputs}; expected ['f'], optionally followed by fast paths "
+                         f"{list(FAST_PATH_OUTPUTS)}", path=path)
     expected = (None,) if is_spectral else (None, 3)
     _check_tensor(graph.output[0], expected, "output", path)
+    for value_info in graph.output[1:]:
+        if value_info.name == OUTPUT_RGB and not is_spectral:
+            raise InputError(f"output {OUTPUT_RGB!r} is the linear sRGB of a spectral model; this model is RGB "
+                             "(no 'wavelength' input)", path=path)
+        _check_tensor(value_info, (None, 3) if value_info.name == OUTPUT_RGB else expected, "output", path)
     return is_spectral
 
 
@@ -323,6 +389,30 @@ def metadata_float_list(metadata: Mapping[str, str], key: str, path) -> tuple[fl
     if not all(math.isfinite(v) and v >= 0.0 for v in values):
         raise InputError(f"metadata value {text!r} must be finite and >= 0", path=path, column=key)
     return values
+
+
+def _fast_paths(metadata: Mapping[str, str], outputs: Sequence[str], path) -> dict[str, FastPath]:
+    """The fast paths of the graph's extra ``outputs`` from their metadata entries (module
+    docstring), checked; an entry for an output the graph lacks is an error too."""
+    described = {key.split(".")[1] for key in metadata
+                 if key.startswith("neuralbrdf.") and key.count(".") == 2 and key.split(".")[1] in FAST_PATH_OUTPUTS}
+    orphans = sorted(described - set(outputs))
+    if orphans:
+        raise InputError(f"metadata describes the fast path {orphans[0]!r}, which the graph does not output",
+                         path=path, column=fast_path_key(orphans[0], FAST_PATH_KEYS[0]))
+    found = {}
+    for output in outputs:
+        missing = [fast_path_key(output, field) for field in FAST_PATH_KEYS if fast_path_key(output, field) not in metadata]
+        if missing:
+            raise InputError(f"the fast path {output!r} lacks its metadata entry", path=path, column=missing[0])
+        error = metadata_float(metadata, fast_path_key(output, "hemisphere_logcos_rmse"), path)
+        cost = metadata_float(metadata, fast_path_key(output, "relative_cost"), path)
+        for field, value, ok, rule in (("hemisphere_logcos_rmse", error, error >= 0, ">= 0"),
+                                       ("relative_cost", cost, cost > 0, "> 0")):
+            if not ok:
+                raise InputError(f"metadata value {value!r} must be {rule}", path=path, column=fast_path_key(output, field))
+        found[output] = FastPath(output, metadata[fast_path_key(output, "approximates")], error, cost)
+    return found
 
 
 def _check_metadata(metadata: Mapping[str, str], path, is_spectral: bool):
@@ -617,6 +707,70 @@ def _check_dense_probe(session, path, wavelength_range) -> None:
                 f"theta_i = {theta_i:.2f} deg, theta_o = {theta_o:.2f} deg{where}; a BRDF is finite and >= 0",
                 path=path,
             )
+
+
+def input_dependencies(graph: onnx.GraphProto) -> dict[str, frozenset[str]]:
+    """For every tensor of ``graph``, the graph inputs it depends on (nodes visited in topological
+    order); :class:`ValueError` for a cycle or a tensor nothing produces."""
+    depends: dict[str, frozenset[str]] = {vi.name: frozenset([vi.name]) for vi in graph.input}
+    for init in graph.initializer:
+        depends[init.name] = frozenset()
+    pending = list(graph.node)
+    while pending:
+        ready = [n for n in pending if all(not i or i in depends for i in n.input)]
+        if not ready:
+            raise ValueError("the graph has a cycle or reads a tensor nothing produces")
+        for node in ready:
+            inputs = frozenset().union(*(depends[i] for i in node.input if i))
+            for name in node.output:
+                depends[name] = inputs
+        pending = [n for n in pending if n not in ready]
+    return depends
+
+
+def output_model(proto: onnx.ModelProto, output: str) -> onnx.ModelProto:
+    """The part of ``proto`` that computes ``output``, as a model whose only output is ``f`` (an
+    ``Identity`` renames a fast path) and whose inputs are the graph inputs it reads: the nodes,
+    initialisers and inputs ``output`` depends on, nothing else."""
+    graph = proto.graph
+    producer = {name: node for node in graph.node for name in node.output}
+    needed, pending, nodes = set(), [output], []
+    while pending:
+        name = pending.pop()
+        if name in needed or not name:
+            continue
+        needed.add(name)
+        node = producer.get(name)
+        if node is not None and node not in nodes:
+            nodes.append(node)
+            pending.extend(node.input)
+    nodes = [node for node in graph.node if node in nodes]  # graph order is topological
+    (declared,) = [vi for vi in graph.output if vi.name == output]
+    result = onnx.ValueInfoProto()
+    result.CopyFrom(declared)
+    if output != OUTPUT_F:
+        nodes.append(onnx.helper.make_node("Identity", [output], [OUTPUT_F], name=f"{output}_as_f"))
+        result.name = OUTPUT_F
+    initializers = [init for init in graph.initializer if init.name in needed]
+    inputs = [vi for vi in graph.input if vi.name in needed and vi.name not in {init.name for init in initializers}]
+    cut = onnx.helper.make_graph(nodes, f"{graph.name}:{output}", inputs, [result], initializers)
+    model = onnx.helper.make_model(cut, opset_imports=proto.opset_import)
+    model.ir_version = proto.ir_version
+    return model
+
+
+def _check_fast_path(proto: onnx.ModelProto, output: str, path, wavelength_range) -> None:
+    """A fast path evaluated like ``f`` (:func:`_check_trial_evaluation`) on its own graph
+    (:func:`output_model`); ``f_rgb`` must not read the wavelength."""
+    model = output_model(proto, output)
+    reads_wavelength = any(vi.name == INPUT_WAVELENGTH for vi in model.graph.input)
+    if output == OUTPUT_RGB and reads_wavelength:
+        raise InputError(f"output {output!r} depends on 'wavelength'; the linear sRGB is a function of wi, wo alone",
+                         path=path)
+    try:
+        _check_trial_evaluation(model, path, wavelength_range if reads_wavelength else None)
+    except InputError as error:
+        raise InputError(f"fast path {output!r}: {error.reason}", path=path) from None
 
 
 def _check_trial_evaluation(proto: onnx.ModelProto, path, wavelength_range) -> None:

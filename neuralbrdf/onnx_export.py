@@ -270,6 +270,66 @@ def write_model(exportable: Exportable, out: str | Path) -> ExportReport:
     return ExportReport(out, exportable.kind, exportable.material, n_probes, max_abs, max_rel)
 
 
+# --------------------------------------------------------------------------- fast paths
+
+
+def _prefixed(graph: onnx.GraphProto, prefix: str, output: str) -> tuple[list, list]:
+    """The nodes and initialisers of a traced ``graph`` with every internal name prefixed by
+    ``prefix`` (the contract's inputs keep theirs) and its output ``f`` renamed ``output``."""
+    shared = {INPUT_WI, INPUT_WO, INPUT_WAVELENGTH, ""}
+
+    def name(tensor: str) -> str:
+        if tensor == OUTPUT_F:
+            return output
+        return tensor if tensor in shared else prefix + tensor
+
+    nodes = []
+    for node in graph.node:
+        renamed = onnx.NodeProto()
+        renamed.CopyFrom(node)
+        renamed.name = prefix + node.name
+        renamed.input[:] = [name(i) for i in node.input]
+        renamed.output[:] = [name(o) for o in node.output]
+        nodes.append(renamed)
+    initializers = []
+    for init in graph.initializer:
+        renamed = onnx.TensorProto()
+        renamed.CopyFrom(init)
+        renamed.name = name(init.name)
+        initializers.append(renamed)
+    return nodes, initializers
+
+
+def with_fast_paths(proto: onnx.ModelProto, fast_paths: dict[str, onnx.ModelProto],
+                    metadata: dict[str, str]) -> onnx.ModelProto:
+    """``proto`` with each traced model of ``fast_paths`` (output name -> a graph of the contract,
+    e.g. from :func:`trace`) added as a further output of that name (SPEC §6 fast paths), its
+    tensors prefixed by the output's name; ``metadata`` entries are added to the file's.  The
+    graphs share the inputs ``wi``, ``wo`` (and ``wavelength``); a fast path reads only those it
+    needs.  :class:`ValueError` when ``proto`` already has an output of one of those names."""
+    combined = onnx.ModelProto()
+    combined.CopyFrom(proto)
+    graph = combined.graph
+    present = sorted({output.name for output in graph.output} & set(fast_paths))
+    if present:
+        raise ValueError(f"the model already has the fast path {present[0]!r}")
+    opsets = {o.domain: o.version for o in proto.opset_import}
+    for output, fast in fast_paths.items():
+        if {o.domain: o.version for o in fast.opset_import}.get("", OPSET) != opsets.get("", OPSET):
+            raise ValueError(f"the fast path {output!r} uses another opset than the model")
+        nodes, initializers = _prefixed(fast.graph, f"{output}/", output)
+        graph.node.extend(nodes)
+        graph.initializer.extend(initializers)
+        declared = onnx.ValueInfoProto()
+        declared.CopyFrom(fast.graph.output[0])
+        declared.name = output
+        graph.output.append(declared)
+    entries = {entry.key: entry.value for entry in proto.metadata_props}
+    entries.update(metadata)
+    helper.set_model_props(combined, entries)
+    return combined
+
+
 def export_checkpoint(ckpt: str | Path, out: str | Path, material: str | None = None) -> ExportReport:
     """Export checkpoint ``ckpt`` to the ``.onnx`` file ``out``; nothing is written on failure."""
     return write_model(load_exportable(ckpt, material), out)

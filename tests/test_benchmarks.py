@@ -1,28 +1,21 @@
-"""``benchmarks/run.py --quick`` runs end to end (train, export, renders in both variants and
-backends, throughput in three backends) and writes the JSON its README documents."""
+"""``benchmarks/run.py --quick`` runs end to end (train, export with fast paths, renders of every
+kind in both variants and backends, image errors of the fast paths, throughput with the fused
+kernel's own time) and writes the JSON its README documents; the kernel time excludes tracing."""
 
 import json
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
 
+import onnx_fixtures as fx
+
 ROOT = Path(__file__).resolve().parents[1]
-RENDER_CONFIGS = {
-    "roughconductor/symbolic",
-    "roughconductor/wavefront",
-    "drjit/symbolic",
-    "onnxruntime/wavefront",
-    "flat_model_drjit/symbolic",
-    "relu_model_drjit/symbolic",
-}
-RATIOS = {
-    "drjit_vs_roughconductor_symbolic",
-    "flat_model_drjit_vs_roughconductor_symbolic",
-    "relu_model_drjit_vs_roughconductor_symbolic",
-    "onnxruntime_vs_roughconductor_wavefront",
-    "onnxruntime_vs_roughconductor_symbolic",
+RGB_CONFIGS = {
+    "roughconductor/symbolic", "roughconductor/wavefront", "spectral_mlp/drjit", "spectral_mlp/onnxruntime",
+    "spectral_mlp_integrated/drjit", "abc/drjit", "nlb/drjit", "nlb_fast/drjit", "flat_model/drjit",
 }
 
 
@@ -34,29 +27,49 @@ def test_quick_benchmark_writes_the_documented_results(tmp_path):
         capture_output=True,
         text=True,
         cwd=tmp_path,
-        timeout=600,
+        timeout=1200,
     )
     assert result.returncode == 0, result.stderr[-2000:]
-    assert "drjit_vs_roughconductor_symbolic" in result.stdout  # the printed table
+    assert "x rc median" in result.stdout and "drjit_kernel" in result.stdout  # the printed table
     results = json.loads(out.read_text())
-    assert {"machine", "settings", "seed", "model", "render", "throughput", "targets", "peak_rss_mb"} <= set(results)
-    assert results["quick"] is True and results["machine"]["cores"] >= 1
-    for key, activation in (("model", "tanh"), ("relu_model", "relu")):
-        assert results[key]["activation"] == activation
-        assert results[key]["export_max_rel_error"] <= 1e-5
+    assert {"machine", "settings", "seed", "models", "fast_paths", "render", "throughput", "targets", "peak_rss_mb",
+            "load_average"} <= set(results)
+    assert results["quick"] is True and len(results["load_average"]["before"]) == 3
+    assert results["models"]["spectral_mlp"]["export_max_rel_error"] <= 1e-5
+    assert set(results["fast_paths"]) == {"spectral_mlp f_rgb", "nlb f_fast"}
     assert set(results["render"]) == {"llvm_ad_rgb", "llvm_ad_spectral"}
-    for variant in results["render"].values():
-        assert set(variant["configs"]) == RENDER_CONFIGS and set(variant["ratios"]) == RATIOS
-        for config in variant["configs"].values():
-            assert config["median_s"] > 0 and config["first_call_s"] > 0 and len(config["times_s"]) >= 2
-        for ratio in variant["ratios"].values():
-            assert ratio > 0
-    for name in ("drjit/symbolic", "onnxruntime/wavefront", "relu_model_drjit/symbolic"):
-        rule = results["render"]["llvm_ad_rgb"]["configs"][name]["rgb_rule"]
-        assert 1 <= len(rule["wavelengths_nm"]) <= 31 and rule["rms_relative_error"] <= 1e-3
-    assert "rgb_rule" not in results["render"]["llvm_ad_spectral"]["configs"]["drjit/symbolic"]
-    assert set(results["throughput"]) == {"spectral_mlp", "spectral_mlp_relu", "nlb_compact", "abc"}
-    for model in results["throughput"].values():
-        assert set(model["backends"]) == {"pytorch", "onnxruntime", "drjit"}
-        assert all(b["queries_per_s"] > 0 and b["first_call_s"] > 0 for b in model["backends"].values())
-        assert model["fastest"] in model["backends"]
+    rgb, spectral = results["render"]["llvm_ad_rgb"], results["render"]["llvm_ad_spectral"]
+    assert set(rgb["configs"]) == RGB_CONFIGS and set(spectral["configs"]) == RGB_CONFIGS - {"spectral_mlp_integrated/drjit"}
+    for variant in (rgb, spectral):
+        for name, config in variant["configs"].items():
+            assert config["median_s"] > 0 and config["shortest_s"] <= config["median_s"] and len(config["times_s"]) >= 2
+            if not name.startswith("roughconductor"):
+                assert variant["ratios"][name]["median"] > 0 and variant["ratios"][name]["shortest"] > 0
+    # which output each configuration evaluated
+    assert rgb["configs"]["spectral_mlp/drjit"]["output"] == "f_rgb"
+    assert rgb["configs"]["spectral_mlp/onnxruntime"]["output"] == "f_rgb"
+    assert rgb["configs"]["spectral_mlp_integrated/drjit"]["output"] == "f"
+    assert 1 <= len(rgb["configs"]["spectral_mlp_integrated/drjit"]["rgb_rule_wavelengths_nm"]) <= 31
+    assert spectral["configs"]["spectral_mlp/drjit"]["output"] == "f"
+    assert rgb["configs"]["nlb_fast/drjit"]["output"] == spectral["configs"]["nlb_fast/drjit"]["output"] == "f_fast"
+    assert set(rgb["image_errors"]) == {"spectral_mlp/drjit vs spectral_mlp_integrated/drjit", "nlb_fast/drjit vs nlb/drjit"}
+    assert set(spectral["image_errors"]) == {"nlb_fast/drjit vs nlb/drjit"}
+    assert set(results["throughput"]) == {"spectral_mlp", "spectral_mlp rgb head", "nlb", "nlb fast path", "abc"}
+    for name, model in results["throughput"].items():
+        expected = {"onnxruntime", "drjit", "drjit_kernel"} | ({"pytorch"} if model["output"] == "f" else set())
+        assert set(model["backends"]) == expected, name
+        assert all(b["queries_per_s"] > 0 for b in model["backends"].values())
+
+
+def test_the_kernel_time_excludes_tracing(tmp_path):
+    from neuralbrdf.kinds import load_model
+    from neuralbrdf.render.drjit_onnx import DrJitGraph
+    from neuralbrdf.study.cost import drjit_evaluate, drjit_inputs, drjit_kernel_seconds, probe_inputs
+
+    graph = DrJitGraph(load_model(fx.write_nlb_like(tmp_path / "nlb.onnx")).proto)
+    inputs = drjit_inputs(probe_inputs(2**16, False), False)
+    drjit_evaluate(graph, inputs)  # compiled once
+    start = time.perf_counter()
+    kernel = drjit_kernel_seconds(graph, inputs)
+    wall = time.perf_counter() - start
+    assert 0 < kernel < wall

@@ -118,7 +118,7 @@ def evaluate(args) -> None:
     from neuralbrdf.evaluation.evaluate import RenderSettings, format_table
     from neuralbrdf.evaluation.evaluate import evaluate as run_evaluation
 
-    settings = RenderSettings(args.variant, args.spp, args.resolution, args.seed, args.backend)
+    settings = RenderSettings(args.variant, args.spp, args.resolution, args.seed, args.backend, args.fast)
     result = run_evaluation(args.model, args.truth, args.out_dir, settings, render_images=not args.no_render)
     for note in result["notes"]:
         print(f"note: {note}", file=sys.stderr)

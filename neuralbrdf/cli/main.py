@@ -164,7 +164,8 @@ def build_parser() -> argparse.ArgumentParser:
         "hemisphere pairs (theta <= 80 deg), relative RMSE over the in-plane glossy (|ti - tr| <= 10 deg) and diffuse "
         "regions (1 deg grid within +-60 deg), and image metrics (relative MSE, PSNR, CIEDE2000 mean and p95) of both "
         "rendered in the material-preview scene with the same seeds; the truth rendered again with other seeds gives "
-        "the noise level. Spectral model and truth compare at 400-700 nm every 10 nm, otherwise in linear sRGB. "
+        "the noise level. Spectral model and truth compare at 400-700 nm every 10 nm, otherwise in linear sRGB. The "
+        "model's fast paths are scored against its f (and, when rendered, by the image they change). "
         "Writes DIR/evaluation.json, model.png, truth.png, error_map.png, comparison.png and prints a table.",
     )
     p.add_argument("model", help="model file (.onnx)")
@@ -175,6 +176,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--spp", type=int, default=256, help="samples per pixel (default 256)")
     p.add_argument("--resolution", type=int, default=128, help="image width = height in pixels (default 128)")
     p.add_argument("--seed", type=int, default=0, help="render seed (default 0)")
+    p.add_argument("--fast", action="store_true",
+                   help="render the model's fast path f_fast (neuralbrdf export --fast) and compare it with f too")
     p.add_argument("--no-render", action="store_true", help="direction metrics only (no Mitsuba)")
 
     study_command.add_arguments(add("study", study_command.run, study_command.HELP, study_command.DESCRIPTION))

@@ -2,7 +2,7 @@
 material-preview scene, or any Mitsuba 3 scene that uses the ``neuralbrdf`` BSDF (SPEC §7).
 
     neuralbrdf render --model MODEL.onnx --out IMAGE.png [--exr] [--variant llvm_ad_rgb]
-        [--backend drjit|onnxruntime] [--spp 64] [--resolution 256] [--seed 0] [--rgb-tolerance 1e-3]
+        [--backend drjit|onnxruntime] [--spp 64] [--resolution 256] [--seed 0] [--rgb-tolerance 1e-3] [--fast]
     neuralbrdf render --reference-bsdf roughconductor --out REF.png ...
     neuralbrdf render --scene SCENE.xml --out IMAGE.png [same options]
 
@@ -19,6 +19,11 @@ scene ships inside the package: ``neuralbrdf/render/scenes/material_preview.xml`
 **Spectral models in RGB variants** are integrated to sRGB through the plugin's reduced rule
 (``--rgb-tolerance``, its held-out rms relative error, default 1e-3; ``0`` for all 31
 wavelengths), see :mod:`neuralbrdf.render.mitsuba_bsdf`.
+
+**Fast paths** (:mod:`neuralbrdf.render.fast_paths`): a spectral model whose file has an RGB
+head renders through it in RGB variants; ``--fast`` renders each model's compact copy
+``f_fast`` (``neuralbrdf export --fast``) — a model without one is refused, or, in a scene,
+stays full with a note.
 
 **Backends.** ``drjit`` renders in Dr.Jit's default symbolic mode (the network fused into the
 kernel); ``onnxruntime`` needs wavefront mode (``SymbolicLoops``/``SymbolicCalls`` off), which
@@ -54,6 +59,7 @@ import numpy as np
 
 from neuralbrdf.atomic import check_outputs, command_inputs
 from neuralbrdf.errors import InputError
+from neuralbrdf.onnx_contract import OUTPUT_FAST
 from neuralbrdf.render.preview import (
     BACKENDS,
     DEFAULT_MAX_DEPTH,
@@ -103,6 +109,11 @@ def build_parser(prog: str = "neuralbrdf render") -> argparse.ArgumentParser:
         help="spectral models in RGB variants: held-out rms relative error of the fitted few-wavelength "
         f"sRGB rule (default {DEFAULT_RMS_TOLERANCE:g}; 0: integrate all 31 wavelengths)",
     )
+    parser.add_argument(
+        "--fast", action="store_true",
+        help="render each model's fast path f_fast (neuralbrdf export --fast) instead of the full network; with "
+        "--scene, the materials whose models have none stay full (named on stderr)",
+    )
     parser.add_argument("--spp", type=int, default=64, help="samples per pixel (default 64)")
     parser.add_argument(
         "--resolution", type=int, default=None,
@@ -141,10 +152,28 @@ def render_scene(args, written: list[Path]) -> tuple[np.ndarray, float, str]:
         scene_file.set_all("backend", args.backend)
     if args.rgb_tolerance is not None:
         scene_file.set_all("rgb_tolerance", repr(float(args.rgb_tolerance)))
+    if args.fast:
+        _set_fast(scene_file)
     check_outputs(*written)
     _start(args.variant)
     image, seconds = render_scene_file(scene_file, args.spp, args.seed, args.spp_per_pass, progress=not args.quiet)
     return image, seconds, f"scene {args.scene}"
+
+
+def _set_fast(scene_file: SceneFile) -> None:
+    """``--fast`` on a scene: property ``fast`` on every material whose model has a fast path."""
+    from neuralbrdf.kinds import load_model
+    from neuralbrdf.render.fast_paths import ADD_COMMAND, FAST_PROPERTY
+
+    without = []
+    for material in scene_file.materials():
+        if OUTPUT_FAST in load_model(material.model).fast_paths:
+            scene_file.set_property(material.element, FAST_PROPERTY, "true")
+        else:
+            without.append(material.name)
+    if without:
+        print(f"note: --fast: {', '.join(without)} {'has' if len(without) == 1 else 'have'} no fast path and "
+              f"{'renders' if len(without) == 1 else 'render'} full (add one: {ADD_COMMAND})", file=sys.stderr)
 
 
 def render_preview(args, written: list[Path]) -> tuple[np.ndarray, float, str]:
@@ -156,8 +185,16 @@ def render_preview(args, written: list[Path]) -> tuple[np.ndarray, float, str]:
         backend=args.backend or "drjit",
         reference_bsdf=args.reference_bsdf,
         rgb_tolerance=DEFAULT_RMS_TOLERANCE if args.rgb_tolerance is None else args.rgb_tolerance,
+        fast=args.fast,
     )
     material = within_drjit_budget(material)  # reads the model: an input from here on
+    if args.fast:
+        if args.model is None:
+            raise InputError("--fast renders a model's fast path; give --model or --scene", column="--fast")
+        from neuralbrdf.kinds import load_model
+        from neuralbrdf.render.fast_paths import chosen_output
+
+        chosen_output(load_model(args.model), "_spectral" in args.variant, True, True)  # one line if it has none
     check_outputs(*written)
     _start(args.variant)
     start = time.perf_counter()

@@ -15,6 +15,12 @@ seed to be one image: the preview scene loads its lights in file order
 proposal differs from the truth's traced other paths and its ΔE was about the noise level
 whatever its accuracy (the quick study's NLB nylon: ΔE 4.85 at a noise of 4.3, 8 spp).
 
+**Fast paths** (:mod:`neuralbrdf.evaluation.fast_paths`).  The direction metrics score the
+model's ``f``; the image metrics score what the plugin renders, which is the file's RGB head
+``f_rgb`` for a spectral model in an RGB variant, and ``f_fast`` with ``--fast``
+(``rendered_output``).  ``fast_paths`` lists each fast path's recorded and measured error against
+``f`` and, for the one rendered, its image metrics against a render of ``f`` at the same seed.
+
 Outputs in ``DIR`` (all written together, or none: :func:`neuralbrdf.atomic.atomic_paths`): ``evaluation.json`` (strict JSON),
 ``model.png``, ``truth.png``, ``error_map.png`` (ΔE2000 per pixel, colour bar in ΔE units) and
 ``comparison.png`` (truth | model | ΔE side by side).
@@ -33,15 +39,17 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from neuralbrdf.atomic import atomic_paths, check_outputs, file_version
 from neuralbrdf.errors import InputError
+from neuralbrdf.evaluation.fast_paths import fast_path_scores, image_against_f, rendered_output
 from neuralbrdf.evaluation.images import IMAGE_METRICS, displayed, image_scores
 from neuralbrdf.evaluation.scores import DIRECTION_METRICS, HEMISPHERE_STRATA, Evaluator, OnnxEvaluator, direction_scores
+from neuralbrdf.onnx_contract import OUTPUT_F
 
 DEFAULT_VARIANT = "llvm_ad_spectral"
 DEFAULT_SPP = 256
@@ -76,6 +84,8 @@ class RenderSettings:
     resolution: int = DEFAULT_RESOLUTION
     seed: int = 0
     backend: str = "drjit"
+    #: Render the model's fast path ``f_fast`` (the plugin's ``fast`` property).
+    fast: bool = False
 
 
 def check_settings(settings: RenderSettings, model_path: Path, render_images: bool = True) -> None:
@@ -99,25 +109,29 @@ def check_settings(settings: RenderSettings, model_path: Path, render_images: bo
     set_variant(settings.variant)
 
 
-def _render(path: Path, settings: RenderSettings, seed: int, proposal: Path | None = None) -> np.ndarray:
-    """One render of the preview scene."""
+def _render(path: Path, settings: RenderSettings, seed: int, proposal: Path | None = None,
+            rgb_head: bool = True) -> np.ndarray:
+    """One render of the preview scene (``settings.fast``: the file's fast path ``f_fast``;
+    ``rgb_head=False``: a spectral file's ``f`` even in RGB variants)."""
     from neuralbrdf.render.preview import Material, render
 
-    image = render(Material(model=path, backend=settings.backend, proposal=proposal), settings.variant,
-                   settings.spp, settings.resolution, seed)
+    material = Material(model=path, backend=settings.backend, proposal=proposal, fast=settings.fast, rgb_head=rgb_head)
+    image = render(material, settings.variant, settings.spp, settings.resolution, seed)
     if not np.all(np.isfinite(image)):
         raise ValueError(f"the render of {path} is not finite")
     return image
 
 
 def _render_kept(kept: dict | None, path: Path, settings: RenderSettings, seed: int) -> np.ndarray:
-    """:func:`_render`, or its image kept in ``kept`` from an earlier call for the same file (path,
-    size, modification time, inode: :func:`~neuralbrdf.atomic.file_version`), settings and seed (read-only: shared by later calls)."""
+    """:func:`_render` of a truth (its ``f``: ``--fast`` is the model's), or its image kept in
+    ``kept`` from an earlier call for the same file (path, size, modification time, inode:
+    :func:`~neuralbrdf.atomic.file_version`), settings and seed (read-only: shared by later calls)."""
+    own = replace(settings, fast=False)
     if kept is None:
-        return _render(path, settings, seed)
-    key = (file_version(path), settings, seed)
+        return _render(path, own, seed)
+    key = (file_version(path), own, seed)
     if key not in kept:
-        image = _render(path, settings, seed)
+        image = _render(path, own, seed)
         image.flags.writeable = False
         kept[key] = image
     return kept[key]
@@ -198,6 +212,9 @@ def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path
         "notes": _notes(truth.model),
         **{name: directions.metrics[name] for name in DIRECTION_METRICS},
     }
+    output = rendered_output(model.file, settings.variant, settings.fast) if render_images else OUTPUT_F
+    fast_paths = fast_path_scores(model_path, strata)
+    result.update(rendered_output=output if render_images else None, fast_paths=fast_paths)
     images = None
     if render_images:
         render_started = time.perf_counter()
@@ -210,6 +227,10 @@ def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path
         result.update(image_metrics)
         result["noise"] = {**noise, "what": NOISE_DESCRIPTION}
         images = (model_image, truth_image, delta_e)
+        if output != OUTPUT_F:  # what the fast path changes in the picture: f at the same seed and paths
+            f_image = _render(model_path, replace(settings, fast=False), settings.seed, proposal=truth_path,
+                              rgb_head=False)
+            fast_paths[output]["image_against_f"] = image_against_f(model_image, f_image)
     result.update(
         variant=settings.variant if render_images else None,
         backend=settings.backend if render_images else None,
@@ -265,4 +286,11 @@ def format_table(result: dict) -> str:
         noise_value = noise.get(name)
         noise_shown = "" if name not in noise else ("inf" if noise_value is None else f"{noise_value:.4g}")
         lines.append(f"{name:<28}{shown:>12}{noise_shown:>26}")
+    if result.get("rendered_output") not in (None, OUTPUT_F):
+        lines.append(f"(rendered through the fast path {result['rendered_output']})")
+    for output, scores in (result.get("fast_paths") or {}).items():
+        against_f = scores.get("image_against_f")
+        lines.append(f"fast path {output}: log-cos RMSE against f {scores['hemisphere_logcos_rmse']:.4g} (recorded "
+                     f"{scores['recorded_hemisphere_logcos_rmse']:.4g}), relative cost {scores['relative_cost']:.2f}"
+                     + (f", image ΔE2000 mean against f {against_f['image_delta_e2000_mean']:.3g}" if against_f else ""))
     return "\n".join(lines)

@@ -72,16 +72,18 @@ class Evaluator(Protocol):
 
 
 class OnnxEvaluator:
-    """An ``.onnx`` model file (SPEC §6) evaluated with onnxruntime; a spectral model at wavelengths
-    clamped to its declared range, as the renderer evaluates it (SPEC §7), so the scores measure
-    what renders."""
+    """An ``.onnx`` model file (SPEC §6) evaluated with onnxruntime: its ``f``, or one of its fast
+    paths (``output``; ``model`` is then the file cut to that output, ``f_rgb`` an RGB model, and
+    ``file`` the whole file); a spectral model at wavelengths clamped to its declared range, as the
+    renderer evaluates it (SPEC §7), so the scores measure what renders."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, output: str = "f") -> None:
         import onnxruntime
 
         from neuralbrdf.kinds import load_model
 
-        self.model = load_model(path)
+        self.file = load_model(path)
+        self.model = self.file.output_view(output)
         self.is_spectral = self.model.is_spectral
         self.session = onnxruntime.InferenceSession(
             self.model.proto.SerializeToString(), providers=["CPUExecutionProvider"]

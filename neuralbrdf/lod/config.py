@@ -1,12 +1,13 @@
 """The level-of-detail settings (SPEC §11) from one YAML file, by default the shipped ``configs/lod/default.yaml``.
 
-Two sections: ``ladder`` (:class:`~neuralbrdf.lod.ladder.LadderSettings`, with the students'
-training in ``ladder.distill``: :class:`~neuralbrdf.lod.distill.DistillSettings`) and ``select``
-(:class:`~neuralbrdf.lod.select.SelectSettings`).  The file is the only place their values are
+Three sections: ``ladder`` (:class:`~neuralbrdf.lod.ladder.LadderSettings`, with the students'
+training in ``ladder.distill``: :class:`~neuralbrdf.lod.distill.DistillSettings`), ``select``
+(:class:`~neuralbrdf.lod.select.SelectSettings`) and ``fast_paths`` (the fast paths
+``neuralbrdf export`` embeds in a model file: :class:`~neuralbrdf.lod.fast_paths.FastPathSettings`).  The file is the only place their values are
 written down: every key of a section is required (except ``ladder.error_strata``, the
 metric's own definition, :data:`~neuralbrdf.evaluation.scores.HEMISPHERE_STRATA` unless given),
 an unknown key or a value of the wrong type is an :class:`~neuralbrdf.errors.InputError` naming
-the file and the key.  ``neuralbrdf ladder`` and ``neuralbrdf select`` read it (``--config`` names
+the file and the key.  ``neuralbrdf ladder``, ``neuralbrdf select`` and ``neuralbrdf export`` read it (``--config`` names
 another, a path or a shipped name) and their options override single values
 (:func:`dataclasses.replace`).
 """
@@ -25,13 +26,14 @@ import yaml
 from neuralbrdf.configs_dir import resolve_config
 from neuralbrdf.errors import InputError
 from neuralbrdf.lod.distill import DistillSettings
+from neuralbrdf.lod.fast_paths import FastPathSettings
 from neuralbrdf.lod.ladder import LadderSettings
 from neuralbrdf.lod.select import SelectSettings
 
 #: The shipped configs' folder (``configs/lod/``, apart from the training configs) and default name.
 CONFIG_FOLDER = "lod"
 DEFAULT_CONFIG = "default"
-SECTIONS = {"ladder": LadderSettings, "select": SelectSettings}
+SECTIONS = {"ladder": LadderSettings, "select": SelectSettings, "fast_paths": FastPathSettings}
 
 
 @dataclass(frozen=True)
@@ -39,6 +41,7 @@ class LodConfig:
     path: Path
     ladder: LadderSettings
     select: SelectSettings
+    fast_paths: FastPathSettings
 
 
 def load_lod_config(name: str | os.PathLike[str] = DEFAULT_CONFIG) -> LodConfig:

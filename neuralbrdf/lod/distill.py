@@ -9,6 +9,10 @@
   (:class:`~neuralbrdf.models.directional.SpectralMlpOnDirections`), fitted to the teacher's
   values by Adam on the log residual ``ln(f̂ + ε) − ln(f + ε)`` (the default training loss of the
   spectral MLP, README *Spectral MLP loss*: a ratio costs the same at every BRDF level).
+* :func:`distill_student` — a :class:`~neuralbrdf.models.student.DirectionalStudent` (RGB or
+  spectral, on Rusinkiewicz coordinates) fitted the same way: the fast paths of an exported file
+  (:mod:`neuralbrdf.lod.fast_paths`) — an RGB head of a spectral model, whose teacher is the
+  model's linear sRGB (:func:`rgb_teacher`), or a compact copy of an NLB.
 * :func:`abc_table` — the same samples as a :class:`~neuralbrdf.data.table.BrdfTable` (spherical
   angles, one column per wavelength of :data:`ABC_WAVELENGTHS_NM` or R, G, B), for
   :func:`~neuralbrdf.fitting.abc_fit.fit_abc`.
@@ -29,6 +33,7 @@ from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.geometry import normalize, reflect, vector_to_spherical
 from neuralbrdf.models.directional import SpectralMlpOnDirections
 from neuralbrdf.models.spectral_mlp import SpectralMLP
+from neuralbrdf.models.student import DirectionalStudent
 
 #: Wavelengths (nm) of a spectral ABC stand-in's ``kd`` and ``A``: every 25 nm (13 nodes; the
 #: graph interpolates linearly between them, a cost per node, so half the measurement grid's 31).
@@ -110,6 +115,43 @@ def teacher_samples(evaluator, n_pairs: int, seed: int = 0, wavelength_range_nm=
     return TeacherSamples(wi, wo, wavelength, np.clip(values, 0.0, None))
 
 
+def _fit_log_residual(predict, parameters, features: tuple[torch.Tensor, ...], values: np.ndarray,
+                      settings: DistillSettings, what: str) -> None:
+    """Adam on ``mean((ln(predict(rows) + ε) − ln(f + ε))²)`` over random batches of the teacher's
+    samples; ``features`` are per-sample tensors computed once, ``predict`` maps their rows to
+    the student's values.  :class:`ValueError` when the loss is not finite at the end.  Runs on
+    one torch thread: a student this small loses more to the threads' synchronisation than it
+    gains (``benchmarks/README.md``, design measurements)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        loss = _adam_steps(predict, parameters, features, values, settings)
+    finally:
+        torch.set_num_threads(threads)
+    if not torch.isfinite(loss):
+        raise ValueError(f"distillation of the {what} diverged (loss {float(loss)})")
+
+
+def _adam_steps(predict, parameters, features, values: np.ndarray, settings: DistillSettings) -> torch.Tensor:
+    """The optimisation of :func:`_fit_log_residual`; the last batch's loss."""
+    target = torch.log(torch.from_numpy(values).float() + LOG_EPSILON_SR)
+    optimizer = torch.optim.Adam(parameters, lr=settings.lr)
+    decay = settings.final_lr_fraction ** (1.0 / max(settings.steps, 1))
+    scheduler = torch.optim.lr_scheduler.ExponentialLR(optimizer, decay)
+    generator = torch.Generator().manual_seed(settings.seed)
+    n = len(target)
+    loss = torch.tensor(0.0)
+    for _ in range(settings.steps):
+        rows = torch.randint(0, n, (min(settings.batch, n),), generator=generator)
+        predicted = predict(*(feature[rows] for feature in features))
+        loss = torch.mean((torch.log(predicted + LOG_EPSILON_SR) - target[rows]) ** 2)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        scheduler.step()
+    return loss
+
+
 def distill_spectral_mlp(
     samples: TeacherSamples,
     hidden: int,
@@ -127,26 +169,42 @@ def distill_spectral_mlp(
     wi = torch.from_numpy(samples.wi).float()
     wo = torch.from_numpy(samples.wo).float()
     wavelength = torch.from_numpy(samples.wavelength).float()
-    target = torch.log(torch.from_numpy(samples.values).float() + LOG_EPSILON_SR)
     # The in-plane equivalent angles do not depend on the weights: computed once.
     with torch.no_grad():
         theta_i, theta_r = student.inplane_equivalent_deg(wi, wo)
-    optimizer = torch.optim.Adam(student.parameters(), lr=settings.lr)
-    decay = settings.final_lr_fraction ** (1.0 / max(settings.steps, 1))
-    scheduler = torch.optim.lr_scheduler.ExponentialLR(optimizer, decay)
-    generator = torch.Generator().manual_seed(settings.seed)
-    n = len(wi)
-    for _ in range(settings.steps):
-        rows = torch.randint(0, n, (min(settings.batch, n),), generator=generator)
-        predicted = student.mlp(theta_i[rows], theta_r[rows], wavelength[rows])
-        loss = torch.mean((torch.log(predicted + LOG_EPSILON_SR) - target[rows]) ** 2)
-        optimizer.zero_grad()
-        loss.backward()
-        optimizer.step()
-        scheduler.step()
-    if not torch.isfinite(loss):
-        raise ValueError(f"distillation of the {hidden_layers}x{hidden} student diverged (loss {float(loss)})")
+    _fit_log_residual(student.mlp, student.parameters(), (theta_i, theta_r, wavelength), samples.values, settings,
+                      f"{hidden_layers}x{hidden} student")
     return student.eval()
+
+
+def distill_student(samples: TeacherSamples, hidden: int, hidden_layers: int, activation: str,
+                    settings: DistillSettings, wavelength_range_nm: tuple[float, float] | None = None
+                    ) -> DirectionalStudent:
+    """A :class:`~neuralbrdf.models.student.DirectionalStudent` fitted to the teacher's values:
+    RGB (``samples.values`` ``[N, 3]``) or spectral (``[N]`` with ``wavelength_range_nm``)."""
+    if (samples.wavelength is None) != (wavelength_range_nm is None):
+        raise ValueError("a spectral student needs a spectral teacher and its wavelength range, an RGB one neither")
+    torch.manual_seed(settings.seed)
+    student = DirectionalStudent(hidden, hidden_layers, wavelength_range_nm, activation)
+    wavelength = None if samples.wavelength is None else torch.from_numpy(samples.wavelength).float()
+    with torch.no_grad():  # the coordinates do not depend on the weights: computed once
+        features = student.features(torch.from_numpy(samples.wi).float(), torch.from_numpy(samples.wo).float(),
+                                    wavelength)
+    _fit_log_residual(lambda x: torch.exp(student.log_f(x)), student.parameters(), (features,), samples.values,
+                      settings, student.describe())
+    return student.eval()
+
+
+def rgb_teacher(evaluator):
+    """The linear sRGB a spectral ``evaluator`` (an :class:`~neuralbrdf.evaluation.scores.OnnxEvaluator`)
+    renders as in RGB variants: the plugin's rule of SPEC §2.3 on all 31 wavelengths, exactly
+    (:func:`~neuralbrdf.render.spectral_quadrature.full_rule`), negatives clipped; an RGB
+    evaluator as it is."""
+    from neuralbrdf.render.spectral_quadrature import RuleRgbEvaluator, full_rule
+
+    if not evaluator.is_spectral:
+        return evaluator
+    return RuleRgbEvaluator(evaluator, full_rule(evaluator.model.wavelength_range_nm))
 
 
 def abc_table(evaluator, n_pairs: int, seed: int = 0, source: str = "<parent samples>") -> BrdfTable:

@@ -20,13 +20,23 @@ colour variants and the sampler render it unchanged:
   network evaluations per RGB query.  Its error is the hemisphere log-cos RMSE of its linear
   sRGB against the exact 31-wavelength integral, its cost the ratio of the rules' wavelength
   counts (the network evaluations per RGB query).  No new file: the ladder records the property.
+  Not offered when the parent has an RGB head (fast path ``f_rgb``), which the plugin uses in RGB
+  variants instead of any rule;
+* for a spectral parent with an RGB head (fast path ``f_rgb``) every stand-in rung applies in
+  spectral variants only (ladder.json ``variants``): in RGB variants the parent itself renders
+  through its head, at about one small network evaluation per query;
+* ``fast`` — a parent with a fast path ``f_fast`` (``neuralbrdf export --fast``,
+  :mod:`neuralbrdf.lod.fast_paths`): the parent file itself with the plugin property ``fast``, its
+  error and cost measured like a rung file's.  A model file without a ladder folder still offers
+  this rung to ``neuralbrdf select`` (:func:`embedded_ladder`, numbers from its metadata).
 
 Each rung records in its ``metadata_props`` (keys :data:`RUNG_KEY` …) what it approximates (the
 parent's file name and SHA-256), its error against the parent — ``hemisphere_logcos_rmse``
 (SPEC §5, :func:`~neuralbrdf.evaluation.scores.hemisphere_scores`: 102 400 stratified pairs,
 spectra compared at 31 wavelengths) — and its measured evaluation cost: Dr.Jit nanoseconds per
 query (:class:`~neuralbrdf.render.drjit_onnx.DrJitGraph` on 2^20 and 2^22 random upper-hemisphere
-pairs, one wavelength per query for spectral models; :func:`drjit_costs`: all rungs and the
+pairs, one wavelength per query for spectral models, the kernel's own run time from Dr.Jit's
+kernel history; :func:`drjit_costs`: all rungs and the
 parent measured in interleaved rounds in one process, so that machine load hits them alike) and that cost
 relative to the parent's.  ``DIR/ladder.json`` lists the rungs with the same numbers.
 
@@ -45,7 +55,6 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-import numpy as np
 import onnx
 
 from neuralbrdf.atomic import atomic_paths
@@ -57,9 +66,13 @@ from neuralbrdf.kinds import abc as abc_kind
 from neuralbrdf.kinds.table import nodes_text
 from neuralbrdf.lod.bake import bake_table
 from neuralbrdf.lod.distill import ABC_WAVELENGTHS_NM, DistillSettings, abc_table, distill_spectral_mlp, teacher_samples
+from neuralbrdf.onnx_contract import OUTPUT_F, OUTPUT_FAST, OUTPUT_RGB
 from neuralbrdf.onnx_export import write_model
+from neuralbrdf.render.fast_paths import FAST_PROPERTY
 
 LADDER_FILE = "ladder.json"
+#: The rung of a parent's own fast path (its ``f_fast`` output, plugin property ``fast``).
+FAST_RUNG = "fast"
 LADDER_FORMAT = "neuralbrdf.ladder/1"
 #: Rung metadata keys (all strings, beside the contract's own keys).
 RUNG_KEY = "neuralbrdf.ladder.rung"
@@ -156,36 +169,35 @@ def _candidates(parent: OnnxEvaluator, settings: LadderSettings):
 
 def drjit_costs(protos: dict[str, onnx.ModelProto], spectral: bool, batches: tuple[int, int], rounds: int) -> dict[str, float]:
     """Dr.Jit nanoseconds per query of each graph inside a kernel: the slope
-    ``(t(large) − t(small)) / (large − small)`` of the shortest wall times of two batch sizes (the
-    shortest: other processes only ever add time on a shared machine), so that
-    the per-call cost of interpreting the graph in Python (which a render pays once per kernel,
-    not per sample) cancels.  Rounds are interleaved over the graphs and batch sizes, one warm-up
-    call each first, on random upper-hemisphere pairs (:func:`neuralbrdf.study.cost.probe_inputs`)."""
+    ``(t(large) − t(small)) / (large − small)`` of the shortest kernel run times of two batch sizes
+    (Dr.Jit's kernel history, :func:`neuralbrdf.study.cost.drjit_kernel_seconds`: the kernel alone,
+    without the tracing and interpretation of the graph in Python, which a render pays once per
+    kernel, not per sample; the shortest: other processes only ever add time on a shared machine;
+    the slope: a launch's fixed cost cancels).  Rounds are interleaved over the graphs and batch
+    sizes, one warm-up call each first, on random upper-hemisphere pairs
+    (:func:`neuralbrdf.study.cost.probe_inputs`)."""
     from neuralbrdf.render.drjit_onnx import DrJitGraph
-    from neuralbrdf.study.cost import drjit_evaluate, drjit_inputs, probe_inputs, timed
+    from neuralbrdf.study.cost import drjit_evaluate, drjit_inputs, drjit_kernel_seconds, probe_inputs
 
     inputs = {batch: drjit_inputs(probe_inputs(batch, spectral), spectral) for batch in batches}
     graphs = {name: DrJitGraph(proto) for name, proto in protos.items()}
-
-    def call(graph, batch):
-        drjit_evaluate(graph, inputs[batch])
-
     times = {(name, batch): [] for name in graphs for batch in batches}
     for name, graph in graphs.items():
         for batch in batches:
-            call(graph, batch)
+            drjit_evaluate(graph, inputs[batch])
     for _ in range(rounds):
         for name, graph in graphs.items():
             for batch in batches:
-                times[name, batch].append(timed(lambda: call(graph, batch)))
+                times[name, batch].append(drjit_kernel_seconds(graph, inputs[batch]))
     small, large = batches
     return {name: max(1e9 * (min(times[name, large]) - min(times[name, small])) / (large - small), 1e-3)
             for name in graphs}
 
 
-def parent_error(rung: Path, parent, strata: tuple[int, int] = HEMISPHERE_STRATA) -> float:
-    """``hemisphere_logcos_rmse`` of the model file ``rung`` against the parent (module docstring)."""
-    return float(hemisphere_scores(OnnxEvaluator(rung), parent, strata=strata)["hemisphere_logcos_rmse"])
+def parent_error(rung: Path, parent, strata: tuple[int, int] = HEMISPHERE_STRATA, output: str = OUTPUT_F) -> float:
+    """``hemisphere_logcos_rmse`` of the model file ``rung`` (its ``output``) against the parent
+    (module docstring)."""
+    return float(hemisphere_scores(OnnxEvaluator(rung, output), parent, strata=strata)["hemisphere_logcos_rmse"])
 
 
 # --------------------------------------------------------------------------- the ladder
@@ -224,7 +236,22 @@ def build_ladder(model_path: str | Path, out_dir: str | Path, settings: LadderSe
             log(f"{name}: built in {built[name][2]:.1f} s")
         errors = {name: parent_error(path, reference, settings.error_strata) for name, (path, _, _) in built.items()}
         protos = {FULL_RUNG: parent.model.proto, **{name: load_model(path).proto for name, (path, _, _) in built.items()}}
+        fast = OUTPUT_FAST in parent.file.fast_paths
+        # With an RGB head the parent renders at one small evaluation per query in RGB variants,
+        # which no spectral stand-in integrated through a rule undercuts: its rungs are for
+        # spectral variants only.
+        stand_in_variants = "spectral" if OUTPUT_RGB in parent.file.fast_paths else "rgb spectral"
+        if fast:  # the parent's own fast path: its f_fast output
+            protos[FAST_RUNG] = parent.file.output_view(OUTPUT_FAST).proto
         costs = drjit_costs(protos, parent.is_spectral, settings.cost_batches, settings.cost_rounds)
+        if fast:
+            start = time.perf_counter()
+            error = parent_error(model_path, reference, settings.error_strata, output=OUTPUT_FAST)
+            rungs.append(_entry(FAST_RUNG, str(model_path), parent.model.kind,
+                                f"{model_path.name}'s own fast path: {parent.file.fast_paths[OUTPUT_FAST].approximates}",
+                                error, costs[FAST_RUNG], costs[FAST_RUNG] / costs[FULL_RUNG],
+                                time.perf_counter() - start, properties={FAST_PROPERTY: "true"},
+                                variants=stand_in_variants))
         rungs.append(_entry(FULL_RUNG, str(model_path), parent.model.kind, "the parent itself", 0.0,
                             costs[FULL_RUNG], 1.0, 0.0))
         payloads = {}
@@ -235,8 +262,8 @@ def build_ladder(model_path: str | Path, out_dir: str | Path, settings: LadderSe
                 ERROR_KEY: repr(errors[name]), COST_KEY: repr(costs[name]), RELATIVE_COST_KEY: repr(relative),
             })
             rungs.append(_entry(name, f"{name}.onnx", load_model(path).kind, describes, errors[name], costs[name],
-                                relative, seconds))
-        if parent.is_spectral:
+                                relative, seconds, variants=stand_in_variants))
+        if stand_in_variants != "spectral" and parent.is_spectral:  # an RGB head is cheaper than any rule
             rungs += _rgb_rule_rungs(parent, reference, model_path, costs[FULL_RUNG], settings)
     from neuralbrdf.study.cost import machine
 
@@ -246,7 +273,7 @@ def build_ladder(model_path: str | Path, out_dir: str | Path, settings: LadderSe
                    "material": parent.model.material, "spectral": parent.is_spectral},
         "error_metric": f"hemisphere_logcos_rmse against the parent (SPEC §5; {math.prod(settings.error_strata) ** 2} "
                         "stratified pairs, theta <= 80 deg; spectra at 400-700 nm every 10 nm, else linear sRGB)",
-        "cost_metric": "Dr.Jit ns per query inside a kernel (slope of the shortest wall times of batches of "
+        "cost_metric": "Dr.Jit ns per query inside a kernel (slope of the shortest kernel run times of batches of "
                        f"{settings.cost_batches[0]} and {settings.cost_batches[1]} random pairs, one wavelength per "
                        f"query for spectral models, {settings.cost_rounds} interleaved rounds); relative_cost = rung / full",
         "rungs": sorted(rungs, key=lambda r: r["relative_cost"], reverse=True),
@@ -270,26 +297,11 @@ def _entry(name, file, kind, approximates, error, cost_ns, relative, build_s, pr
             "build_time_s": build_s, "bsdf_properties": properties or {}, "variants": variants}
 
 
-class ReducedRgbEvaluator:
-    """A spectral model's linear sRGB through a reduced rule (what the plugin returns in RGB variants)."""
-
-    is_spectral = False
-
-    def __init__(self, parent: OnnxEvaluator, rule) -> None:
-        self.parent, self.rule = parent, rule
-
-    def values(self, wi, wo, wavelength=None):
-        n, k = len(wi), self.rule.size
-        spectra = self.parent.values(np.tile(wi, (k, 1)), np.tile(wo, (k, 1)),
-                                     np.repeat(np.asarray(self.rule.wavelengths_nm), n)).reshape(k, n)
-        return np.clip(np.clip(spectra, 0.0, None).T @ self.rule.weights, 0.0, None)
-
-
 def _rgb_rule_rungs(parent: OnnxEvaluator, reference, model_path: Path, full_cost_ns: float,
                     settings: LadderSettings) -> list[dict]:
     """``full_rgbT`` rungs (module docstring)."""
     from neuralbrdf.render.mitsuba_bsdf import fit_rgb_rule
-    from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE
+    from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE, RuleRgbEvaluator
 
     default = fit_rgb_rule(parent.model, parent.session, DEFAULT_RMS_TOLERANCE)
     out = []
@@ -298,7 +310,7 @@ def _rgb_rule_rungs(parent: OnnxEvaluator, reference, model_path: Path, full_cos
         rule = fit_rgb_rule(parent.model, parent.session, tolerance)
         if rule.size >= default.size:
             continue  # no fewer wavelengths than the default rule: not cheaper
-        scores = hemisphere_scores(ReducedRgbEvaluator(parent, rule), reference, strata=settings.error_strata)
+        scores = hemisphere_scores(RuleRgbEvaluator(parent, rule), reference, strata=settings.error_strata)
         error = float(scores["hemisphere_logcos_rmse"])
         relative = rule.size / default.size
         out.append(_entry(
@@ -323,7 +335,7 @@ def _settings_dict(settings: LadderSettings) -> dict:
 @dataclass(frozen=True)
 class Rung:
     """One rung of a read ladder: its file (absolute), cost and error against the parent, the
-    plugin properties it needs and whether it applies in RGB variants only."""
+    plugin properties it needs and the colour variants it applies in (``rgb``, ``spectral``)."""
 
     name: str
     path: Path
@@ -331,7 +343,10 @@ class Rung:
     relative_cost: float
     hemisphere_logcos_rmse: float
     properties: tuple[tuple[str, str], ...] = ()
-    rgb_only: bool = False
+    variants: tuple[str, ...] = ("rgb", "spectral")
+
+    def applies_in(self, rgb_variant: bool) -> bool:
+        return ("rgb" if rgb_variant else "spectral") in self.variants
 
 
 @dataclass(frozen=True)
@@ -366,7 +381,7 @@ def read_ladder(folder: str | Path) -> Ladder:
                               str(entry["kind"]), float(entry["relative_cost"]),
                               float(entry["hemisphere_logcos_rmse"]),
                               tuple((str(k), str(v)) for k, v in properties.items()),
-                              str(entry.get("variants", "rgb spectral")).split() == ["rgb"]))
+                              tuple(str(entry.get("variants", "rgb spectral")).split())))
         ladder = Ladder(Path(parent["file"]), str(parent["sha256"]),
                         tuple(sorted(rungs, key=lambda r: (r.name != FULL_RUNG, -r.relative_cost))))
     except (KeyError, TypeError, ValueError) as error:
@@ -374,3 +389,20 @@ def read_ladder(folder: str | Path) -> Ladder:
     if not ladder.rungs or ladder.rungs[0].name != FULL_RUNG:
         raise InputError("a ladder lists its full model as rung 'full'", path=path, column="rungs")
     return ladder
+
+
+def embedded_ladder(model_path: str | Path) -> Ladder | None:
+    """The ladder of a model file without a ladder folder whose file has a fast path ``f_fast``:
+    the full model and that fast path (plugin property ``fast``), with the error and relative cost
+    its metadata records; ``None`` for a file without one."""
+    model = load_model(model_path)
+    if OUTPUT_FAST not in model.fast_paths:
+        return None
+    path = Path(model_path).resolve()
+    recorded = model.fast_paths[OUTPUT_FAST]
+    variants = ("spectral",) if OUTPUT_RGB in model.fast_paths else ("rgb", "spectral")  # as build_ladder's
+    return Ladder(path, file_sha256(path), (
+        Rung(FULL_RUNG, path, model.kind, 1.0, 0.0),
+        Rung(FAST_RUNG, path, model.kind, recorded.relative_cost, recorded.hemisphere_logcos_rmse,
+             ((FAST_PROPERTY, "true"),), variants),
+    ))

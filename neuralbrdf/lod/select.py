@@ -75,7 +75,7 @@ import numpy as np
 from neuralbrdf.atomic import atomic_paths, check_outputs
 from neuralbrdf.errors import InputError
 from neuralbrdf.evaluation.images import delta_e2000_map
-from neuralbrdf.lod.ladder import FULL_RUNG, Ladder, Rung, file_sha256, read_ladder
+from neuralbrdf.lod.ladder import FULL_RUNG, Ladder, Rung, embedded_ladder, file_sha256, read_ladder
 from neuralbrdf.render.scene_file import SceneFile, material_coverage, render_scene_file
 
 #: Default ladder folder of ``MODEL.onnx``: ``MODEL.ladder`` beside it.
@@ -136,14 +136,16 @@ def default_ladder_dir(model: Path) -> Path:
 
 def find_ladders(scene: SceneFile, extra_dirs: list[Path]) -> dict[str, Ladder | None]:
     """Per material name, the ladder whose parent has the model file's SHA-256: among
-    ``extra_dirs`` and ``MODEL.ladder`` beside each model (``None``: no ladder, stays full)."""
+    ``extra_dirs`` and ``MODEL.ladder`` beside each model, else the model file's own fast path
+    (:func:`~neuralbrdf.lod.ladder.embedded_ladder`; ``None``: no ladder, stays full)."""
     candidates = [read_ladder(d) for d in extra_dirs]
     found = {}
     for material in scene.materials():
         sha = file_sha256(material.model)
         own = default_ladder_dir(material.model)
         pool = candidates + ([read_ladder(own)] if (own / "ladder.json").is_file() else [])
-        found[material.name] = next((ladder for ladder in pool if ladder.parent_sha256 == sha), None)
+        found[material.name] = next((ladder for ladder in pool if ladder.parent_sha256 == sha), None) \
+            or embedded_ladder(material.model)
     return found
 
 
@@ -302,7 +304,7 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
     parents = {m.name: m.model for m in materials}
     rgb_variant = "_rgb" in settings.variant
     candidates = {
-        name: [] if ladder is None else [r for r in ladder.rungs[1:] if rgb_variant or not r.rgb_only]
+        name: [] if ladder is None else [r for r in ladder.rungs[1:] if r.applies_in(rgb_variant)]
         for name, ladder in ladders.items()
     }
     cheapest = {name: min([full[name], *rungs], key=lambda r: r.relative_cost) for name, rungs in candidates.items()}

@@ -30,6 +30,11 @@ Properties
     spectrum → sRGB rule fitted at load (default 1e-3; ``0`` integrates all 31 wavelengths
     exactly, at 31 network evaluations per query).  See *Colour* below.
 
+``rgb_head``, ``fast``
+    Booleans choosing a fast path of the file instead of ``f`` (default: the RGB head of a
+    spectral model in RGB variants when the file has one; ``fast`` off):
+    :mod:`~neuralbrdf.render.fast_paths`.  ``to_string`` names the output evaluated.
+
 ``proposal``
     Optional: another model file whose sampling proposal this BSDF uses instead of its own
     (resolved like ``filename``).  Any valid proposal leaves the image's expectation unchanged;
@@ -87,7 +92,6 @@ import numpy as np
 import onnx
 import onnxruntime
 
-from neuralbrdf.data.colorimetry import XYZ_TO_LINEAR_SRGB, xyz_weights
 from neuralbrdf import kinds
 from neuralbrdf.atomic import file_version
 from neuralbrdf.errors import InputError
@@ -101,20 +105,20 @@ from neuralbrdf.onnx_contract import (
     OnnxModel,
     matrix_multiply_adds,
 )
+from neuralbrdf.render.fast_paths import FAST_PROPERTY, RGB_HEAD_PROPERTY, chosen_output, flag
 from neuralbrdf.render.onnx_split import split_at_wavelength
 from neuralbrdf.render.sampling import LobeMixture, fit_proposal, probe_direction_pairs
 from neuralbrdf.render.spectral_quadrature import (
     DEFAULT_RMS_TOLERANCE,
+    SRGB_GRID_NM,
     ReducedQuadrature,
     fit_reduced_quadrature,
+    srgb_weights,
 )
 
 PLUGIN_NAME = "neuralbrdf"
 BACKENDS = ("drjit", "onnxruntime")
 DEFAULT_BACKEND = "drjit"
-
-#: Wavelengths (nm) at which a spectral model is integrated to sRGB in RGB variants (SPEC §2.3).
-SPECTRAL_TO_RGB_GRID_NM = np.arange(400.0, 701.0, 10.0)
 
 
 #: Wavelengths (nm, spread over the model's range) averaged when probing a spectral model.
@@ -374,9 +378,9 @@ def _numpy_spectra(session: onnxruntime.InferenceSession, wi: np.ndarray, wo: np
 def fit_rgb_rule(model: OnnxModel, session: onnxruntime.InferenceSession, rms_tolerance: float) -> ReducedQuadrature:
     """The reduced spectrum → linear sRGB rule of a spectral model (module docstring)."""
     low, high = model.wavelength_range_nm
-    grid = np.clip(SPECTRAL_TO_RGB_GRID_NM, low, high)
+    grid = np.clip(SRGB_GRID_NM, low, high)
     spectra = _numpy_spectra(session, *probe_direction_pairs(), grid).T
-    return fit_reduced_quadrature(spectra, grid, _spectral_to_srgb_weights(), rms_tolerance)
+    return fit_reduced_quadrature(spectra, grid, srgb_weights(), rms_tolerance)
 
 
 def _probe_function(model: OnnxModel, session: onnxruntime.InferenceSession):
@@ -476,11 +480,6 @@ def _upsampler() -> _SrgbUpsampler:
     return _UPSAMPLERS[variant]
 
 
-def _spectral_to_srgb_weights() -> np.ndarray:
-    """``[W, 3]`` weights from values on :data:`SPECTRAL_TO_RGB_GRID_NM` to linear sRGB."""
-    return xyz_weights(SPECTRAL_TO_RGB_GRID_NM) @ XYZ_TO_LINEAR_SRGB.T
-
-
 # --------------------------------------------------------------------------- the BSDF
 
 
@@ -538,22 +537,28 @@ def _remember(key: tuple, value) -> None:
     _LOAD_TIME_CACHE[key] = value
 
 
-def _load_time_work(model: OnnxModel, rgb_tolerance: float,
-                    proposal: OnnxModel | None = None) -> tuple[LobeMixture, ReducedQuadrature | None]:
-    """The fitted sampling proposal (of the ``proposal`` model if given, else of the model itself)
-    and (spectral model, RGB variant) its sRGB rule, from the models as they were read.  Each is
-    computed once per file version — the proposal per file alone (it depends on neither variant
-    nor tolerance), the rule per file and tolerance — so a scene loaded again (the selector of
-    :mod:`neuralbrdf.lod.select` loads one scene many times, with stand-ins sampling like their
-    parent) skips the probing, and a model sampled with another file's proposal never fits its own."""
+def _load_time_work(model: OnnxModel, rgb_tolerance: float, proposal: OnnxModel | None = None,
+                    output: str = OUTPUT_F) -> tuple[OnnxModel, LobeMixture, ReducedQuadrature | None]:
+    """The model as read, cut to the ``output`` the plugin evaluates (``f`` or a fast path,
+    :meth:`~neuralbrdf.onnx_contract.OnnxModel.output_view`), the fitted sampling proposal (of the
+    ``proposal`` model if given, else of the model's ``f``) and (spectral output, RGB variant) its
+    sRGB rule.  Each is computed once per file version — the proposal per file alone (it depends
+    on neither variant nor tolerance), the rule per file, output and tolerance — so a scene loaded
+    again (the selector of :mod:`neuralbrdf.lod.select` loads one scene many times, with stand-ins
+    sampling like their parent) skips the probing, and a model sampled with another file's
+    proposal never fits its own."""
+    view_key = ("output", model.version, output)
+    if view_key not in _LOAD_TIME_CACHE:
+        _remember(view_key, model.output_view(output))
+    view = _LOAD_TIME_CACHE[view_key]
     mixture = _fitted_proposal(proposal or model)
     rgb_rule = None
-    if model.is_spectral and not mi.is_spectral:
-        key = ("rgb_rule", model.version, rgb_tolerance)
+    if view.is_spectral and not mi.is_spectral:
+        key = ("rgb_rule", model.version, output, rgb_tolerance)
         if key not in _LOAD_TIME_CACHE:
-            _remember(key, fit_rgb_rule(model, _session(model.proto), rgb_tolerance))
+            _remember(key, fit_rgb_rule(view, _session(view.proto), rgb_tolerance))
         rgb_rule = _LOAD_TIME_CACHE[key]
-    return mixture, rgb_rule
+    return view, mixture, rgb_rule
 
 
 def _fitted_proposal(model: OnnxModel) -> LobeMixture:
@@ -577,9 +582,11 @@ def _bsdf_class(variant: str) -> type:
             mi.BSDF.__init__(self, props)
             path, backend, rgb_tolerance = _read_properties(props)
             proposal = _proposal_path(props)
-            self.model = validated_model(path)  # everything below uses this one reading of the file
-            self.mixture, self.rgb_rule = _load_time_work(
-                self.model, rgb_tolerance, None if proposal is None else validated_model(proposal))
+            read = validated_model(path)  # everything below uses this one reading of the file
+            self.output = chosen_output(read, mi.is_spectral, flag(props, FAST_PROPERTY, False),
+                                        flag(props, RGB_HEAD_PROPERTY, True))
+            self.model, self.mixture, self.rgb_rule = _load_time_work(
+                read, rgb_tolerance, None if proposal is None else validated_model(proposal), self.output)
             if backend == "onnxruntime":
                 self.backend = _OnnxRuntimeBackend(self.model, _session(self.model.proto))
             else:
@@ -659,6 +666,7 @@ def _bsdf_class(variant: str) -> type:
                 "NeuralBRDF[\n"
                 f"  filename = {str(model.path)!r},\n"
                 f"  kind = {model.kind}, material = {model.material!r}, {spectral},\n"
+                f"  output = {self.output},\n"
                 f"  backend = {self.backend.name},\n"
                 f"  proposal = {self.mixture.describe()}\n"
                 + (f"  to sRGB = {self.rgb_rule.describe()}\n" if self.rgb_rule else "")

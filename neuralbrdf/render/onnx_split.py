@@ -27,7 +27,7 @@ import numpy as np
 import onnx
 from onnx import helper, shape_inference
 
-from neuralbrdf.onnx_contract import INPUT_WAVELENGTH, INPUT_WI, INPUT_WO, OUTPUT_F
+from neuralbrdf.onnx_contract import INPUT_WAVELENGTH, INPUT_WI, INPUT_WO, OUTPUT_F, input_dependencies
 
 
 @dataclass(frozen=True)
@@ -60,24 +60,6 @@ class WavelengthSplit:
         return got.shape == expected.shape and bool(np.array_equal(got, expected, equal_nan=True))
 
 
-def _dependencies(graph: onnx.GraphProto) -> dict[str, frozenset[str]]:
-    """For every tensor, the graph inputs it depends on (nodes visited in topological order)."""
-    depends: dict[str, frozenset[str]] = {vi.name: frozenset([vi.name]) for vi in graph.input}
-    for init in graph.initializer:
-        depends[init.name] = frozenset()
-    pending = list(graph.node)
-    while pending:
-        ready = [n for n in pending if all(not i or i in depends for i in n.input)]
-        if not ready:
-            raise ValueError("the graph has a cycle or reads a tensor nothing produces")
-        for node in ready:
-            inputs = frozenset().union(*(depends[i] for i in node.input if i))
-            for name in node.output:
-                depends[name] = inputs
-        pending = [n for n in pending if n not in ready]
-    return depends
-
-
 def _part(name, nodes, constant_nodes, inputs, outputs, proto) -> onnx.ModelProto:
     """A model of ``nodes`` with the constants they read (constant nodes, initializers)."""
     read = {i for n in nodes for i in n.input}
@@ -99,7 +81,7 @@ def split_at_wavelength(proto: onnx.ModelProto) -> WavelengthSplit | None:
     inputs = {vi.name: vi for vi in graph.input}
     if INPUT_WAVELENGTH not in inputs or {INPUT_WI, INPUT_WO} - set(inputs):
         return None
-    depends = _dependencies(graph)
+    depends = input_dependencies(graph)
     if INPUT_WAVELENGTH not in depends[OUTPUT_F]:
         return None
     constant_nodes = [n for n in graph.node if not depends[n.output[0]]]

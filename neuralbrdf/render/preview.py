@@ -135,6 +135,9 @@ class Material:
     reference_bsdf: str | None = None
     rgb_tolerance: float = DEFAULT_RMS_TOLERANCE
     proposal: Path | None = None
+    #: The plugin's ``fast`` and ``rgb_head`` properties (:mod:`neuralbrdf.render.fast_paths`).
+    fast: bool = False
+    rgb_head: bool = True
 
     def __post_init__(self) -> None:
         if (self.model is None) == (self.reference_bsdf is None):
@@ -160,6 +163,8 @@ class Material:
             "model": str(Path(self.model).resolve()),
             "backend": self.backend,
             "rgb_tolerance": repr(float(self.rgb_tolerance)),
+            "fast": str(self.fast).lower(),
+            "rgb_head": str(self.rgb_head).lower(),
         }
         if self.proposal is not None:
             parameters.update(material=NEURAL_MATERIAL_MATCHED, proposal=str(Path(self.proposal).resolve()))
@@ -168,7 +173,7 @@ class Material:
     def describe(self) -> str:
         if self.reference_bsdf is not None:
             return f"built-in {self.reference_bsdf}"
-        return f"{Path(self.model).name} ({self.backend})"
+        return f"{Path(self.model).name} ({self.backend}{', fast path' if self.fast else ''})"
 
 
 #: Options of every scene load here (:func:`load_scene`, :meth:`~neuralbrdf.render.scene_file.SceneFile.load`):

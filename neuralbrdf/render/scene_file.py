@@ -17,6 +17,10 @@ resolver (as ``mi.load_file`` does), so relative paths in it — meshes, texture
 model files — resolve as they would from the file itself.  It loads in file order, like the
 preview scene (:data:`neuralbrdf.render.preview.FILE_ORDER_LOADING`: a fixed seed renders one image).
 
+A scene whose model files are made by a command can say so in a scene parameter,
+``<default name="neuralbrdf_models_command" value="bash export/lod_models.sh (from the repository
+root)"/>`` (unused by Mitsuba): a missing model file is then reported with that command.
+
 Materials are named by their ``id`` attribute, else the ``id`` of the shape that holds them, else
 ``neuralbrdf-K`` (K-th in document order).
 """
@@ -37,6 +41,9 @@ from neuralbrdf.atomic import atomic_write, note_input
 from neuralbrdf.errors import InputError
 
 PLUGIN = "neuralbrdf"
+#: A scene parameter (``<default name=... value=.../>``) naming the command that makes the scene's
+#: model files; the error for a missing model file quotes it.
+MODELS_COMMAND = "neuralbrdf_models_command"
 #: Largest scene file read (bytes); scenes reference meshes, they do not hold them.
 MAX_SCENE_BYTES = 16 * 2**20
 
@@ -91,7 +98,9 @@ class SceneFile:
                 raise InputError(f"neuralbrdf material {name!r} has no 'filename' property", path=self.path)
             model = self._resolve(filename.get("value", ""))
             if not model.is_file():
-                raise InputError(f"the model file of neuralbrdf material {name!r} does not exist: {model}",
+                command = self.expand(f"${MODELS_COMMAND}")
+                made_by = "" if command.startswith("$") else f"; this scene's models are made by: {command}"
+                raise InputError(f"the model file of neuralbrdf material {name!r} does not exist: {model}{made_by}",
                                  path=self.path)
             found.append(NeuralMaterial(name, model, element))
         return found
@@ -116,7 +125,7 @@ class SceneFile:
 
     @staticmethod
     def set_property(element: ElementTree.Element, key: str, value: str) -> None:
-        tag = "float" if key == "rgb_tolerance" else "string"
+        tag = {"rgb_tolerance": "float", "fast": "boolean", "rgb_head": "boolean"}.get(key, "string")
         existing = _property(element, key)
         if existing is not None:
             element.remove(existing)

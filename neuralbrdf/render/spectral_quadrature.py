@@ -22,6 +22,10 @@ largest :data:`MAX_TO_RMS` times that); the reached error is reported with the r
 whose spectra do not compress keeps all 31 wavelengths, and ``rms_tolerance = 0`` asks for
 them: then the rule is the full integral, exactly.
 
+:func:`full_rule` is the full integral itself, and :class:`RuleRgbEvaluator` evaluates a model
+through a rule (what the plugin returns), for the fast paths and ladder rungs that are measured
+against it.
+
 Error measure: per probe, ``|rgb_K − rgb_31|₂ / (|rgb_31|₂ + floor)`` with ``floor`` =
 :data:`RELATIVE_FLOOR` × the largest ``|rgb_31|₂`` among the probes (values far below the peak
 are judged against it, not against themselves).
@@ -32,6 +36,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from neuralbrdf.data.colorimetry import XYZ_TO_LINEAR_SRGB, xyz_weights
+
+#: Wavelengths (nm) at which a spectral model is integrated to sRGB in RGB variants (SPEC §2.3).
+SRGB_GRID_NM = np.arange(400.0, 701.0, 10.0)
 
 #: Default held-out root-mean-square relative error the reduced rule must meet.
 DEFAULT_RMS_TOLERANCE = 1e-3
@@ -146,3 +155,32 @@ def fit_reduced_quadrature(
         max_relative_error=worst,
         full_size=n_wavelengths,
     )
+
+
+def srgb_weights() -> np.ndarray:
+    """``[W, 3]`` weights from values on :data:`SRGB_GRID_NM` to linear sRGB (SPEC §2.3)."""
+    return xyz_weights(SRGB_GRID_NM) @ XYZ_TO_LINEAR_SRGB.T
+
+
+def full_rule(wavelength_range_nm: tuple[float, float]) -> ReducedQuadrature:
+    """The whole integral of SPEC §2.3 as a rule: all 31 grid wavelengths (clamped to a model's
+    range, as the plugin clamps its queries) with their weights; error 0 by definition."""
+    grid = np.clip(SRGB_GRID_NM, *wavelength_range_nm)
+    return ReducedQuadrature(tuple(float(w) for w in grid), srgb_weights(), 0.0, 0.0, len(grid))
+
+
+class RuleRgbEvaluator:
+    """A spectral model's linear sRGB through a rule, negatives clipped (what the plugin returns in
+    RGB variants): an RGB evaluator (``values(wi, wo)`` ``[N, 3]``) of a spectral ``parent``
+    (an :class:`~neuralbrdf.evaluation.scores.Evaluator`), the rule's nodes evaluated in one call."""
+
+    is_spectral = False
+
+    def __init__(self, parent, rule: ReducedQuadrature) -> None:
+        self.parent, self.rule = parent, rule
+
+    def values(self, wi, wo, wavelength=None):
+        n, k = len(wi), self.rule.size
+        spectra = self.parent.values(np.tile(wi, (k, 1)), np.tile(wo, (k, 1)),
+                                     np.repeat(np.asarray(self.rule.wavelengths_nm), n)).reshape(k, n)
+        return np.clip(np.clip(spectra, 0.0, None).T @ self.rule.weights, 0.0, None)

@@ -7,7 +7,8 @@ and ``benchmarks/run.py``).
   round-robin so that load from other processes hits both alike;
 * :func:`bench_throughput` — queries per second of an ``.onnx`` model through onnxruntime and
   Dr.Jit (:class:`~neuralbrdf.render.drjit_onnx.DrJitGraph`) and, given the torch module, PyTorch;
-  warm-up call timed apart, then the median of ``repeats`` calls;
+  warm-up call timed apart, then the median of ``repeats`` calls; optionally the Dr.Jit kernel's
+  own run time (:func:`drjit_kernel_seconds`);
 * :func:`parameter_count` — float weights stored in the ``.onnx`` file and the fitted scalars its
   kind keeps as constants (:attr:`neuralbrdf.kinds.Kind.scalar_parameters`);
 * :func:`machine` — CPU, cores, versions and thread counts, recorded beside every figure.
@@ -111,9 +112,27 @@ def drjit_evaluate(graph, inputs: tuple) -> None:
     dr.sync_thread()
 
 
-def bench_throughput(proto, spectral: bool, batch: int, repeats: int, module=None) -> dict:
+def drjit_kernel_seconds(graph, inputs: tuple) -> float:
+    """Seconds the Dr.Jit kernels of one evaluation of ``graph`` (:func:`drjit_evaluate`) ran, from
+    Dr.Jit's kernel history: the fused kernel alone, its tracing and compilation excluded."""
+    import drjit as dr
+
+    saved = dr.flag(dr.JitFlag.KernelHistory)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    dr.kernel_history()  # drops what earlier launches left
+    try:
+        drjit_evaluate(graph, inputs)
+        history = dr.kernel_history()
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, saved)
+    return sum(entry["execution_time"] for entry in history if entry["type"] == dr.KernelType.JIT) / 1e3
+
+
+def bench_throughput(proto, spectral: bool, batch: int, repeats: int, module=None, kernel_time: bool = False) -> dict:
     """Queries per second of one model (``onnx.ModelProto``) through onnxruntime and Dr.Jit, and
-    through PyTorch when ``module`` (the same model as a torch module) is given."""
+    through PyTorch when ``module`` (the same model as a torch module) is given; with
+    ``kernel_time``, also ``drjit_kernel``: the Dr.Jit kernel's own run time
+    (:func:`drjit_kernel_seconds`, tracing excluded)."""
     import onnxruntime
 
     from neuralbrdf.render.drjit_onnx import DrJitGraph
@@ -155,6 +174,9 @@ def bench_throughput(proto, spectral: bool, batch: int, repeats: int, module=Non
     inputs = drjit_inputs(feeds, spectral)
     results["drjit"] = {"graph_build_s": graph_s, "multiply_adds": graph.multiply_adds,
                         **first_and_median(lambda: drjit_evaluate(graph, inputs), repeats)}
+    if kernel_time:
+        kernels = [drjit_kernel_seconds(graph, inputs) for _ in range(repeats)]
+        results["drjit_kernel"] = {"times_s": kernels, "median_s": statistics.median(kernels)}
     for entry in results.values():
         entry["queries_per_s"] = batch / entry["median_s"]
     return results

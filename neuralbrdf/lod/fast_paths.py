@@ -1,0 +1,152 @@
+"""Fast paths inside an exported model file (SPEC §6, §11): ``neuralbrdf export`` adds them.
+
+A fast path is a further output of the model's own ``.onnx`` file that stands in for ``f`` at a
+fraction of its cost, so that a user does not pay for the full network where a picture does not
+need it (the Mitsuba plugin picks the output; :mod:`neuralbrdf.render.fast_paths`):
+
+* ``f_rgb`` — **the RGB head** of a spectral model: its linear sRGB as the plugin integrates it
+  in RGB variants (SPEC §2.3: CIE 1931 2°, D65, 31 wavelengths, negatives clipped), evaluated
+  once per query instead of once per wavelength of the sRGB rule.  Any spectral file of the
+  contract gets one, whatever its kind: it is distilled from the file itself.  The plugin uses
+  it in RGB variants unless told not to.
+* ``f_fast`` — **a compact copy** of ``f`` (RGB, or spectral for spectral models): what the
+  plugin evaluates when asked (property ``fast``, ``neuralbrdf render --fast``), and a rung of
+  ``neuralbrdf select`` (:func:`neuralbrdf.lod.ladder.embedded_ladder`).
+
+Both are :class:`~neuralbrdf.models.student.DirectionalStudent` networks distilled from the
+model (:func:`~neuralbrdf.lod.distill.distill_student`; the teacher's samples of
+:func:`~neuralbrdf.lod.distill.teacher_samples`, for ``f_rgb`` the exact 31-wavelength integral
+:func:`~neuralbrdf.lod.distill.rgb_teacher`).  Each records in the file's metadata (SPEC §6 keys
+``neuralbrdf.<output>.*``) what it approximates, its error against its teacher —
+``hemisphere_logcos_rmse`` (SPEC §5) on the hemisphere pairs of
+:func:`~neuralbrdf.evaluation.scores.hemisphere_scores`, the student in float64 — and its
+relative cost: the student's Dr.Jit nanoseconds per query over the model's
+(:func:`~neuralbrdf.lod.ladder.drjit_costs`, one process, interleaved), for ``f_rgb`` over the
+model's cost times the wavelength count of the plugin's default sRGB rule (the evaluations
+per query the head replaces).  A student whose error exceeds ``max_hemisphere_logcos_rmse`` is
+not embedded: :class:`FastPathError` says so, and ``neuralbrdf export`` writes nothing.
+
+The settings are ``configs/lod/default.yaml``, section ``fast_paths`` (:mod:`neuralbrdf.lod.config`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import onnx
+
+from neuralbrdf.atomic import atomic_path
+from neuralbrdf.errors import InputError
+from neuralbrdf.evaluation.scores import HEMISPHERE_STRATA, OnnxEvaluator, TorchEvaluator, hemisphere_scores
+from neuralbrdf.kinds import Exportable, load_model
+from neuralbrdf.lod.distill import DistillSettings, distill_student, rgb_teacher, teacher_samples
+from neuralbrdf.onnx_contract import OUTPUT_F, OUTPUT_FAST, OUTPUT_RGB, FastPath, fast_path_key
+from neuralbrdf.onnx_export import ExportValidationError, trace, validate, with_fast_paths
+
+
+class FastPathError(ValueError):
+    """A fast path could not be made within its error bound; nothing was written."""
+
+
+@dataclass(frozen=True)
+class StudentShape:
+    """Size of a student network: ``hidden_layers`` layers of ``hidden`` units, ``activation``."""
+
+    hidden_layers: int
+    hidden: int
+    activation: str
+
+
+@dataclass(frozen=True)
+class FastPathSettings:
+    """How the fast paths are made (values: ``configs/lod/default.yaml``, section ``fast_paths``)."""
+
+    rgb_head: StudentShape
+    fast: StudentShape
+    distill: DistillSettings
+    #: A student with a larger error against its teacher is refused (:class:`FastPathError`).
+    max_hemisphere_logcos_rmse: float
+    cost_batches: tuple[int, int]
+    cost_rounds: int
+    #: ``(cos θ, φ)`` strata of the hemisphere pairs of the recorded error (SPEC §9 by default).
+    error_strata: tuple[int, int] = HEMISPHERE_STRATA
+
+
+def _student(parent: OnnxEvaluator, output: str, settings: FastPathSettings) -> tuple[Exportable, str, float]:
+    """The distilled student of ``output`` as an exportable model, its description and its error."""
+    model = parent.model
+    teacher = rgb_teacher(parent) if output == OUTPUT_RGB else parent
+    range_nm = model.wavelength_range_nm if teacher.is_spectral else None
+    shape = settings.rgb_head if output == OUTPUT_RGB else settings.fast
+    samples = teacher_samples(teacher, settings.distill.n_pairs, settings.distill.seed, range_nm)
+    module = distill_student(samples, shape.hidden, shape.hidden_layers, shape.activation, settings.distill, range_nm)
+    error = float(hemisphere_scores(TorchEvaluator(module, teacher.is_spectral), teacher, strata=settings.error_strata)
+                  ["hemisphere_logcos_rmse"])
+    what = "linear sRGB (31-wavelength integral, SPEC §2.3)" if output == OUTPUT_RGB else "f"
+    describes = f"{module.describe()} distilled from {settings.distill.n_pairs} samples of {model.path.name}'s {what}"
+    if not error <= settings.max_hemisphere_logcos_rmse:
+        raise FastPathError(f"the {output} student's error against the model, hemisphere log-cos RMSE {error:.3g}, "
+                            f"is above the bound {settings.max_hemisphere_logcos_rmse:g} (fast_paths."
+                            "max_hemisphere_logcos_rmse)")
+    # only traced to be merged into the model's graph: the file keeps the model's own metadata
+    return Exportable(module, model.kind, model.material, {}, range_nm), describes, error
+
+
+def _rgb_rule_size(parent: OnnxEvaluator) -> int:
+    """Wavelengths of the plugin's default sRGB rule for this spectral model (evaluations per RGB query)."""
+    from neuralbrdf.render.mitsuba_bsdf import fit_rgb_rule
+    from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE
+
+    return fit_rgb_rule(parent.model, parent.session, DEFAULT_RMS_TOLERANCE).size
+
+
+def add_fast_paths(model_path: str | Path, out: str | Path, outputs: tuple[str, ...], settings: FastPathSettings,
+                   log=print) -> list[FastPath]:
+    """Write ``out``: the model file ``model_path`` with the fast paths ``outputs`` (``f_rgb``,
+    ``f_fast``) added (module docstring), atomically and only after the contract check accepted
+    it; nothing is written on failure (:class:`FastPathError`, :class:`ExportValidationError`,
+    :class:`~neuralbrdf.errors.InputError`)."""
+    from neuralbrdf.lod.ladder import drjit_costs
+
+    model_path = Path(model_path)
+    parent = OnnxEvaluator(model_path)
+    model = parent.model
+    for output in outputs:
+        if output not in (OUTPUT_RGB, OUTPUT_FAST):
+            raise ValueError(f"unknown fast path {output!r}")
+        if output == OUTPUT_RGB and not model.is_spectral:
+            raise InputError("an RGB head (f_rgb) is for spectral models; this model is RGB", path=model_path)
+        if output in parent.file.fast_paths:
+            raise InputError(f"the model already has the fast path {output!r}", path=model_path)
+    traced, entries, reports = {}, {}, []
+    for output in outputs:
+        log(f"{output}: distilling ({settings.distill.steps} steps) ...")
+        exportable, describes, error = _student(parent, output, settings)
+        proto = trace(exportable)
+        validate(proto, exportable)  # onnxruntime reproduces the student: ExportValidationError otherwise
+        traced[output] = proto
+        entries[output] = (describes, error)
+        log(f"{output}: {describes}; log-cos RMSE {error:.4f}")
+    protos = {OUTPUT_F: model.proto, **traced}
+    # one wavelength per query for spectral graphs (an RGB graph ignores it)
+    costs = drjit_costs(protos, model.is_spectral, settings.cost_batches, settings.cost_rounds)
+    per_query = {OUTPUT_FAST: costs[OUTPUT_F]}
+    if OUTPUT_RGB in traced:
+        per_query[OUTPUT_RGB] = costs[OUTPUT_F] * _rgb_rule_size(parent)
+    metadata = {}
+    for output, (describes, error) in entries.items():
+        relative = costs[output] / per_query[output]
+        metadata.update({fast_path_key(output, "approximates"): describes,
+                         fast_path_key(output, "hemisphere_logcos_rmse"): repr(error),
+                         fast_path_key(output, "relative_cost"): repr(relative)})
+        reports.append(FastPath(output, describes, error, relative))
+    combined = with_fast_paths(parent.file.proto, traced, metadata)
+    out = Path(out)
+    with atomic_path(out) as tmp:
+        onnx.save(combined, str(tmp))
+        try:
+            load_model(tmp)
+        except InputError as error:
+            raise ExportValidationError(f"the file with fast paths fails the ONNX contract check: {error.reason}") from None
+    return reports
