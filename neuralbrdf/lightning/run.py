@@ -64,7 +64,7 @@ from pathlib import Path
 
 import pytorch_lightning as pl
 import torch
-from jsonargparse import ActionYesNo
+from jsonargparse import ActionYesNo, ArgumentError
 from pytorch_lightning.callbacks import ModelCheckpoint
 from pytorch_lightning.cli import LightningCLI
 from pytorch_lightning.loggers import CSVLogger
@@ -74,8 +74,9 @@ from neuralbrdf.atomic import TEMP_MARKER, atomic_path, atomic_write, command_in
 from neuralbrdf.errors import InputError
 from neuralbrdf.errors import one_line
 from neuralbrdf.checkpoints import read_checkpoint
-from neuralbrdf.configs_dir import overlay_base, resolve_config
+from neuralbrdf.configs_dir import config_not_found, overlay_base, resolve_config
 from neuralbrdf.lightning.common import WritesKind
+from neuralbrdf.lightning.config_errors import describe as describe_config_error
 from neuralbrdf.lightning.train_help import help_text
 
 METRICS_FILE = "metrics.json"
@@ -359,6 +360,9 @@ class NeuralBrdfCLI(LightningCLI):
         kwargs.setdefault("subclass_mode_model", True)
         kwargs.setdefault("subclass_mode_data", True)
         kwargs.setdefault("auto_configure_optimizers", False)
+        # parse errors are raised (main() reports them in one line), and usage names this command
+        kwargs.setdefault("parser_kwargs", {"prog": "neuralbrdf train", "exit_on_error": False,
+                                            **{name: {"exit_on_error": False} for name in SUBCOMMANDS}})
         self.run_dir: Path | None = None
         self._created_run_dir = False
         self._set_aside: Path | None = None
@@ -369,6 +373,7 @@ class NeuralBrdfCLI(LightningCLI):
             self._restore_earlier_log()
             self._after_failure(exc)
             exc.neuralbrdf_run_dir = self.run_dir  # where a failed fit's metrics.json says why
+            exc.neuralbrdf_parsers = getattr(self, "_subcommand_parsers", {})  # the valid names of a bad key
             raise
         self._restore_earlier_log()
         self._drop_set_aside()
@@ -543,7 +548,7 @@ def _resolve_config_files(args: list[str]) -> list[str]:
         try:
             Path(path).read_bytes().decode("utf-8")
         except FileNotFoundError:
-            raise InputError("configuration file not found", path=path) from None
+            raise config_not_found(path) from None
         except UnicodeDecodeError as error:
             raise InputError(f"not a YAML configuration: not UTF-8 text ({error.reason} at byte {error.start})", path=path) from None
         except OSError as error:
@@ -629,6 +634,10 @@ def main(args: list[str] | None = None) -> int:
     except FitFailed as failure:
         print(f"error: fit failed: {failure}{_failed_run(failure)}", file=sys.stderr)
         return 1
+    except ArgumentError as exc:  # the configuration does not parse: one line naming the key
+        parser = getattr(exc, "neuralbrdf_parsers", {}).get(args[0] if args else "")
+        print(f"error: {describe_config_error(str(exc), args, _config_args(args)[1], parser)}", file=sys.stderr)
+        return 2
     except Exception as exc:
         error = _input_error(exc)
         cause = getattr(exc, "neuralbrdf_fit_failure", None)
