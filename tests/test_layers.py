@@ -17,7 +17,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "neuralbrdf"
 
 #: Bottom to top; a module's group is its first name under ``neuralbrdf``.
 FLOORS = (
-    {"errors", "limits", "atomic", "geometry", "configs_dir", "onnx_contract", "shipped"},
+    {"errors", "limits", "atomic", "geometry", "configs_dir", "onnx_contract", "shipped", "console"},
     {"physics"},
     {"data"},
     {"virtual"},

@@ -7,9 +7,9 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from neuralbrdf.atomic import atomic_write
+from neuralbrdf.console import progress
 from neuralbrdf.data import plans
 from neuralbrdf.data.calibration import calibrate as calibrate_measurement
 from neuralbrdf.data.gcms import read_gcms, write_gcms
@@ -84,11 +84,23 @@ def plot(args) -> None:
     print(f"plot -> {args.out}")
 
 
+def demo_outputs(out_dir: Path, materials) -> list[Path]:
+    """The files ``neuralbrdf demo`` writes for ``materials`` into ``out_dir``."""
+    return [out_dir / f"{name}_DS1{suffix}" for name in materials for suffix in ("_spectral.csv", "_rgb.csv", ".png")]
+
+
 def demo(args) -> None:
     out = Path(args.out_dir)
     materials = args.material or STAND_INS
+    for name in materials:
+        if name not in STAND_INS:
+            raise InputError(f"unknown stand-in {name!r}; expected {', '.join(STAND_INS)}", column="--material")
+    existing = [path.name for path in demo_outputs(out, materials) if path.exists() or path.is_symlink()]
+    if existing and not args.overwrite:  # checked before any work: a rerun never replaces them silently
+        raise InputError(f"already holds the demo's outputs ({', '.join(existing[:3])}{', ...' if len(existing) > 3 else ''}); "
+                         "pass --overwrite to replace them, or choose another --out-dir", path=out)
     reference = read_gcms(instrument.default_data_path(REFERENCE_MATERIAL))
-    for name in tqdm(materials, desc="demo", unit="material"):
+    for name in progress(materials, desc="demo", unit="material"):
         sample = read_gcms(instrument.default_data_path(name))
         spectral = calibrate_measurement(sample, reference)
         write_table(spectral, out / f"{name}_DS1_spectral.csv")

@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import argparse
 import sys
-import warnings
 
 from neuralbrdf.atomic import command_inputs
 from neuralbrdf.cli import commands
+from neuralbrdf.console import clean_warnings
 from neuralbrdf.data.plans import PLAN_NAMES
 from neuralbrdf.errors import InputError
+from neuralbrdf.render import DEFAULT_VARIANT
 from neuralbrdf.study import command as study_command
 
 EPILOG = (
@@ -144,6 +145,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--out-dir", default="out/demo", help="output folder (default out/demo)")
     p.add_argument("--material", nargs="+", default=None, help="materials (default: all four stand-ins)")
+    p.add_argument("--overwrite", action="store_true", help="replace the outputs of an earlier demo in --out-dir "
+                   "(without it, the command stops before any work when they exist)")
 
     p = add(
         "export-truth",
@@ -170,7 +173,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("model", help="model file (.onnx)")
     p.add_argument("--truth", required=True, help="truth file (.onnx, e.g. from export-truth)")
     p.add_argument("--out-dir", required=True, help="output folder")
-    p.add_argument("--variant", default="llvm_ad_spectral", help="Mitsuba variant (default llvm_ad_spectral)")
+    p.add_argument("--variant", default=DEFAULT_VARIANT, help=f"Mitsuba variant (default {DEFAULT_VARIANT}, as for render)")
     p.add_argument("--backend", default="drjit", choices=("drjit", "onnxruntime"), help="plugin backend (default drjit)")
     p.add_argument("--spp", type=int, default=256, help="samples per pixel (default 256)")
     p.add_argument("--resolution", type=int, default=128, help="image width = height in pixels (default 128)")
@@ -254,14 +257,18 @@ def _delegated(name: str):
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The ``neuralbrdf`` command; returns the exit status (2 on bad input).  Warnings are printed
+    as one line each (:func:`neuralbrdf.console.clean_warnings`)."""
     argv = sys.argv[1:] if argv is None else list(argv)
-    if argv and argv[0] in DELEGATED:
-        return _delegated(argv[0])(argv[1:])
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    with clean_warnings():
+        if argv and argv[0] in DELEGATED:
+            return _delegated(argv[0])(argv[1:])
+        return _run(build_parser().parse_args(argv))
+
+
+def _run(args: argparse.Namespace) -> int:
     try:
-        with warnings.catch_warnings(), command_inputs():
-            warnings.simplefilter("default")
+        with command_inputs():
             args.func(args)
     except InputError as err:
         print(f"neuralbrdf {args.command}: error: {err}", file=sys.stderr)

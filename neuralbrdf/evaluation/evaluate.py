@@ -33,8 +33,8 @@ import numpy as np
 from neuralbrdf.atomic import atomic_paths, file_version
 from neuralbrdf.evaluation.images import IMAGE_METRICS, displayed, image_scores
 from neuralbrdf.evaluation.scores import DIRECTION_METRICS, HEMISPHERE_STRATA, Evaluator, OnnxEvaluator, direction_scores
+from neuralbrdf.render import DEFAULT_VARIANT
 
-DEFAULT_VARIANT = "llvm_ad_spectral"
 DEFAULT_SPP = 256
 DEFAULT_RESOLUTION = 128
 #: Seed of the second truth render that measures the noise (the renders themselves use ``seed``).

@@ -170,6 +170,10 @@ class LatentFitData(pl.LightningDataModule):
             raise InputError(
                 f"material names must be unique, {duplicates} repeat (set 'name')", column="data.sources"
             )
+        if low2012_abc is not None and not os.path.isfile(low2012_abc):  # optional: said at once, then skipped
+            warnings.warn(f"data.low2012_abc: {low2012_abc} not found; no comparison with Löw et al.'s ABC fits",
+                          stacklevel=2)
+            low2012_abc = None
         self.plan, self.eval_plan, self.low2012_abc = plan, eval_plan, low2012_abc
         if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
             raise InputError(f"must be a positive integer or null, got {batch_size!r}", column="data.batch_size")
@@ -227,12 +231,7 @@ class LatentFitData(pl.LightningDataModule):
     def setup(self, stage: str | None = None) -> None:
         if self.train_samples is not None:
             return
-        abc_fits = {}
-        if self.low2012_abc is not None:
-            if os.path.isfile(self.low2012_abc):
-                abc_fits = load_low2012_parameters(self.low2012_abc)
-            else:
-                warnings.warn(f"{self.low2012_abc}: Löw et al. ABC fits not found; no ABC comparison", stacklevel=2)
+        abc_fits = {} if self.low2012_abc is None else load_low2012_parameters(self.low2012_abc)
         materials = [self._material(i, s) for i, s in enumerate(self.sources)]
         if self.spectral is None:  # automatic: spectral when every measurement has a spectrum
             self.spectral = all(m.fit.wavelengths is not None for m in materials)

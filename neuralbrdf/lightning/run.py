@@ -74,9 +74,11 @@ from neuralbrdf.atomic import TEMP_MARKER, atomic_path, atomic_write, command_in
 from neuralbrdf.errors import InputError
 from neuralbrdf.errors import one_line
 from neuralbrdf.checkpoints import read_checkpoint
+from neuralbrdf.console import clean_warnings, on_terminal
 from neuralbrdf.configs_dir import config_not_found, overlay_base, resolve_config
 from neuralbrdf.lightning.common import WritesKind
 from neuralbrdf.lightning.config_errors import describe as describe_config_error
+from neuralbrdf.lightning.progress import EpochLines
 from neuralbrdf.lightning.train_help import help_text
 
 METRICS_FILE = "metrics.json"
@@ -494,10 +496,13 @@ class NeuralBrdfCLI(LightningCLI):
             kwargs["logger"] = CSVLogger(self.run_dir, name="", version=version)
         if not self._get(self.config_init, "trainer", default={}).get("plugins"):
             kwargs["plugins"] = [AtomicCheckpointIO()]
-        if self.subcommand == "fit":
-            configured = self._get(self.config_init, "trainer", default={}).get("callbacks") or []
-            configured = configured if isinstance(configured, list) else [configured]
-            kwargs["callbacks"] = [*configured, FitHealth()]
+        trainer = self._get(self.config_init, "trainer", default={})
+        added = [FitHealth()] if self.subcommand == "fit" else []
+        if trainer.get("enable_progress_bar") is not False and not on_terminal():
+            added.append(EpochLines())  # a log gets one line per epoch, not a redrawn bar
+        if added:
+            configured = trainer.get("callbacks") or []
+            kwargs["callbacks"] = [*(configured if isinstance(configured, list) else [configured]), *added]
         return super().instantiate_trainer(**kwargs)
 
 
@@ -608,7 +613,13 @@ def _summary(cli: NeuralBrdfCLI) -> str:
 
 
 def main(args: list[str] | None = None) -> int:
-    """Entry point of ``train.py``; returns the exit status (2 on bad input)."""
+    """Entry point of ``train.py``; returns the exit status (2 on bad input).  Warnings are
+    printed as one line each (:func:`neuralbrdf.console.clean_warnings`)."""
+    with clean_warnings():
+        return _main(args)
+
+
+def _main(args: list[str] | None) -> int:
     # The data are in-memory tensors: worker processes would only add start-up time.
     warnings.filterwarnings("ignore", message=r".*does not have many workers.*")
     # The CSV log shares the run directory with config.yaml, written just before it.

@@ -44,6 +44,7 @@ from tqdm import tqdm
 from neuralbrdf.atomic import atomic_paths
 from neuralbrdf.errors import InputError, one_line
 from neuralbrdf.limits import DRJIT_MAX_MULTIPLY_ADDS
+from neuralbrdf.render import DEFAULT_VARIANT
 from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE
 
 SCENE_DIR = Path(__file__).resolve().parent / "scenes"
@@ -54,7 +55,6 @@ NEURAL_MATERIAL_MATCHED = "materials/neuralbrdf_matched.xml"
 #: Built-in Mitsuba materials selectable with ``--reference-bsdf``: name -> scene file.
 REFERENCE_BSDFS = {"roughconductor": "materials/roughconductor.xml", "diffuse": "materials/diffuse.xml"}
 BACKENDS = ("drjit", "onnxruntime")
-DEFAULT_VARIANT = "llvm_ad_rgb"
 #: Paths traced per pass by default in symbolic mode (one fused kernel: little memory per path) ...
 PASS_LANES_SYMBOLIC = 2**22
 #: ... and in wavefront mode, where every intermediate array of a bounce is stored, and the
