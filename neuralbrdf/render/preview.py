@@ -39,9 +39,9 @@ from pathlib import Path
 import drjit as dr
 import mitsuba as mi
 import numpy as np
-from tqdm import tqdm
 
 from neuralbrdf.atomic import atomic_paths
+from neuralbrdf.console import progress as progress_bar
 from neuralbrdf.errors import InputError, one_line
 from neuralbrdf.limits import DRJIT_MAX_MULTIPLY_ADDS
 from neuralbrdf.render import DEFAULT_VARIANT
@@ -246,7 +246,7 @@ def render_passes(
     sizes = pass_sizes(spp, spp_per_pass)
     seeds = np.random.SeedSequence(seed).generate_state(len(sizes))
     total = None
-    with dr_mode(wavefront), tqdm(
+    with dr_mode(wavefront), progress_bar(
         total=spp, unit="spp", desc="render", disable=not progress, file=sys.stderr, leave=False
     ) as bar:
         for size, pass_seed in zip(sizes, seeds):

@@ -24,9 +24,8 @@ from dataclasses import asdict
 from datetime import datetime, timezone
 from pathlib import Path
 
-from tqdm import tqdm
-
 from neuralbrdf.atomic import atomic_write
+from neuralbrdf.console import progress as progress_bar
 from neuralbrdf.study import aggregate, charts
 from neuralbrdf.study.cell import WORKER_THREADS
 from neuralbrdf.study.cells import Cell, cell_key, is_rendered, plan_cells
@@ -150,7 +149,7 @@ def run_cells(profile: Profile, out_dir: Path, jobs: int, progress: bool = True)
 
     # material by material: a worker's truth evaluator serves the cells that follow (cell.truth_evaluator)
     order = sorted(range(len(cells)), key=lambda i: (materials.index(cells[i].material), not cells[i].is_main))
-    with ThreadPoolExecutor(max_workers=jobs) as pool, tqdm(total=len(cells), unit="cell", desc="study",
+    with ThreadPoolExecutor(max_workers=jobs) as pool, progress_bar(total=len(cells), unit="cell", desc="study",
                                                             disable=not progress, file=sys.stderr) as bar:
         futures = {pool.submit(run_in_a_worker, cells[i], keys[i]): i for i in order}
         for future in as_completed(futures):
