@@ -9,7 +9,8 @@
 * ``{virtual: NAME}`` — a shipped virtual-instrument measurement (``cyan``, ``magenta``,
   ``gold``, ``gonio``) with the shipped reference;
 * ``{nbrdf: FILE.h5}`` — an NBRDF proxy (SPEC §2.4) sampled on ``plan`` (the entry's own
-  ``plan`` key, else the data module's).
+  ``plan`` key, else the data module's);
+* ``{merl: FILE.binary}`` — a MERL measurement, sampled on ``plan`` likewise.
 
 Each may carry ``name`` (default: the file stem or virtual material).  ``--data.path FILE``
 (with ``--data.reference``) drops a single measurement into any latent-fit config.
@@ -117,10 +118,10 @@ class LatentFitData(pl.LightningDataModule):
         A single measurement to fit instead of ``sources`` (``--data.path FILE`` drops a user's
         BRDF table, or GCMS raw file with its Munsell N9 ``reference``, into any config).
     plan:
-        Sampling plan (SPEC §3) of NBRDF sources without their own ``plan``.
+        Sampling plan (SPEC §3) of NBRDF and MERL sources without their own ``plan``.
     eval_plan:
-        Plan on which NBRDF and virtual sources (which have a truth) are compared with the fit;
-        ``None``: no such evaluation.
+        Plan on which NBRDF, MERL and virtual sources (which have a truth) are compared with the
+        fit; ``None``: no such evaluation.
     low2012_abc:
         Löw et al.'s published ABC fits (``abc-low2012/low2012_abc_merl.csv``) for the
         comparison; ``None``: no comparison; a missing file: a warning and no comparison.
@@ -195,6 +196,7 @@ class LatentFitData(pl.LightningDataModule):
             path=source.get("path"),
             reference=source.get("reference"),
             nbrdf=source.get("nbrdf"),
+            merl=source.get("merl"),
             virtual=source.get("virtual"),
             plan=source.get("plan", self.plan),
             eval_plan=self.eval_plan if "path" not in source else None,
@@ -211,7 +213,8 @@ class LatentFitData(pl.LightningDataModule):
         if self.spectral:
             self._check_grid(material.truth, f"{name} (truth)")
         abc = None
-        abc_params = abc_fits.get(Path(source["nbrdf"]).stem) if "nbrdf" in source else None
+        measured = source.get("nbrdf") or source.get("merl")  # Löw et al. fitted the MERL materials by name
+        abc_params = abc_fits.get(Path(measured).stem) if measured else None
         if abc_params is not None:
             abc = torch.as_tensor(abc_params.evaluate(*material.truth.vectors()), dtype=torch.float32)
         return EvalSet(name, fit, _table_samples(index, material.truth, self.spectral), abc)

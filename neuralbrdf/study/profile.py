@@ -9,6 +9,7 @@ A profile is a YAML file (``configs/study/quick.yaml``, ``full.yaml``, or a user
     materials:
       - {name: gold, truth: virtual:gold}      # virtual instrument: any plan, any noise
       - {name: nylon, truth: ../shared/data/merl-nbrdf/nylon.h5}   # NBRDF proxy sampled on the plan
+      - {name: alum, truth: merl/alum-bronze.binary}                # MERL measurement sampled on the plan
       - {name: mine, table: my_measurement.csv, truth: mine_truth.onnx}   # a user's measured table
     variants:                                  # every model variant: a config file + CLI overrides
       - {name: spectral_mlp, method: spectral_mlp, config: configs/spectral_mlp.yaml,
@@ -66,7 +67,7 @@ class CostSpec:
 
 @dataclass(frozen=True)
 class MaterialSpec:
-    """``truth``: ``virtual:NAME``, an NBRDF ``.h5`` or a reference ``.onnx``; ``table``: a user's own
+    """``truth``: ``virtual:NAME``, an NBRDF ``.h5``, a MERL ``.binary`` or a reference ``.onnx``; ``table``: a user's own
     measurement (then plan and noise sweeps do not apply to it)."""
 
     name: str
@@ -206,8 +207,8 @@ def load_profile(name_or_path: str) -> Profile:
         key = f"materials[{i}]"
         entry = r.mapping(entry, key, ("name", "truth", "table"), ("name", "truth"))
         truth = r.file(entry["truth"], f"{key}.truth")
-        if not truth.startswith("virtual:") and Path(truth).suffix not in (".h5", ".onnx"):
-            r.fail(f"{key}.truth", "expected virtual:NAME, an NBRDF .h5 or a reference .onnx")
+        if not truth.startswith("virtual:") and Path(truth).suffix not in (".h5", ".binary", ".onnx"):
+            r.fail(f"{key}.truth", "expected virtual:NAME, an NBRDF .h5, a MERL .binary or a reference .onnx")
         if Path(truth).suffix == ".onnx" and "table" not in entry:
             r.fail(f"{key}.table", "a truth given as .onnx needs the measured table to fit")
         table = r.file(entry["table"], f"{key}.table") if "table" in entry else None
