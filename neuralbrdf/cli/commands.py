@@ -14,9 +14,7 @@ from neuralbrdf.data import plans
 from neuralbrdf.data.calibration import calibrate as calibrate_measurement
 from neuralbrdf.data.gcms import read_gcms, write_gcms
 from neuralbrdf.data.loading import load_measurement
-from neuralbrdf.data.merl_binary import MerlBrdf, sample_merl
-from neuralbrdf.data.nbrdf import NbrdfNetwork, sample_plan
-from neuralbrdf.sources import virtual_truth
+from neuralbrdf.sources import sample_file, virtual_truth
 from neuralbrdf.data.table import read_table, write_table
 from neuralbrdf.errors import InputError
 from neuralbrdf.plotting import DEFAULT_THETA_I_DEG, plot_inplane
@@ -70,10 +68,8 @@ def sample(args) -> None:
     source = str(args.material)
     if source.startswith("virtual:"):
         table = virtual_truth(source[len("virtual:"):], args.plan)
-    elif Path(source).suffix == ".binary":
-        table = sample_merl(MerlBrdf.load(source), args.plan)
     else:
-        table = sample_plan(NbrdfNetwork.load(source), args.plan, progress=True)
+        table = sample_file(source, args.plan, progress=True)
     write_table(table, args.out)
     print(f"{source} on {args.plan}: {table.n_rows} rows -> {args.out}")
 
@@ -126,14 +122,12 @@ def export_truth(args) -> None:
 
 
 def evaluate(args) -> None:
-    from neuralbrdf.evaluation.evaluate import RenderSettings, format_table
-    from neuralbrdf.evaluation.evaluate import evaluate as run_evaluation
+    from neuralbrdf.api import evaluate as run_evaluation
+    from neuralbrdf.evaluation.evaluate import format_table
 
-    settings = RenderSettings(args.variant, args.spp, args.resolution, args.seed, args.backend)
-    for name in ("spp", "resolution"):
-        if getattr(settings, name) < 1:
-            raise InputError(f"--{name} must be a positive integer, got {getattr(settings, name)}")
-    result = run_evaluation(args.model, args.truth, args.out_dir, settings, render_images=not args.no_render)
+    result = run_evaluation(args.model, args.truth, args.out_dir, scene=args.scene, material=args.material,
+                            variant=args.variant, spp=args.spp, resolution=args.resolution, seed=args.seed,
+                            backend=args.backend, images=not args.no_render)
     print(format_table(result))
     print(f"-> {args.out_dir}/evaluation.json" + ("" if args.no_render else ", model.png, truth.png, error_map.png, comparison.png"))
 
