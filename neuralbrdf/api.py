@@ -213,6 +213,8 @@ def fit(kind: str, data: Source | PathLike | None = None, *, config: PathLike | 
     Traceback (most recent call last):
     neuralbrdf.errors.InputError: --model.n_start: AbcFitModule has no option 'n_start'; did you mean n_starts? (valid: bounds, max_evaluations, n_starts, seed)
     """
+    import torch
+
     from neuralbrdf.lightning.run import METRICS_FILE, fitted_checkpoint, train
 
     if kind not in FIT_KINDS:
@@ -228,7 +230,11 @@ def fit(kind: str, data: Source | PathLike | None = None, *, config: PathLike | 
         args += ["--run_dir", os.fspath(run_dir)]
     if overwrite:
         args.append("--overwrite")
-    cli = train(args)
+    threads = torch.get_num_threads()
+    try:
+        cli = train(args)
+    finally:
+        torch.set_num_threads(threads)  # a config's num_threads holds for its run only
     metrics_path = cli.run_dir / METRICS_FILE
     metrics = json.loads(metrics_path.read_text(encoding="utf-8")) if metrics_path.is_file() else {}
     checkpoint = fitted_checkpoint(cli.run_dir)

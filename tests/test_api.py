@@ -27,13 +27,6 @@ HEAVY = ("torch", "mitsuba", "drjit", "pytorch_lightning", "onnxruntime")
 QUICK_ABC = {"model.n_starts": 1, "data.eval_plan": None}
 
 
-@pytest.fixture(autouse=True)
-def keep_torch_threads():
-    threads = torch.get_num_threads()
-    yield
-    torch.set_num_threads(threads)
-
-
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
     """A MERL file (a blue diffuse term and a white ABC-like lobe), a GCMS session and a spectral table."""
@@ -123,9 +116,11 @@ def test_a_source_goes_to_the_data_module_in_its_own_vocabulary(files):
 
 
 def test_a_fit_runs_through_the_config_and_exports(files, tmp_path):
+    threads = torch.get_num_threads()
     result = nb.fit("abc", nb.read(files / "blue.binary", plan="DS2"), run_dir=tmp_path / "run", overrides=QUICK_ABC)
     assert result.kind == "abc" and result.checkpoint == tmp_path / "run" / "checkpoints" / "best.ckpt"
     assert result.metrics["status"] == "ok" and result.metrics["fit/abc/success"] is True
+    assert torch.get_num_threads() == threads  # the config's num_threads: 1 held for the run only
     config = (tmp_path / "run" / "config.yaml").read_text()
     assert "AbcFitModule" in config and "n_starts: 1" in config and "blue.binary" in config and "plan: DS2" in config
     model = result.export(tmp_path / "blue.onnx")

@@ -2,18 +2,10 @@
 given (flag or file) and the nearest valid names; no usage dump, no run directory."""
 
 import pytest
-import torch
 
 from neuralbrdf.lightning.run import main
 
 pytestmark = pytest.mark.filterwarnings("ignore:LightningCLI's args parameter is intended")
-
-
-@pytest.fixture(autouse=True)
-def keep_torch_threads():
-    threads = torch.get_num_threads()
-    yield
-    torch.set_num_threads(threads)
 
 
 def one_error(capsys) -> str:
