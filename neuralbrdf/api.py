@@ -48,6 +48,7 @@ FIT_KINDS: dict[str, str] = {
     "abc": "abc",
     "spectral_mlp": "spectral_mlp",
     "nlb": "nlb_latent",
+    "nlb_spectral": "nlb_spectral",
 }
 #: Source kinds with a ground truth everywhere (not only at measured directions).
 TRUTH_KINDS = ("nbrdf", "merl", "virtual")
@@ -196,7 +197,7 @@ def _data_arguments(config: str, source: Source) -> list[str]:
 def fit(kind: str, data: Source | PathLike | None = None, *, config: PathLike | None = None,
         run_dir: PathLike | None = None, overrides: Mapping[str, Any] | None = None,
         overwrite: bool = False) -> FitResult:
-    """Fit a model of ``kind`` (:data:`FIT_KINDS`: ``abc``, ``spectral_mlp``, ``nlb``) to ``data``
+    """Fit a model of ``kind`` (:data:`FIT_KINDS`: ``abc``, ``spectral_mlp``, ``nlb``, ``nlb_spectral``) to ``data``
     (a :class:`Source` or what :func:`read` takes; ``None``: the config's own data) through the
     kind's shipped config, or ``config`` (a shipped name or a YAML file); ``overrides`` sets config
     keys (``{"trainer.max_epochs": 5}``, as ``--trainer.max_epochs 5``).  ``run_dir``: where the run

@@ -81,7 +81,7 @@ def test_read_an_nbrdf_proxy():
     (lambda f: nb.read(f / "blue.binary", plan="DS9"), "unknown plan 'DS9'"),
     (lambda f: nb.read(f / "cyan.csv"), "is a GCMS raw file"),
     (lambda f: nb.read(f / "missing.csv"), "missing.csv"),
-    (lambda f: nb.fit("nlb_spectral", "virtual:gold"), "unknown fit kind 'nlb_spectral'; expected one of abc, spectral_mlp, nlb"),
+    (lambda f: nb.fit("mlp", "virtual:gold"), "unknown fit kind 'mlp'; expected one of abc, spectral_mlp, nlb, nlb_spectral"),
     (lambda f: nb.truth(nb.read(f / "cyan_table.csv"), f / "t.onnx"), "a measurement (table) is known only where"),
     (lambda f: nb.evaluate("m.onnx", "t.onnx", f / "e", material="gold"), "give the scene too"),
     (lambda f: nb.evaluate("m.onnx", "t.onnx", f / "e", spp=0), "spp must be a positive integer"),
@@ -99,7 +99,7 @@ def test_bad_input_is_one_input_error(files, call, message):
 def test_every_fit_kind_names_a_shipped_config():
     from neuralbrdf.configs_dir import resolve_config
 
-    assert set(nb.FIT_KINDS) == {"abc", "spectral_mlp", "nlb"}
+    assert set(nb.FIT_KINDS) == {"abc", "spectral_mlp", "nlb", "nlb_spectral"}
     assert all(resolve_config(config).is_file() for config in nb.FIT_KINDS.values())
 
 
@@ -109,7 +109,8 @@ def test_a_source_goes_to_the_data_module_in_its_own_vocabulary(files):
     assert _data_arguments("abc", merl) == ["--data.merl", str(files / "blue.binary"), "--data.plan", "DS2"]
     assert _data_arguments("spectral_mlp", gcms) == ["--data.path", str(files / "cyan.csv"),
                                                      "--data.reference", str(files / "munsell_n9.csv")]
-    assert _data_arguments("nlb_latent", virtual) == ["--data.sources", '[{"virtual": "gold"}]']
+    assert _data_arguments("nlb_latent", virtual) == _data_arguments("nlb_spectral", virtual) == [
+        "--data.sources", '[{"virtual": "gold"}]']
     with pytest.raises(InputError, match="the spectral_mlp config's data module takes path, reference, virtual; "
                                          ".*blue.binary is a merl source"):
         _data_arguments("spectral_mlp", merl)
