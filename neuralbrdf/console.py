@@ -34,14 +34,21 @@ def on_terminal() -> bool:
 @contextlib.contextmanager
 def clean_warnings() -> Iterator[None]:
     """Every warning within, printed once per distinct message as ``warning: MESSAGE`` (module
-    docstring); filters added inside still apply, and everything is restored afterwards."""
+    docstring) and handed to a recorder around it, if any; filters added inside still apply, and
+    everything is restored afterwards."""
     shown: set[str] = set()
+    # Who receives warnings now: Python's own printer (replaced here), or a recorder such as
+    # ``catch_warnings(record=True)`` or ``pytest.warns``, which still gets every one.
+    recorder = warnings._showwarnmsg_impl
+    recorder = None if getattr(recorder, "__module__", None) == "warnings" else recorder
 
     def show(message, category, filename, lineno, file=None, line=None) -> None:
         text = " ".join(str(message).split()).replace(_INSTALL_ROOT, "")
         if text not in shown:
             shown.add(text)
             print(f"warning: {text}", file=file if file is not None else sys.stderr)
+        if recorder is not None:
+            recorder(warnings.WarningMessage(message, category, filename, lineno, file, line))
 
     with warnings.catch_warnings():
         warnings.simplefilter("default")

@@ -22,6 +22,13 @@ def test_a_warning_is_one_line_without_source_or_install_path(capsys):
                                 "warning: another"]
 
 
+def test_a_recorder_around_still_gets_every_warning(capsys):
+    with pytest.warns(UserWarning, match="twice") as record, clean_warnings():
+        warnings.warn("twice")
+        warnings.warn("twice")
+    assert len(record) == 2 and capsys.readouterr().err == "warning: twice\n"
+
+
 def test_the_demo_warns_about_gamut_clipping_in_one_clean_line(tmp_path, capsys):
     assert neuralbrdf(["demo", "--out-dir", str(tmp_path), "--material", "cyan"]) == 0
     err = capsys.readouterr().err
