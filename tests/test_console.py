@@ -76,12 +76,3 @@ def test_render_and_evaluate_share_the_spectral_default_variant():
     render = render_command.build_parser().parse_args(["--model", "m.onnx", "--out", "x.png"])
     evaluate = build_parser().parse_args(["evaluate", "m.onnx", "--truth", "t.onnx", "--out-dir", "d"])
     assert render.variant == evaluate.variant == RenderSettings().variant == DEFAULT_VARIANT == "llvm_ad_spectral"
-
-
-def test_a_missing_optional_reference_file_warns_when_the_data_module_is_made(tmp_path):
-    from neuralbrdf.lightning.latent_fit_data import LatentFitData
-
-    missing = tmp_path / "low2012_abc_merl.csv"
-    with pytest.warns(UserWarning, match=r"^data.low2012_abc: .*low2012_abc_merl.csv not found; no comparison"):
-        data = LatentFitData(sources=[{"virtual": "gold"}], low2012_abc=str(missing))
-    assert data.low2012_abc is None
