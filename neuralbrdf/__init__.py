@@ -5,6 +5,41 @@ in-plane spectral measurements calibrated against a Munsell N9 white, compact mo
 microfacet, NLB latent representation network, 3x10 spectral MLP) fitted to few samples, and
 their deployment to ONNX and Mitsuba 3.  Conventions are those of ``SPEC.md`` §1 and are
 documented in :mod:`neuralbrdf.geometry`.
+
+The Python API (:mod:`neuralbrdf.api`) is here at the top level: :func:`read`, :func:`fit`,
+:func:`export`, :func:`load`, :func:`truth`, :func:`evaluate`, :func:`render_image` (``render`` is
+the rendering subpackage, :mod:`neuralbrdf.render`).  Its names are imported on first use, so
+``import neuralbrdf`` stays light (no PyTorch, no Mitsuba).
 """
 
+from typing import TYPE_CHECKING
+
 __version__ = "0.1.0"
+
+#: Names of :mod:`neuralbrdf.api` offered here, and the error types a caller catches.
+_API = ("FIT_KINDS", "FitResult", "Model", "RenderFailed", "Source", "evaluate", "export", "fit", "load", "read",
+        "render_image", "truth")
+_ERRORS = ("FitFailed", "InputError")
+
+__all__ = [*_API, *_ERRORS]
+
+if TYPE_CHECKING:
+    from neuralbrdf.api import (FIT_KINDS, FitResult, Model, RenderFailed, Source, evaluate, export, fit, load,
+                                read, render_image, truth)
+    from neuralbrdf.errors import FitFailed, InputError
+
+
+def __getattr__(name: str):
+    if name in _API:
+        from neuralbrdf import api
+
+        return getattr(api, name)
+    if name in _ERRORS:
+        from neuralbrdf import errors
+
+        return getattr(errors, name)
+    raise AttributeError(f"module 'neuralbrdf' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

@@ -8,9 +8,12 @@ so in its leading comment (``# overlay of: NAME``); ``--config OVERLAY`` alone t
 
 from __future__ import annotations
 
+import difflib
 import os
 import re
 from pathlib import Path
+
+from neuralbrdf.errors import InputError
 
 #: Folder of the shipped training configs (study profiles in its ``study/``).
 CONFIGS_DIR = Path(__file__).resolve().parent / "configs"
@@ -48,3 +51,16 @@ def overlay_base(path: str | os.PathLike[str]) -> Path | None:
             beside = beside if beside.suffix == ".yaml" else beside.with_suffix(".yaml")
             return beside if beside.is_file() else resolve_config(match.group(1))
     return None
+
+
+def config_not_found(name: str | os.PathLike[str], folder: str = "", what: str = "configuration") -> InputError:
+    """The error for a ``--config`` that is neither a file nor a shipped config: it lists the
+    shipped names (and the nearest one) so that the next command can be right."""
+    shipped = [path.stem for path in shipped_configs(folder)]
+    nearest = difflib.get_close_matches(Path(name).stem, shipped, n=1, cutoff=0.5)
+    hint = f"did you mean {nearest[0]}? " if nearest else ""
+    return InputError(
+        f"no such {what} file, and no shipped {what} of that name; {hint}shipped: {', '.join(shipped)} "
+        "(or the path of a YAML file)",
+        path=name,
+    )

@@ -57,6 +57,11 @@ class OutputError(InputError):
     the output as the user gave it, never a temporary file."""
 
 
+class FitFailed(RuntimeError):
+    """A fit that ran but produced no usable model (a non-finite loss, a dead network, a failed
+    ABC optimisation); the message is the one-line cause."""
+
+
 def one_line(error: BaseException, limit: int = 300) -> str:
     """``Type: message`` of any exception on one line, shortened to ``limit`` characters."""
     text = " ".join(line.strip() for line in str(error).splitlines() if line.strip())

@@ -6,21 +6,26 @@ latent fit's ``data.sources``).  One material comes from exactly one of:
 * ``path`` — the user's measurement: a BRDF sample table (SPEC §2.1) or a GCMS raw file with
   its Munsell N9 ``reference`` (SPEC §2.2);
 * ``nbrdf`` — a MERL-proxy NBRDF network (SPEC §2.4) sampled on ``plan``;
+* ``merl`` — a MERL ``.binary`` measurement (:mod:`neuralbrdf.data.merl_binary`) sampled on
+  ``plan`` (nearest cell, RGB);
 * ``virtual`` — a stand-in of the virtual goniospectrophotometer (SPEC §2.5): its shipped DS1
   measurement, calibrated against the shipped Munsell N9 reference.
 
-with optional ``name`` (default: the file stem or the virtual material) and, for ``nbrdf``,
-``plan``.  Proxies and virtual materials are continuous, so they also give a dense ``truth`` on
+with optional ``name`` (default: the file stem or the virtual material) and, for ``nbrdf`` and
+``merl``, ``plan``.  Proxies, MERL tables and virtual materials are defined everywhere, so they
+also give a dense ``truth`` on
 ``eval_plan`` (default the Löw et al. set) for the hemisphere log-cosine RMSE (SPEC §5); a
 user's measurement has none.
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
 from neuralbrdf.data.loading import load_measurement
+from neuralbrdf.data.merl_binary import MerlBrdf, sample_merl
 from neuralbrdf.data.nbrdf import NbrdfNetwork, sample_plan
 from neuralbrdf.data.plans import PLAN_NAMES, plan_spherical
 from neuralbrdf.data.table import BrdfTable
@@ -31,7 +36,9 @@ from neuralbrdf.virtual.materials import REFERENCE_MATERIAL, get_material
 
 
 #: Keys naming where a material comes from: exactly one per material.
-SOURCE_KEYS = ("path", "nbrdf", "virtual")
+SOURCE_KEYS = ("path", "nbrdf", "merl", "virtual")
+#: Source keys of files sampled on a plan (``plan`` applies to them).
+SAMPLED_KEYS = ("nbrdf", "merl")
 #: Every key a material source may have.
 MATERIAL_KEYS = (*SOURCE_KEYS, "reference", "plan", "name")
 
@@ -69,20 +76,30 @@ def load_fit_measurement(path, reference=None) -> BrdfTable:
     return table
 
 
+def sample_file(path: str | os.PathLike[str], plan: str, progress: bool = False) -> BrdfTable:
+    """A MERL ``.binary`` measurement or an NBRDF proxy ``.h5`` sampled on ``plan`` (RGB, sr⁻¹);
+    ``progress``: a progress bar while a network is evaluated."""
+    if Path(path).suffix == ".binary":
+        return sample_merl(MerlBrdf.load(path), plan)
+    return sample_plan(NbrdfNetwork.load(path), plan, progress=progress)
+
+
 def load_material(
     *,
     path: str | None = None,
     reference: str | None = None,
     nbrdf: str | None = None,
+    merl: str | None = None,
     virtual: str | None = None,
     plan: str = "DS1",
     eval_plan: str | None = "low",
     name: str | None = None,
 ) -> MaterialData:
-    """Load one material from exactly one source (module docstring); ``plan`` applies to NBRDF."""
-    given = [key for key, value in (("path", path), ("nbrdf", nbrdf), ("virtual", virtual)) if value is not None]
+    """Load one material from exactly one source (module docstring); ``plan`` applies to NBRDF and MERL."""
+    sources = (("path", path), ("nbrdf", nbrdf), ("merl", merl), ("virtual", virtual))
+    given = [key for key, value in sources if value is not None]
     if len(given) != 1:
-        raise InputError(f"give exactly one of data.path, data.nbrdf, data.virtual; got {given or 'none'}")
+        raise InputError(f"give exactly one of {', '.join('data.' + k for k in SOURCE_KEYS)}; got {given or 'none'}")
     if reference is not None and path is None:
         raise InputError("data.reference goes with a GCMS raw data.path", column="data.reference")
     _check_plan(plan, "data.plan")
@@ -93,6 +110,10 @@ def load_material(
         network = NbrdfNetwork.load(nbrdf)
         truth = None if eval_plan is None else sample_plan(network, eval_plan)
         return MaterialData(name or network.name, sample_plan(network, plan), truth)
+    if merl is not None:
+        brdf = MerlBrdf.load(merl)
+        truth = None if eval_plan is None else sample_merl(brdf, eval_plan)
+        return MaterialData(name or brdf.name, sample_merl(brdf, plan), truth)
     fit = load_measurement(default_data_path(virtual), default_data_path(REFERENCE_MATERIAL))
     truth = None if eval_plan is None else virtual_truth(virtual, eval_plan)
     return MaterialData(name or virtual, fit, truth)
@@ -110,9 +131,9 @@ def check_source(source, where: str) -> dict[str, str]:
         raise InputError(f"needs exactly one of {', '.join(SOURCE_KEYS)}, got {given or 'none'}", column=where)
     if "reference" in source and given[0] != "path":
         raise InputError("'reference' goes with a GCMS raw 'path'", column=where)
-    if "plan" in source and (given[0] != "nbrdf" or source["plan"] not in PLAN_NAMES):
-        raise InputError(f"'plan' is for nbrdf sources, one of {', '.join(PLAN_NAMES)}; got {source['plan']!r}",
-                         column=where)
+    if "plan" in source and (given[0] not in SAMPLED_KEYS or source["plan"] not in PLAN_NAMES):
+        raise InputError(f"'plan' is for nbrdf and merl sources, one of {', '.join(PLAN_NAMES)}; got "
+                         f"{source['plan']!r}", column=where)
     return {k: str(v) for k, v in source.items()}
 
 

@@ -17,7 +17,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "neuralbrdf"
 
 #: Bottom to top; a module's group is its first name under ``neuralbrdf``.
 FLOORS = (
-    {"errors", "limits", "atomic", "folder_lock", "geometry", "configs_dir", "onnx_contract", "shipped"},
+    {"errors", "limits", "atomic", "folder_lock", "geometry", "configs_dir", "onnx_contract", "shipped", "console"},
     {"physics"},
     {"data"},
     {"virtual"},
@@ -27,7 +27,7 @@ FLOORS = (
     {"onnx_export", "render"},
     {"evaluation"},
     {"lightning"},
-    {"study", "lod", "cli", "__main__"},
+    {"study", "lod", "cli", "api", "__main__"},
 )
 FLOOR = {group: level for level, groups in enumerate(FLOORS) for group in groups}
 

@@ -98,3 +98,57 @@ def test_sample_command_reads_binary_virtual_and_refuses_bad_files(merl_file, tm
     huge.write_bytes(np.array([90000, 90000, 180000], dtype="<i4").tobytes())
     with pytest.raises(InputError, match="dimensions"):
         MerlBrdf.load(huge)
+
+
+# --------------------------------------------------------------------------- a MERL file as a truth
+
+
+def test_the_merl_truth_module_follows_merls_lookup(merl_file):
+    import torch
+
+    from neuralbrdf.evaluation.truth import MerlTruth
+
+    brdf = MerlBrdf.load(merl_file)
+    rng = np.random.default_rng(1)
+    n = 20000
+    theta = np.degrees(np.arccos(rng.uniform(0.02, 1, (2, n))))
+    wi = spherical_to_vector(theta[0], rng.uniform(0, 360, n))
+    wo = spherical_to_vector(theta[1], rng.uniform(0, 360, n))
+    with pytest.warns(UserWarning, match="did not measure"):
+        expected = brdf.evaluate(wi, wo)
+    got = MerlTruth(brdf)(torch.tensor(wi, dtype=torch.float32), torch.tensor(wo, dtype=torch.float32)).numpy()
+    same = np.isclose(got, expected, rtol=1e-5, atol=1e-7).all(axis=1)
+    assert same.mean() > 0.999  # float32 indices may land a pair on a cell boundary in the next cell
+    below = wi.copy()
+    below[:, 2] *= -1
+    assert not MerlTruth(brdf)(torch.tensor(below[:5]).float(), torch.tensor(wo[:5]).float()).any()
+
+
+def test_export_truth_and_the_api_take_a_merl_file(merl_file, tmp_path, capsys):
+    import neuralbrdf as nb
+
+    out = tmp_path / "analytic_truth.onnx"
+    assert cli(["export-truth", str(merl_file), "--out", str(out)]) == 0
+    assert "reference model of 'analytic'" in capsys.readouterr().out
+    truth = nb.load(out)
+    assert (truth.kind, truth.material, truth.is_spectral) == ("reference", "analytic", False)
+    wi = spherical_to_vector(np.array([30.0, 10.0]), np.array([0.0, 90.0]))
+    wo = spherical_to_vector(np.array([30.0, 50.0]), np.array([180.0, 0.0]))
+    assert np.allclose(truth(wi, wo), MerlBrdf.load(merl_file).evaluate(wi, wo), rtol=1e-5)
+    assert nb.truth(nb.read(merl_file), tmp_path / "again.onnx").material == "analytic"
+
+
+def test_a_merl_file_is_a_material_source_and_a_study_truth(merl_file, tmp_path):
+    from neuralbrdf.sources import load_material
+    from neuralbrdf.study.cell import write_data
+    from neuralbrdf.study.profile import load_profile
+
+    material = load_material(merl=str(merl_file), plan="DS2", eval_plan="DS1")
+    assert material.name == "analytic" and material.fit.n_rows == 185 and material.truth.n_rows == 1001
+    spec = {"cell": {"plan": "DS3", "noise": 0.0, "seed": 0}, "material": {"table": None, "truth": str(merl_file)}}
+    assert read_table(write_data(spec, tmp_path / "data" / "analytic.csv")).n_rows == 57
+    profile = tmp_path / "merl.yaml"
+    profile.write_text(f"render: {{spp: 2, resolution: 16}}\ncost: {{spp: 2, resolution: 16, repeats: 1, batch: 4096}}\n"
+                       f"materials:\n  - {{name: analytic, truth: {merl_file}}}\n"
+                       "variants:\n  - {name: abc, method: abc, config: configs/abc.yaml}\n")
+    assert load_profile(str(profile)).materials[0].truth == str(merl_file)

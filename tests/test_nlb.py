@@ -508,10 +508,11 @@ def test_data_path_drops_a_single_measurement_in_place_of_the_sources(tmp_path):
         LatentFitData([{"virtual": "cyan"}], reference=str(reference))
 
 
-def test_a_missing_abc_reference_warns(tmp_path):
-    data = LatentFitData([{"virtual": "gold"}], low2012_abc=str(tmp_path / "missing.csv"))
-    with pytest.warns(UserWarning, match="no ABC comparison"):
-        data.setup()
+def test_a_missing_abc_reference_warns_when_the_data_is_made(tmp_path):
+    with pytest.warns(UserWarning, match=r"^data.low2012_abc: .*missing.csv not found; no comparison with Löw"):
+        data = LatentFitData([{"virtual": "gold"}], low2012_abc=str(tmp_path / "missing.csv"))
+    data.setup()  # the fit goes on without the comparison
+    assert data.low2012_abc is None and data.eval_sets[0].abc is None
 
 
 def test_bad_plans_raise():

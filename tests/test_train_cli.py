@@ -448,6 +448,20 @@ def test_a_fit_ends_with_a_summary_that_says_how_to_export(tmp_path, gcms_sessio
     assert "GPU available" not in err and "Tip" not in err  # quiet without --verbose
 
 
+def test_off_a_terminal_a_fit_logs_one_line_per_epoch(tmp_path, gcms_session, capfd):
+    """pytest's output is no terminal: Lightning's bar gives way to ``epoch E/N key=value`` lines."""
+    args = ["fit", "--config", "spectral_mlp", *data_args(gcms_session), "--trainer.max_epochs", "2",
+            "--trainer.limit_train_batches", "2"]
+    assert main([*args, "--run_dir", str(tmp_path / "run")]) == 0
+    out, err = capfd.readouterr()
+    epochs = [line for line in err.splitlines() if line.startswith("epoch ")]
+    assert [line.split()[1] for line in epochs] == ["1/2", "2/2"]
+    assert all(" val/loss=" in line and line.split()[-1].startswith("time_s=") for line in epochs)
+    assert "\r" not in out + err and "Epoch 0" not in out + err and "Sanity Checking" not in out + err
+    assert main([*args, "--run_dir", str(tmp_path / "quiet"), "--trainer.enable_progress_bar", "false"]) == 0
+    assert "epoch " not in capfd.readouterr().err
+
+
 def test_verbose_keeps_lightnings_lines_and_quiet_mode_restores_logging(tmp_path, gcms_session, caplog):
     import logging
 

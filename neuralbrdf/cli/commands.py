@@ -8,16 +8,14 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from neuralbrdf.atomic import atomic_write
+from neuralbrdf.console import progress
 from neuralbrdf.data import plans
 from neuralbrdf.data.calibration import calibrate as calibrate_measurement
 from neuralbrdf.data.gcms import read_gcms, write_gcms
 from neuralbrdf.data.loading import load_measurement
-from neuralbrdf.data.merl_binary import MerlBrdf, sample_merl
-from neuralbrdf.data.nbrdf import NbrdfNetwork, sample_plan
-from neuralbrdf.sources import virtual_truth
+from neuralbrdf.sources import sample_file, virtual_truth
 from neuralbrdf.data.table import read_table, write_table
 from neuralbrdf.errors import InputError
 from neuralbrdf.plotting import DEFAULT_THETA_I_DEG, plot_inplane
@@ -71,10 +69,8 @@ def sample(args) -> None:
     source = str(args.material)
     if source.startswith("virtual:"):
         table = virtual_truth(source[len("virtual:"):], args.plan)
-    elif Path(source).suffix == ".binary":
-        table = sample_merl(MerlBrdf.load(source), args.plan)
     else:
-        table = sample_plan(NbrdfNetwork.load(source), args.plan, progress=True)
+        table = sample_file(source, args.plan, progress=True)
     write_table(table, args.out)
     print(f"{source} on {args.plan}: {table.n_rows} rows -> {args.out}")
 
@@ -85,11 +81,23 @@ def plot(args) -> None:
     print(f"plot -> {args.out}")
 
 
+def demo_outputs(out_dir: Path, materials) -> list[Path]:
+    """The files ``neuralbrdf demo`` writes for ``materials`` into ``out_dir``."""
+    return [out_dir / f"{name}_DS1{suffix}" for name in materials for suffix in ("_spectral.csv", "_rgb.csv", ".png")]
+
+
 def demo(args) -> None:
     out = Path(args.out_dir)
     materials = args.material or STAND_INS
+    for name in materials:
+        if name not in STAND_INS:
+            raise InputError(f"unknown stand-in {name!r}; expected {', '.join(STAND_INS)}", column="--material")
+    existing = [path.name for path in demo_outputs(out, materials) if path.exists() or path.is_symlink()]
+    if existing and not args.overwrite:  # checked before any work: a rerun never replaces them silently
+        raise InputError(f"already holds the demo's outputs ({', '.join(existing[:3])}{', ...' if len(existing) > 3 else ''}); "
+                         "pass --overwrite to replace them, or choose another --out-dir", path=out)
     reference = read_gcms(instrument.default_data_path(REFERENCE_MATERIAL))
-    for name in tqdm(materials, desc="demo", unit="material"):
+    for name in progress(materials, desc="demo", unit="material"):
         sample = read_gcms(instrument.default_data_path(name))
         spectral = calibrate_measurement(sample, reference)
         write_table(spectral, out / f"{name}_DS1_spectral.csv")
@@ -115,11 +123,12 @@ def export_truth(args) -> None:
 
 
 def evaluate(args) -> None:
-    from neuralbrdf.evaluation.evaluate import RenderSettings, format_table
-    from neuralbrdf.evaluation.evaluate import evaluate as run_evaluation
+    from neuralbrdf.api import evaluate as run_evaluation
+    from neuralbrdf.evaluation.evaluate import format_table
 
-    settings = RenderSettings(args.variant, args.spp, args.resolution, args.seed, args.backend, args.fast)
-    result = run_evaluation(args.model, args.truth, args.out_dir, settings, render_images=not args.no_render)
+    result = run_evaluation(args.model, args.truth, args.out_dir, scene=args.scene, material=args.material,
+                            variant=args.variant, spp=args.spp, resolution=args.resolution, seed=args.seed,
+                            backend=args.backend, fast=args.fast, images=not args.no_render)
     for note in result["notes"]:
         print(f"note: {note}", file=sys.stderr)
     print(format_table(result))

@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import argparse
 import sys
-import warnings
 
 from neuralbrdf.atomic import command_inputs
 from neuralbrdf.cli import commands
+from neuralbrdf.console import clean_warnings
 from neuralbrdf.data.plans import PLAN_NAMES
 from neuralbrdf.errors import InputError
+from neuralbrdf.render import DEFAULT_VARIANT
 from neuralbrdf.study import command as study_command
 
 EPILOG = (
@@ -144,6 +145,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--out-dir", default="out/demo", help="output folder (default out/demo)")
     p.add_argument("--material", nargs="+", default=None, help="materials (default: all four stand-ins)")
+    p.add_argument("--overwrite", action="store_true", help="replace the outputs of an earlier demo in --out-dir "
+                   "(without it, the command stops before any work when they exist)")
 
     p = add(
         "export-truth",
@@ -151,9 +154,10 @@ def build_parser() -> argparse.ArgumentParser:
         "export a ground-truth material to an ONNX model file (kind 'reference')",
         "Write the ground truth of a material as one .onnx file under the model contract (SPEC §6, §9), so it "
         "renders through the same plugin, sampler and seeds as a fitted model. SOURCE is virtual:NAME (gold, gonio, "
-        "cyan, magenta, munsell_n9: spectral, 400-700 nm, 1/sr) or an NBRDF proxy NAME.h5 (linear sRGB, 1/sr).",
+        "cyan, magenta, munsell_n9: spectral, 400-700 nm, 1/sr), an NBRDF proxy NAME.h5 (linear sRGB, 1/sr) or a "
+        "MERL measurement NAME.binary (linear sRGB, 1/sr; MERL's nearest cell, unmeasured cells 0).",
     )
-    p.add_argument("source", help="virtual:NAME or an NBRDF weight file NAME.h5")
+    p.add_argument("source", help="virtual:NAME, an NBRDF weight file NAME.h5 or a MERL file NAME.binary")
     p.add_argument("--out", required=True, help="output .onnx file")
 
     p = add(
@@ -163,18 +167,23 @@ def build_parser() -> argparse.ArgumentParser:
         "Score MODEL.onnx against TRUTH.onnx (SPEC §5, §9): log-cosine and relative RMSE over 102 400 stratified "
         "hemisphere pairs (theta <= 80 deg), relative RMSE over the in-plane glossy (|ti - tr| <= 10 deg) and diffuse "
         "regions (1 deg grid within +-60 deg), and image metrics (relative MSE, PSNR, CIEDE2000 mean and p95) of both "
-        "rendered in the material-preview scene with the same seeds; the truth rendered again with other seeds gives "
-        "the noise level. Spectral model and truth compare at 400-700 nm every 10 nm, otherwise in linear sRGB. The "
-        "model's fast paths are scored against its f (and, when rendered, by the image they change). "
+        "rendered in the material-preview scene (or your own, --scene) with the same seeds; the truth rendered again "
+        "with other seeds gives the noise level. Spectral model and truth compare at 400-700 nm every 10 nm, otherwise "
+        "in linear sRGB. The model's fast paths are scored against its f (and, when rendered, by the image they change). "
         "Writes DIR/evaluation.json, model.png, truth.png, error_map.png, comparison.png and prints a table.",
     )
     p.add_argument("model", help="model file (.onnx)")
     p.add_argument("--truth", required=True, help="truth file (.onnx, e.g. from export-truth)")
     p.add_argument("--out-dir", required=True, help="output folder")
-    p.add_argument("--variant", default="llvm_ad_spectral", help="Mitsuba variant (default llvm_ad_spectral)")
+    p.add_argument("--scene", default=None, help="render in this Mitsuba scene instead of the material preview: any "
+                   "scene using the neuralbrdf BSDF; its material --material carries the model, then the truth")
+    p.add_argument("--material", default=None, help="with --scene: the neuralbrdf material (its id, or the id of "
+                   "its shape) to swap (default: the scene's only one)")
+    p.add_argument("--variant", default=DEFAULT_VARIANT, help=f"Mitsuba variant (default {DEFAULT_VARIANT}, as for render)")
     p.add_argument("--backend", default="drjit", choices=("drjit", "onnxruntime"), help="plugin backend (default drjit)")
     p.add_argument("--spp", type=int, default=256, help="samples per pixel (default 256)")
-    p.add_argument("--resolution", type=int, default=128, help="image width = height in pixels (default 128)")
+    p.add_argument("--resolution", type=int, default=None, help="image width = height in pixels (default 128, or "
+                   "the scene's own film with --scene)")
     p.add_argument("--seed", type=int, default=0, help="render seed (default 0)")
     p.add_argument("--fast", action="store_true",
                    help="render the model's fast path f_fast (neuralbrdf export --fast) and compare it with f too")
@@ -257,14 +266,18 @@ def _delegated(name: str):
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The ``neuralbrdf`` command; returns the exit status (2 on bad input).  Warnings are printed
+    as one line each (:func:`neuralbrdf.console.clean_warnings`)."""
     argv = sys.argv[1:] if argv is None else list(argv)
-    if argv and argv[0] in DELEGATED:
-        return _delegated(argv[0])(argv[1:])
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    with clean_warnings():
+        if argv and argv[0] in DELEGATED:
+            return _delegated(argv[0])(argv[1:])
+        return _run(build_parser().parse_args(argv))
+
+
+def _run(args: argparse.Namespace) -> int:
     try:
-        with warnings.catch_warnings(), command_inputs():
-            warnings.simplefilter("default")
+        with command_inputs():
             status = args.func(args)  # a command that can fail after its work returns its exit status
     except InputError as err:
         print(f"neuralbrdf {args.command}: error: {err}", file=sys.stderr)

@@ -1,7 +1,7 @@
 """``neuralbrdf render`` (and ``export/render.py``): an exported model (SPEC §6) in the shipped
 material-preview scene, or any Mitsuba 3 scene that uses the ``neuralbrdf`` BSDF (SPEC §7).
 
-    neuralbrdf render --model MODEL.onnx --out IMAGE.png [--exr] [--variant llvm_ad_rgb]
+    neuralbrdf render --model MODEL.onnx --out IMAGE.png [--exr] [--variant llvm_ad_spectral]
         [--backend drjit|onnxruntime] [--spp 64] [--resolution 256] [--seed 0] [--rgb-tolerance 1e-3] [--fast]
     neuralbrdf render --reference-bsdf roughconductor --out REF.png ...
     neuralbrdf render --scene SCENE.xml --out IMAGE.png [same options]
@@ -13,8 +13,9 @@ on the command line override the scene: ``--resolution`` sets every film's size,
 ``neuralbrdf`` material's property; options not given leave the scene as it is
 (:mod:`neuralbrdf.render.scene_file`).
 
-The scene, passes, memory and backends are those of :mod:`neuralbrdf.render.preview` (the
-scene ships inside the package: ``neuralbrdf/render/scenes/material_preview.xml``).
+The work is :func:`neuralbrdf.api.render_image` (the same render from Python); the scene, passes,
+memory and backends are those of :mod:`neuralbrdf.render.preview` (the scene ships inside the
+package: ``neuralbrdf/render/scenes/material_preview.xml``).
 
 **Spectral models in RGB variants** are integrated to sRGB through the plugin's reduced rule
 (``--rgb-tolerance``, its held-out rms relative error, default 1e-3; ``0`` for all 31
@@ -55,27 +56,17 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
-from neuralbrdf.atomic import check_outputs, command_inputs
+from neuralbrdf.console import clean_warnings
 from neuralbrdf.errors import InputError
-from neuralbrdf.onnx_contract import OUTPUT_FAST
+from neuralbrdf.render import DEFAULT_VARIANT
 from neuralbrdf.render.preview import (
     BACKENDS,
     DEFAULT_MAX_DEPTH,
-    DEFAULT_VARIANT,
     MEMORY_FRACTION,
     PASS_LANES_SYMBOLIC,
     PASS_LANES_WAVEFRONT,
     REFERENCE_BSDFS,
-    Material,
-    check_render_size,
-    render,
-    set_variant,
-    within_drjit_budget,
-    write_images,
 )
-from neuralbrdf.render.scene_file import SceneFile, render_scene_file
 from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE
 
 
@@ -134,111 +125,31 @@ def build_parser(prog: str = "neuralbrdf render") -> argparse.ArgumentParser:
     return parser
 
 
-def render_scene(args, written: list[Path]) -> tuple[np.ndarray, float, str]:
-    """``--scene``: the user's scene with the options given applied; ``(image, seconds, description)``."""
-    for name in ("spp", "resolution", "max_depth", "spp_per_pass"):
-        value = getattr(args, name)
-        if value is not None and value < 1:
-            raise InputError(f"--{name.replace('_', '-')} must be a positive integer, got {value}")
-    scene_file = SceneFile(args.scene)
-    if not scene_file.materials():
-        print(f"note: {args.scene} has no neuralbrdf material; rendering it as it is", file=sys.stderr)
-    if args.resolution is not None:
-        check_render_size(args.resolution, min(args.spp, args.spp_per_pass or args.spp), False)
-        scene_file.set_resolution(args.resolution)
-    if args.max_depth is not None:
-        scene_file.set_max_depth(args.max_depth)
-    if args.backend is not None:
-        scene_file.set_all("backend", args.backend)
-    if args.rgb_tolerance is not None:
-        scene_file.set_all("rgb_tolerance", repr(float(args.rgb_tolerance)))
-    if args.fast:
-        _set_fast(scene_file)
-    check_outputs(*written)
-    _start(args.variant)
-    image, seconds = render_scene_file(scene_file, args.spp, args.seed, args.spp_per_pass, progress=not args.quiet)
-    return image, seconds, f"scene {args.scene}"
-
-
-def _set_fast(scene_file: SceneFile) -> None:
-    """``--fast`` on a scene: property ``fast`` on every material whose model has a fast path."""
-    from neuralbrdf.kinds import load_model
-    from neuralbrdf.render.fast_paths import ADD_COMMAND, FAST_PROPERTY
-
-    without = []
-    for material in scene_file.materials():
-        if OUTPUT_FAST in load_model(material.model).fast_paths:
-            scene_file.set_property(material.element, FAST_PROPERTY, "true")
-        else:
-            without.append(material.name)
-    if without:
-        print(f"note: --fast: {', '.join(without)} {'has' if len(without) == 1 else 'have'} no fast path and "
-              f"{'renders' if len(without) == 1 else 'render'} full (add one: {ADD_COMMAND})", file=sys.stderr)
-
-
-def render_preview(args, written: list[Path]) -> tuple[np.ndarray, float, str]:
-    """The material-preview scene with ``--model`` or ``--reference-bsdf``; ``(image, seconds, description)``."""
-    args.resolution = 256 if args.resolution is None else args.resolution
-    args.max_depth = DEFAULT_MAX_DEPTH if args.max_depth is None else args.max_depth
-    material = Material(
-        model=None if args.model is None else Path(args.model),
-        backend=args.backend or "drjit",
-        reference_bsdf=args.reference_bsdf,
-        rgb_tolerance=DEFAULT_RMS_TOLERANCE if args.rgb_tolerance is None else args.rgb_tolerance,
-        fast=args.fast,
-    )
-    material = within_drjit_budget(material)  # reads the model: an input from here on
-    if args.fast:
-        if args.model is None:
-            raise InputError("--fast renders a model's fast path; give --model or --scene", column="--fast")
-        from neuralbrdf.kinds import load_model
-        from neuralbrdf.render.fast_paths import chosen_output
-
-        chosen_output(load_model(args.model), "_spectral" in args.variant, True, True)  # one line if it has none
-    check_outputs(*written)
-    _start(args.variant)
-    start = time.perf_counter()
-    image = render(
-        material, args.variant, args.spp, args.resolution, args.seed, args.spp_per_pass, args.max_depth,
-        progress=not args.quiet,
-    )
-    return image, time.perf_counter() - start, f"{material.describe()}, {args.resolution}x{args.resolution}"
-
-
-def _start(variant: str) -> None:
-    """Select the variant (registering the plugin) and zero its clamped-evaluation count."""
-    from neuralbrdf.render.mitsuba_bsdf import reset_clamped_values
-
-    set_variant(variant)
-    reset_clamped_values()
-
-
 def main(argv: list[str] | None = None, prog: str = "neuralbrdf render") -> int:
     args = build_parser(prog).parse_args(argv)
-    out = Path(args.out)
-    written = [out, out.with_suffix(".exr")] if args.exr else [out]
-    try:
-        with command_inputs():
-            if out.suffix.lower() != ".png":
-                raise InputError("the output must be a .png file (add --exr for a linear EXR beside it)", path=out)
-            draw = render_scene if args.scene is not None else render_preview
-            image, elapsed, described = draw(args, written)
-            from neuralbrdf.render.mitsuba_bsdf import clamped_values
+    with clean_warnings():  # e.g. clamped model values: one line
+        return _render(args)
 
-            clamped = clamped_values()
-            if not np.all(np.isfinite(image)):
-                print(f"error: the render of {described} is not finite; nothing written", file=sys.stderr)
-                return 1
-            write_images(image, out, written[1] if args.exr else None)
+
+def _render(args: argparse.Namespace) -> int:
+    from neuralbrdf.api import RenderFailed, render_image
+
+    out = Path(args.out)
+    described = (f"scene {args.scene}" if args.scene is not None else
+                 f"built-in {args.reference_bsdf}" if args.reference_bsdf is not None else Path(args.model).name)
+    started = time.perf_counter()
+    try:
+        render_image(args.model, out, scene=args.scene, reference_bsdf=args.reference_bsdf, variant=args.variant,
+                     spp=args.spp, resolution=args.resolution, seed=args.seed, backend=args.backend,
+                     rgb_tolerance=args.rgb_tolerance, max_depth=args.max_depth, spp_per_pass=args.spp_per_pass,
+                     exr=args.exr, fast=args.fast, progress=not args.quiet)
     except InputError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    if clamped:
-        print(
-            f"warning: {clamped} evaluations of {described} were negative or not finite and were "
-            "clamped to 0 (the model is wrong somewhere its load-time probe did not look)",
-            file=sys.stderr,
-        )
-    print(f"rendered {described} in {args.variant} at {args.spp} spp in {elapsed:.1f} s; wrote "
+    except RenderFailed:
+        print(f"error: the render of {described} is not finite; nothing written", file=sys.stderr)
+        return 1
+    written = [out, out.with_suffix(".exr")] if args.exr else [out]
+    print(f"rendered {described} in {args.variant} at {args.spp} spp in {time.perf_counter() - started:.1f} s; wrote "
           f"{', '.join(map(str, written))}")
     return 0

@@ -32,6 +32,11 @@ every output can be written.  ``evaluation.json`` records what was compared: bot
 materials, wavelength ranges and SHA-256, and ``notes`` for what a reader must know (a truth that
 is not a ground truth, kind ``reference``, SPEC §9: then the scores measure a difference between
 two models).
+
+**Your own scene** (:class:`SceneTarget`, ``neuralbrdf evaluate --scene SCENE.xml [--material
+NAME]``): any Mitsuba scene that uses the ``neuralbrdf`` BSDF; the named material is pointed at
+the model, then at the truth (:mod:`neuralbrdf.render.scene_file`), everything else in the scene
+stays as it is, and the same seeds, shared proposal and noise measurement apply.
 """
 
 from __future__ import annotations
@@ -50,8 +55,8 @@ from neuralbrdf.evaluation.fast_paths import fast_path_scores, image_against_f, 
 from neuralbrdf.evaluation.images import IMAGE_METRICS, displayed, image_scores
 from neuralbrdf.evaluation.scores import DIRECTION_METRICS, HEMISPHERE_STRATA, Evaluator, OnnxEvaluator, direction_scores
 from neuralbrdf.onnx_contract import OUTPUT_F
+from neuralbrdf.render import DEFAULT_VARIANT
 
-DEFAULT_VARIANT = "llvm_ad_spectral"
 DEFAULT_SPP = 256
 DEFAULT_RESOLUTION = 128
 #: Seed of the second truth render that measures the noise (the renders themselves use ``seed``).
@@ -109,29 +114,84 @@ def check_settings(settings: RenderSettings, model_path: Path, render_images: bo
     set_variant(settings.variant)
 
 
+@dataclass(frozen=True)
+class SceneTarget:
+    """A user's Mitsuba scene to render in instead of the preview (SPEC §7): its ``neuralbrdf``
+    material named ``material`` (``None``: the scene's only one) carries the model, then the truth;
+    ``resolution`` sets the film's width and height (``None``: the scene's own)."""
+
+    path: Path
+    material: str | None = None
+    resolution: int | None = None
+
+    def material_name(self) -> str:
+        """The material swapped, checked against the scene (one clear error before any work)."""
+        from neuralbrdf.render.scene_file import SceneFile
+
+        names = [material.name for material in SceneFile(self.path).materials()]
+        if not names:
+            raise InputError("has no neuralbrdf material to put the model in", path=self.path)
+        if self.material is None and len(names) > 1:
+            raise InputError(f"has {len(names)} neuralbrdf materials ({', '.join(names)}); name one with --material",
+                             path=self.path)
+        if self.material is not None and self.material not in names:
+            raise InputError(f"no neuralbrdf material named {self.material!r}; it has {', '.join(names)}",
+                             path=self.path)
+        return self.material or names[0]
+
+    def render(self, model: Path, settings: RenderSettings, seed: int, proposal: Path | None,
+               rgb_head: bool = True) -> np.ndarray:
+        """The scene with ``model`` in the material (sampled with ``proposal``'s proposal, if given;
+        through its fast path with ``settings.fast``; ``rgb_head=False``: a spectral file's ``f``
+        even in RGB variants)."""
+        from neuralbrdf.render.fast_paths import FAST_PROPERTY, RGB_HEAD_PROPERTY
+        from neuralbrdf.render.preview import set_variant
+        from neuralbrdf.render.scene_file import SceneFile, render_scene_file
+
+        scene_file = SceneFile(self.path)
+        properties = {"backend": settings.backend}
+        if proposal is not None:
+            properties["proposal"] = str(Path(proposal).resolve())
+        if settings.fast:
+            properties[FAST_PROPERTY] = "true"
+        if not rgb_head:
+            properties[RGB_HEAD_PROPERTY] = "false"
+        scene_file.set_model(self.material_name(), model, properties)
+        if self.resolution is not None:
+            scene_file.set_resolution(self.resolution)
+        set_variant(settings.variant)
+        return render_scene_file(scene_file, settings.spp, seed)[0]
+
+
 def _render(path: Path, settings: RenderSettings, seed: int, proposal: Path | None = None,
-            rgb_head: bool = True) -> np.ndarray:
-    """One render of the preview scene (``settings.fast``: the file's fast path ``f_fast``;
-    ``rgb_head=False``: a spectral file's ``f`` even in RGB variants)."""
+            scene: SceneTarget | None = None, rgb_head: bool = True) -> np.ndarray:
+    """One render of the preview scene, or of ``scene`` (``settings.fast``: the file's fast path
+    ``f_fast``; ``rgb_head=False``: a spectral file's ``f`` even in RGB variants)."""
     from neuralbrdf.render.preview import Material, render
 
-    material = Material(model=path, backend=settings.backend, proposal=proposal, fast=settings.fast, rgb_head=rgb_head)
-    image = render(material, settings.variant, settings.spp, settings.resolution, seed)
+    if scene is not None:
+        image = scene.render(path, settings, seed, proposal, rgb_head)
+    else:
+        material = Material(model=path, backend=settings.backend, proposal=proposal, fast=settings.fast,
+                            rgb_head=rgb_head)
+        image = render(material, settings.variant, settings.spp, settings.resolution, seed)
     if not np.all(np.isfinite(image)):
         raise ValueError(f"the render of {path} is not finite")
     return image
 
 
-def _render_kept(kept: dict | None, path: Path, settings: RenderSettings, seed: int) -> np.ndarray:
+def _render_kept(kept: dict | None, path: Path, settings: RenderSettings, seed: int,
+                 scene: SceneTarget | None = None) -> np.ndarray:
     """:func:`_render` of a truth (its ``f``: ``--fast`` is the model's), or its image kept in
     ``kept`` from an earlier call for the same file (path, size, modification time, inode:
-    :func:`~neuralbrdf.atomic.file_version`), settings and seed (read-only: shared by later calls)."""
+    :func:`~neuralbrdf.atomic.file_version`), settings, seed and scene (read-only: shared by later
+    calls)."""
     own = replace(settings, fast=False)
     if kept is None:
-        return _render(path, own, seed)
-    key = (file_version(path), own, seed)
+        return _render(path, own, seed, scene=scene)
+    key = (file_version(path), own, seed, None if scene is None else (file_version(scene.path), scene))
     if key not in kept:
-        image = _render(path, own, seed)
+        image = _render(path, own, seed, scene=scene)
         image.flags.writeable = False
         kept[key] = image
     return kept[key]
@@ -189,14 +249,16 @@ def _json_number(value):
 def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path,
              settings: RenderSettings = RenderSettings(), render_images: bool = True,
              strata: tuple[int, int] = HEMISPHERE_STRATA, truth_evaluator: Evaluator | None = None,
-             truth_renders: dict | None = None) -> dict:
+             truth_renders: dict | None = None, scene: SceneTarget | None = None) -> dict:
     """Score ``model_path`` against ``truth_path`` and write ``out_dir`` (module docstring);
     ``strata``: fewer hemisphere pairs than the default, for quick studies and tests;
     ``truth_evaluator``: ``truth_path`` already loaded (a study keeps one per truth,
     :class:`~neuralbrdf.evaluation.scores.MemoEvaluator`); ``truth_renders``: a dictionary in which
     the truth's two renders are kept (by file, settings and seed) and found again when the same
-    truth is evaluated with the same settings (a study's models of one material)."""
+    truth is evaluated with the same settings (a study's models of one material); ``scene``: render
+    in a user's scene instead of the preview (:class:`SceneTarget`)."""
     model_path, truth_path, out_dir = Path(model_path), Path(truth_path), Path(out_dir)
+    scene_material = scene.material_name() if scene is not None and render_images else None
     started = time.perf_counter()
     check_settings(settings, model_path, render_images)
     check_outputs(*(out_dir / name for name in FILES[: 5 if render_images else 1]))
@@ -218,9 +280,9 @@ def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path
     images = None
     if render_images:
         render_started = time.perf_counter()
-        model_image = _render(model_path, settings, settings.seed, proposal=truth_path)  # matched paths
-        truth_image = _render_kept(truth_renders, truth_path, settings, settings.seed)
-        truth_again = _render_kept(truth_renders, truth_path, settings, settings.seed + NOISE_SEED_OFFSET)
+        model_image = _render(model_path, settings, settings.seed, truth_path, scene)  # matched paths
+        truth_image = _render_kept(truth_renders, truth_path, settings, settings.seed, scene)
+        truth_again = _render_kept(truth_renders, truth_path, settings, settings.seed + NOISE_SEED_OFFSET, scene)
         timings["render_s"] = time.perf_counter() - render_started
         image_metrics, delta_e = image_scores(model_image, truth_image)
         noise, _ = image_scores(truth_again, truth_image)
@@ -229,17 +291,19 @@ def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path
         images = (model_image, truth_image, delta_e)
         if output != OUTPUT_F:  # what the fast path changes in the picture: f at the same seed and paths
             f_image = _render(model_path, replace(settings, fast=False), settings.seed, proposal=truth_path,
-                              rgb_head=False)
+                              scene=scene, rgb_head=False)
             fast_paths[output]["image_against_f"] = image_against_f(model_image, f_image)
     result.update(
         variant=settings.variant if render_images else None,
         backend=settings.backend if render_images else None,
         spp=settings.spp if render_images else None,
-        resolution=settings.resolution if render_images else None,
+        resolution=(settings.resolution if scene is None else list(images[0].shape[1::-1])) if images else None,
         seed=settings.seed,
         direction_details=directions.to_dict(),
         timings_s={**timings, "total_s": time.perf_counter() - started},
     )
+    if scene_material is not None:
+        result.update(scene=str(scene.path), scene_material=scene_material)
     result = {key: _json_number(value) if isinstance(value, float) else value for key, value in result.items()}
     _write_outputs(result, images, (model_path.name, truth_path.name), out_dir)
     return result

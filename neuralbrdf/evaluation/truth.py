@@ -17,13 +17,16 @@ as a fitted model: image differences then measure the model, not the renderer.
   spectral model; wavelengths outside are clamped to it, as the contract says.
 * :class:`NbrdfTruth` — RGB, ``f(wi, wo) [N, 3]``: the NBRDF network (6→21→21→3, ReLU, ``exp(x) −
   1``) on the Rusinkiewicz half/difference vectors, clamped at 0 and 0 below the horizon.
+* :class:`MerlTruth` — RGB, ``f(wi, wo) [N, 3]``: a MERL ``.binary`` measurement (Matusik et al.
+  2003), its table looked up by MERL's nearest-cell rule.
 
 ``SOURCE`` strings name a truth: ``virtual:NAME`` (``gold``, ``gonio``, ``cyan``, ``magenta``,
-``munsell_n9``) or the path of an NBRDF weight file ``NAME.h5``.
+``munsell_n9``), the path of an NBRDF weight file ``NAME.h5`` or of a MERL file ``NAME.binary``.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,6 +34,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from neuralbrdf.data.merl_binary import MerlBrdf
 from neuralbrdf.data.nbrdf import DENSE_LAYERS, NbrdfNetwork, nbrdf_input
 from neuralbrdf.errors import InputError
 from neuralbrdf.models.directional import LinearInWavelength
@@ -95,6 +99,48 @@ class NbrdfTruth(nn.Module):
         return torch.where(above_horizon(wi, wo)[:, None], f, torch.zeros_like(f))
 
 
+class MerlTruth(nn.Module):
+    """``f(wi, wo)`` ``[N, 3]`` (linear sRGB, sr⁻¹) of a MERL measurement, looked up in its table by
+    MERL's own nearest-cell rule (:mod:`neuralbrdf.data.merl_binary`, ``BRDFRead.cpp``).
+
+    The Rusinkiewicz angles come from the half vector ``h`` and the difference vector (``wi`` in
+    ``h``'s frame: turned by ``−φh`` about the normal, then by ``−θh`` about ``y``) without
+    ``atan2``: ``φd mod 180° = atan(d_y / d_x)``, plus 180° when negative.  Indices are computed in
+    float32, so a pair within float32 rounding of a cell boundary may land in the neighbouring
+    cell.  Cells MERL did not measure (negative) give 0, as :meth:`MerlBrdf.evaluate` does."""
+
+    def __init__(self, brdf) -> None:
+        super().__init__()
+        self.name = brdf.name
+        self.shape = tuple(brdf.values.shape[1:])
+        cells = np.clip(brdf.values.reshape(3, -1).T, 0.0, None)  # [n_h * n_d * n_phi, 3], unmeasured -> 0
+        self.register_buffer("cells", torch.as_tensor(cells, dtype=torch.float32))
+
+    def forward(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
+        n_h, n_d, n_phi = self.shape
+        h = wi + wo
+        h = h / torch.clamp(torch.linalg.vector_norm(h, dim=-1, keepdim=True), min=1e-20)
+        sin_h = torch.sqrt(h[:, 0] * h[:, 0] + h[:, 1] * h[:, 1])
+        cos_phi_h = torch.where(sin_h > 1e-12, h[:, 0] / torch.clamp(sin_h, min=1e-12), torch.ones_like(sin_h))
+        sin_phi_h = torch.where(sin_h > 1e-12, h[:, 1] / torch.clamp(sin_h, min=1e-12), torch.zeros_like(sin_h))
+        x1 = cos_phi_h * wi[:, 0] + sin_phi_h * wi[:, 1]
+        y1 = cos_phi_h * wi[:, 1] - sin_phi_h * wi[:, 0]
+        cos_h = h[:, 2]
+        x2 = cos_h * x1 - sin_h * wi[:, 2]
+        z2 = sin_h * x1 + cos_h * wi[:, 2]
+        degrees = 180.0 / math.pi
+        theta_h = torch.acos(torch.clamp(cos_h, -1.0, 1.0)) * degrees
+        theta_d = torch.acos(torch.clamp(z2, -1.0, 1.0)) * degrees
+        x2 = torch.where(torch.abs(x2) < 1e-30, torch.full_like(x2, 1e-30), x2)
+        phi_d = torch.atan(y1 / x2) * degrees
+        phi_d = torch.where(phi_d < 0.0, phi_d + 180.0, phi_d)
+        i_h = torch.clamp(torch.floor(torch.sqrt(torch.clamp(theta_h, min=0.0) / 90.0 * n_h * n_h)), 0.0, n_h - 1.0)
+        i_d = torch.clamp(torch.floor(theta_d / 90.0 * n_d), 0.0, n_d - 1.0)
+        i_phi = torch.clamp(torch.floor(phi_d / 180.0 * n_phi), 0.0, n_phi - 1.0)
+        f = self.cells[((i_h * n_d + i_d) * n_phi + i_phi).long()]
+        return torch.where(above_horizon(wi, wo)[:, None], f, torch.zeros_like(f))
+
+
 @dataclass(frozen=True)
 class Truth:
     """A ground truth: its module on directions, material name, provenance and spectral range."""
@@ -128,10 +174,15 @@ def load_truth(source: str) -> Truth:
         )
         return Truth(module, material.name, provenance, module.wavelength_range_nm)
     path = Path(source)
+    if path.suffix == ".binary":
+        brdf = MerlBrdf.load(path)
+        provenance = (f"ground truth MERL measurement {path.name} (Matusik et al. 2003), nearest cell of its "
+                      "90x90x180 table, unmeasured cells 0")
+        return Truth(MerlTruth(brdf), brdf.name, provenance, None)
     if path.suffix not in (".h5", ".json"):
         raise InputError(
-            f"unknown truth source {source!r}; expected virtual:NAME ({', '.join(MATERIALS)}) or an NBRDF "
-            "weight file NAME.h5"
+            f"unknown truth source {source!r}; expected virtual:NAME ({', '.join(MATERIALS)}), an NBRDF "
+            "weight file NAME.h5 or a MERL measurement NAME.binary"
         )
     network = NbrdfNetwork.load(path)
     provenance = (

@@ -9,7 +9,8 @@
 * ``{virtual: NAME}`` — a shipped virtual-instrument measurement (``cyan``, ``magenta``,
   ``gold``, ``gonio``) with the shipped reference;
 * ``{nbrdf: FILE.h5}`` — an NBRDF proxy (SPEC §2.4) sampled on ``plan`` (the entry's own
-  ``plan`` key, else the data module's).
+  ``plan`` key, else the data module's);
+* ``{merl: FILE.binary}`` — a MERL measurement, sampled on ``plan`` likewise.
 
 Each may carry ``name`` (default: the file stem or virtual material).  ``--data.path FILE``
 (with ``--data.reference``) drops a single measurement into any latent-fit config.
@@ -117,10 +118,10 @@ class LatentFitData(pl.LightningDataModule):
         A single measurement to fit instead of ``sources`` (``--data.path FILE`` drops a user's
         BRDF table, or GCMS raw file with its Munsell N9 ``reference``, into any config).
     plan:
-        Sampling plan (SPEC §3) of NBRDF sources without their own ``plan``.
+        Sampling plan (SPEC §3) of NBRDF and MERL sources without their own ``plan``.
     eval_plan:
-        Plan on which NBRDF and virtual sources (which have a truth) are compared with the fit;
-        ``None``: no such evaluation.
+        Plan on which NBRDF, MERL and virtual sources (which have a truth) are compared with the
+        fit; ``None``: no such evaluation.
     low2012_abc:
         Löw et al.'s published ABC fits (``abc-low2012/low2012_abc_merl.csv``) for the
         comparison; ``None``: no comparison; a missing file: a warning and no comparison.
@@ -175,6 +176,10 @@ class LatentFitData(pl.LightningDataModule):
             raise InputError(
                 f"material names must be unique, {duplicates} repeat (set 'name')", column="data.sources"
             )
+        if low2012_abc is not None and not os.path.isfile(low2012_abc):  # optional: said at once, then skipped
+            warnings.warn(f"data.low2012_abc: {low2012_abc} not found; no comparison with Löw et al.'s ABC fits",
+                          stacklevel=2)
+            low2012_abc = None
         self.plan, self.eval_plan, self.low2012_abc = plan, eval_plan, low2012_abc
         for key, value in (("batch_size", batch_size), ("batch_values", batch_values)):
             if value is not None and (not isinstance(value, int) or isinstance(value, bool) or value < 1):
@@ -201,6 +206,7 @@ class LatentFitData(pl.LightningDataModule):
             path=source.get("path"),
             reference=source.get("reference"),
             nbrdf=source.get("nbrdf"),
+            merl=source.get("merl"),
             virtual=source.get("virtual"),
             plan=source.get("plan", self.plan),
             eval_plan=self.eval_plan if "path" not in source else None,
@@ -217,7 +223,8 @@ class LatentFitData(pl.LightningDataModule):
         if self.spectral:
             self._check_grid(material.truth, f"{name} (truth)")
         abc = None
-        abc_params = abc_fits.get(Path(source["nbrdf"]).stem) if "nbrdf" in source else None
+        measured = source.get("nbrdf") or source.get("merl")  # Löw et al. fitted the MERL materials by name
+        abc_params = abc_fits.get(Path(measured).stem) if measured else None
         if abc_params is not None:
             abc = torch.as_tensor(abc_params.evaluate(*material.truth.vectors()), dtype=torch.float32)
         return EvalSet(name, fit, _table_samples(index, material.truth, self.spectral), abc)
@@ -237,12 +244,7 @@ class LatentFitData(pl.LightningDataModule):
     def setup(self, stage: str | None = None) -> None:
         if self.train_samples is not None:
             return
-        abc_fits = {}
-        if self.low2012_abc is not None:
-            if os.path.isfile(self.low2012_abc):
-                abc_fits = load_low2012_parameters(self.low2012_abc)
-            else:
-                warnings.warn(f"{self.low2012_abc}: Löw et al. ABC fits not found; no ABC comparison", stacklevel=2)
+        abc_fits = {} if self.low2012_abc is None else load_low2012_parameters(self.low2012_abc)
         materials = [self._material(i, s) for i, s in enumerate(self.sources)]
         if self.spectral is None:  # automatic: spectral when every measurement has a spectrum
             self.spectral = all(m.fit.wavelengths is not None for m in materials)

@@ -12,7 +12,7 @@ from neuralbrdf.sources import MaterialData, load_material
 class SingleMaterialData(pl.LightningDataModule):
     """One material from any source (the vocabulary of :mod:`neuralbrdf.sources`).
 
-    With no ``path``, ``nbrdf`` or ``virtual`` given, the shipped virtual ``gold`` DS1
+    With no ``path``, ``nbrdf``, ``merl`` or ``virtual`` given, the shipped virtual ``gold`` DS1
     measurement is used.  Every stage sees the same single item: the whole material.
 
     Parameters
@@ -21,12 +21,14 @@ class SingleMaterialData(pl.LightningDataModule):
         A BRDF sample table (sr⁻¹), or a GCMS raw file with its Munsell N9 ``reference``.
     nbrdf:
         An NBRDF proxy ``NAME.h5`` (MERL-derived, RGB), sampled on ``plan``.
+    merl:
+        A MERL measurement ``NAME.binary`` (RGB), sampled on ``plan``.
     virtual:
         A shipped virtual stand-in (cyan, magenta, gold, gonio): its DS1 measurement.
     plan:
-        Sampling plan of an NBRDF proxy: DS1, DS2, DS3, DS4 or low.
+        Sampling plan of an NBRDF proxy or MERL measurement: DS1, DS2, DS3, DS4 or low.
     eval_plan:
-        Plan on which NBRDF and virtual sources are compared with the fit (hemisphere
+        Plan on which NBRDF, MERL and virtual sources are compared with the fit (hemisphere
         log-cosine RMSE); ``None``: no such evaluation.
     name:
         Material name (default: the file stem or the virtual material).
@@ -37,6 +39,7 @@ class SingleMaterialData(pl.LightningDataModule):
         path: str | None = None,
         reference: str | None = None,
         nbrdf: str | None = None,
+        merl: str | None = None,
         virtual: str | None = None,
         plan: str = "DS1",
         eval_plan: str | None = "low",
@@ -44,11 +47,10 @@ class SingleMaterialData(pl.LightningDataModule):
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
-        if path is None and nbrdf is None and virtual is None:
+        if path is None and nbrdf is None and merl is None and virtual is None:
             virtual = "gold"
-        self._kwargs = dict(
-            path=path, reference=reference, nbrdf=nbrdf, virtual=virtual, plan=plan, eval_plan=eval_plan, name=name
-        )
+        self._kwargs = dict(path=path, reference=reference, nbrdf=nbrdf, merl=merl, virtual=virtual, plan=plan,
+                            eval_plan=eval_plan, name=name)
         self.material: MaterialData | None = None
 
     def prepare_data(self) -> None:

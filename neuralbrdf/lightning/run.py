@@ -69,19 +69,21 @@ from pathlib import Path
 
 import pytorch_lightning as pl
 import torch
-from jsonargparse import ActionYesNo
+from jsonargparse import ActionYesNo, ArgumentError
 from pytorch_lightning.callbacks import ModelCheckpoint
 from pytorch_lightning.cli import LightningCLI
 from pytorch_lightning.loggers import CSVLogger
 from pytorch_lightning.plugins.io import TorchCheckpointIO
 
 from neuralbrdf.atomic import TEMP_MARKER, atomic_path, atomic_write, command_inputs
-from neuralbrdf.errors import InputError
-from neuralbrdf.errors import one_line
+from neuralbrdf.errors import FitFailed, InputError, one_line
 from neuralbrdf.checkpoints import read_checkpoint
-from neuralbrdf.configs_dir import overlay_base, resolve_config
+from neuralbrdf.configs_dir import config_not_found, overlay_base, resolve_config
+from neuralbrdf.console import clean_warnings, on_terminal
 from neuralbrdf.folder_lock import folder_lock, outermost_missing
 from neuralbrdf.lightning.common import WritesKind
+from neuralbrdf.lightning.config_errors import describe as describe_config_error
+from neuralbrdf.lightning.progress import EpochLines
 from neuralbrdf.lightning.train_help import help_text
 
 METRICS_FILE = "metrics.json"
@@ -122,10 +124,6 @@ def write_metrics(path: Path, metrics: dict, merge: bool) -> None:
     with atomic_write(path) as handle:
         json.dump(strict_json(merged), handle, indent=2, sort_keys=True, allow_nan=False)
         handle.write("\n")
-
-
-class FitFailed(RuntimeError):
-    """A fit that ran but produced no usable model; the message is the one-line cause."""
 
 
 #: Errors raised inside a fit that mean the data cannot support it (e.g. no measured value above
@@ -373,6 +371,9 @@ class NeuralBrdfCLI(LightningCLI):
         kwargs.setdefault("subclass_mode_model", True)
         kwargs.setdefault("subclass_mode_data", True)
         kwargs.setdefault("auto_configure_optimizers", False)
+        # parse errors are raised (main() reports them in one line), and usage names this command
+        kwargs.setdefault("parser_kwargs", {"prog": "neuralbrdf train", "exit_on_error": False,
+                                            **{name: {"exit_on_error": False} for name in SUBCOMMANDS}})
         self.run_dir: Path | None = None
         self._created_folder: Path | None = None  # the outermost folder made for the run directory
         self._set_aside: Path | None = None
@@ -385,6 +386,7 @@ class NeuralBrdfCLI(LightningCLI):
                 self._restore_earlier_log()
                 self._after_failure(exc)
                 exc.neuralbrdf_run_dir = self.run_dir  # where a failed fit's metrics.json says why
+                exc.neuralbrdf_parsers = getattr(self, "_subcommand_parsers", {})  # the valid names of a bad key
                 raise
             self._restore_earlier_log()
             self._drop_set_aside()
@@ -523,10 +525,13 @@ class NeuralBrdfCLI(LightningCLI):
             kwargs["logger"] = CSVLogger(self.run_dir, name="", version=version)
         if not self._get(self.config_init, "trainer", default={}).get("plugins"):
             kwargs["plugins"] = [AtomicCheckpointIO()]
-        if self.subcommand == "fit":
-            configured = self._get(self.config_init, "trainer", default={}).get("callbacks") or []
-            configured = configured if isinstance(configured, list) else [configured]
-            kwargs["callbacks"] = [*configured, FitHealth()]
+        trainer = self._get(self.config_init, "trainer", default={})
+        added = [FitHealth()] if self.subcommand == "fit" else []
+        if trainer.get("enable_progress_bar") is not False and not on_terminal():
+            added.append(EpochLines())  # a log gets one line per epoch, not a redrawn bar
+        if added:
+            configured = trainer.get("callbacks") or []
+            kwargs["callbacks"] = [*(configured if isinstance(configured, list) else [configured]), *added]
         return super().instantiate_trainer(**kwargs)
 
 
@@ -577,7 +582,7 @@ def _resolve_config_files(args: list[str]) -> list[str]:
         try:
             Path(path).read_bytes().decode("utf-8")
         except FileNotFoundError:
-            raise InputError("configuration file not found", path=path) from None
+            raise config_not_found(path) from None
         except UnicodeDecodeError as error:
             raise InputError(f"not a YAML configuration: not UTF-8 text ({error.reason} at byte {error.start})", path=path) from None
         except OSError as error:
@@ -591,11 +596,13 @@ LIGHTNING_LOGGERS = ("pytorch_lightning", "lightning", "lightning_fabric", "ligh
 
 @contextlib.contextmanager
 def _quiet(verbose: bool):
-    """Unless ``verbose``: Lightning's INFO lines and library deprecation notices off for the run,
-    restored afterwards (other warnings still show)."""
+    """Notices that say nothing about the run off (:func:`_ignore_noise`) and, unless ``verbose``,
+    Lightning's INFO lines and library deprecation notices; restored afterwards (other warnings
+    still show)."""
     loggers = [logging.getLogger(name) for name in LIGHTNING_LOGGERS]
     levels = [logger.level for logger in loggers]
     with warnings.catch_warnings():
+        _ignore_noise()
         if not verbose:
             for logger in loggers:
                 logger.setLevel(logging.WARNING)
@@ -615,6 +622,13 @@ def _failed_run(exc: BaseException) -> str:
     return f" (run: {run_dir}; its {METRICS_FILE} holds the cause)" if run_dir and (run_dir / METRICS_FILE).is_file() else ""
 
 
+def fitted_checkpoint(run_dir: Path) -> Path | None:
+    """The checkpoint a finished fit leaves to export: ``checkpoints/best.ckpt``, or a latent
+    fit's ``fitted.ckpt``; ``None`` if there is none (a failed fit)."""
+    checkpoints = sorted((Path(run_dir) / "checkpoints").glob("*.ckpt"))
+    return next((c for c in checkpoints if c.stem in ("best", "fitted")), None)
+
+
 def _summary(cli: NeuralBrdfCLI) -> str:
     """Where a finished run is, its fit metrics and how to export it."""
     lines = [f"run: {cli.run_dir}"]
@@ -625,8 +639,7 @@ def _summary(cli: NeuralBrdfCLI) -> str:
     if shown:
         lines.append("metrics: " + ", ".join(f"{k} {v:.4g}" for k, v in shown[:12])
                      + (f" (+{len(shown) - 12} more in {path})" if len(shown) > 12 else ""))
-    checkpoints = sorted((cli.run_dir / "checkpoints").glob("*.ckpt")) if cli.subcommand == "fit" else []
-    best = next((c for c in checkpoints if c.stem in ("best", "fitted")), None)
+    best = fitted_checkpoint(cli.run_dir) if cli.subcommand == "fit" else None
     if best is not None:
         lines.append(f"checkpoint: {best}")
     if best is not None and isinstance(cli.model, WritesKind):  # a fitted model, not a pretraining
@@ -637,7 +650,14 @@ def _summary(cli: NeuralBrdfCLI) -> str:
 
 
 def main(args: list[str] | None = None) -> int:
-    """Entry point of ``train.py``; returns the exit status (2 on bad input)."""
+    """Entry point of ``train.py``; returns the exit status (2 on bad input).  Warnings are
+    printed as one line each (:func:`neuralbrdf.console.clean_warnings`)."""
+    with clean_warnings():
+        return _main(args)
+
+
+def _ignore_noise() -> None:
+    """Warning filters for notices of Lightning and jsonargparse that say nothing about the run."""
     # The data are in-memory tensors: worker processes would only add start-up time.
     warnings.filterwarnings("ignore", message=r".*does not have many workers.*")
     # The CSV log shares the run directory with config.yaml, written just before it.
@@ -649,28 +669,47 @@ def main(args: list[str] | None = None) -> int:
     warnings.filterwarnings("ignore", message=r"LightningCLI's args parameter is intended")
     # The ABC fit runs its own bounded optimiser (SciPy), not a torch one.
     warnings.filterwarnings("ignore", message=r".*configure_optimizers` returned `None`")
+
+
+def train(args: list[str], verbose: bool = False) -> NeuralBrdfCLI:
+    """Run ``args`` (``fit|validate|test --config X [--key value ...]``) in this process and return
+    the finished LightningCLI (its ``run_dir``, ``model``, ``trainer``).  Raises
+    :class:`~neuralbrdf.errors.InputError` for bad input, a configuration that does not parse
+    included (one line: :mod:`~neuralbrdf.lightning.config_errors`), and :class:`FitFailed` for a
+    fit that ran and failed (its ``neuralbrdf_run_dir`` names the run whose metrics.json says why)."""
+    try:
+        with _quiet(verbose):
+            args = _resolve_config_files(list(args))
+            with command_inputs():
+                return NeuralBrdfCLI(args=args)
+    except FitFailed:
+        raise
+    except ArgumentError as exc:  # the configuration does not parse: one line naming the key
+        parser = getattr(exc, "neuralbrdf_parsers", {}).get(args[0] if args else "")
+        raise describe_config_error(str(exc), args, _config_args(args)[1], parser) from None
+    except Exception as exc:
+        error = _input_error(exc)
+        if error is not None:
+            raise error from None
+        cause = getattr(exc, "neuralbrdf_fit_failure", None)
+        if cause is None or not isinstance(exc, DATA_FAILURES):
+            raise
+        failure = FitFailed(cause)
+        failure.neuralbrdf_run_dir = getattr(exc, "neuralbrdf_run_dir", None)
+        raise failure from exc
+
+
+def _main(args: list[str] | None) -> int:
     args = sys.argv[1:] if args is None else list(args)
     if not args or args[0] in ("-h", "--help"):
         print(help_text(), file=sys.stdout if args else sys.stderr)
         return 0 if args else 2
-    verbose = "--verbose" in args
-    args = [arg for arg in args if arg != "--verbose"]
     try:
-        with _quiet(verbose):
-            args = _resolve_config_files(args)
-            with command_inputs():
-                cli = NeuralBrdfCLI(args=args)
+        cli = train([arg for arg in args if arg != "--verbose"], verbose="--verbose" in args)
     except FitFailed as failure:
         print(f"error: fit failed: {failure}{_failed_run(failure)}", file=sys.stderr)
         return 1
-    except Exception as exc:
-        error = _input_error(exc)
-        cause = getattr(exc, "neuralbrdf_fit_failure", None)
-        if error is None and cause is not None and isinstance(exc, DATA_FAILURES):
-            print(f"error: fit failed: {cause}{_failed_run(exc)}", file=sys.stderr)
-            return 1
-        if error is None:
-            raise
+    except InputError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     if cli.subcommand is not None and cli.run_dir is not None:

@@ -10,6 +10,13 @@
 
 import importlib
 
+#: The Mitsuba variant ``neuralbrdf render``, ``neuralbrdf evaluate`` and the Python API use unless
+#: told otherwise.  Spectral, because the product is: a spectral model is evaluated at each path's
+#: own wavelengths, as it was trained, where an RGB variant integrates it to sRGB through a fitted
+#: few-wavelength rule (an approximation within ``rgb_tolerance``); an RGB model renders in it too,
+#: upsampled per sample as Mitsuba upsamples every RGB texture.  ``--variant llvm_ad_rgb`` is faster.
+DEFAULT_VARIANT = "llvm_ad_spectral"
+
 #: Public names -> the submodule defining them, imported on first use: importing this package
 #: must not load Mitsuba and Dr.Jit (seconds), which only the BSDF plugin needs.
 _LAZY = {"register": "mitsuba_bsdf"}

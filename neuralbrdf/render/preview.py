@@ -39,11 +39,12 @@ from pathlib import Path
 import drjit as dr
 import mitsuba as mi
 import numpy as np
-from tqdm import tqdm
 
 from neuralbrdf.atomic import atomic_paths
+from neuralbrdf.console import progress as progress_bar
 from neuralbrdf.errors import InputError, one_line
 from neuralbrdf.limits import DRJIT_MAX_MULTIPLY_ADDS
+from neuralbrdf.render import DEFAULT_VARIANT
 from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE
 
 SCENE_DIR = Path(__file__).resolve().parent / "scenes"
@@ -54,7 +55,6 @@ NEURAL_MATERIAL_MATCHED = "materials/neuralbrdf_matched.xml"
 #: Built-in Mitsuba materials selectable with ``--reference-bsdf``: name -> scene file.
 REFERENCE_BSDFS = {"roughconductor": "materials/roughconductor.xml", "diffuse": "materials/diffuse.xml"}
 BACKENDS = ("drjit", "onnxruntime")
-DEFAULT_VARIANT = "llvm_ad_rgb"
 #: Paths traced per pass by default in symbolic mode (one fused kernel: little memory per path) ...
 PASS_LANES_SYMBOLIC = 2**22
 #: ... and in wavefront mode, where every intermediate array of a bounce is stored, and the
@@ -251,7 +251,7 @@ def render_passes(
     sizes = pass_sizes(spp, spp_per_pass)
     seeds = np.random.SeedSequence(seed).generate_state(len(sizes))
     total = None
-    with dr_mode(wavefront), tqdm(
+    with dr_mode(wavefront), progress_bar(
         total=spp, unit="spp", desc="render", disable=not progress, file=sys.stderr, leave=False
     ) as bar:
         for size, pass_seed in zip(sizes, seeds):

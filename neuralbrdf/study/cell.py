@@ -18,8 +18,8 @@ once per worker) and the truth's two renders (:data:`TRUTH_RENDERS`).  Steps:
 1. **Data** (``data/NAME.csv``): a virtual material is measured by the virtual
    goniospectrophotometer (:mod:`neuralbrdf.virtual.instrument`) on the plan with the cell's
    relative noise and seed, together with the Munsell N9 reference (same noise, next seed), and
-   calibrated (report Eq. 2.3); an NBRDF proxy is sampled on the plan
-   (:func:`neuralbrdf.data.nbrdf.sample_plan`) and given the same multiplicative Gaussian noise;
+   calibrated (report Eq. 2.3); an NBRDF proxy or a MERL measurement is sampled on the plan
+   (:func:`neuralbrdf.sources.sample_file`) and given the same multiplicative Gaussian noise;
    a user's table is used as it is.
 2. **Fit** with ``train.py``'s entry (:func:`neuralbrdf.lightning.run.main`): the variant's config
    and overrides, the data, ``--seed_everything SEED`` and the method's own seed options
@@ -111,10 +111,10 @@ def write_data(spec: dict, out: Path) -> Path:
         sample = VirtualGoniospectrophotometer(cell["noise"], seed=cell["seed"]).measure_plan(name, cell["plan"])
         reference = VirtualGoniospectrophotometer(cell["noise"], seed=cell["seed"] + REFERENCE_SEED_OFFSET)
         table = calibrate(sample, reference.measure_plan(REFERENCE_MATERIAL, cell["plan"]))
-    else:
-        from neuralbrdf.data.nbrdf import NbrdfNetwork, sample_plan
+    else:  # an NBRDF proxy or a MERL measurement
+        from neuralbrdf.sources import sample_file
 
-        table = sample_plan(NbrdfNetwork.load(material["truth"]), cell["plan"])
+        table = sample_file(material["truth"], cell["plan"])
         if cell["noise"]:
             rng = np.random.default_rng([cell["seed"], 7])
             noisy = table.values * (1.0 + cell["noise"] * rng.standard_normal(table.values.shape))

@@ -9,6 +9,7 @@ A profile is a YAML file (``configs/study/quick.yaml``, ``full.yaml``, or a user
     materials:
       - {name: gold, truth: virtual:gold}      # virtual instrument: any plan, any noise
       - {name: nylon, truth: ../shared/data/merl-nbrdf/nylon.h5}   # NBRDF proxy sampled on the plan
+      - {name: alum, truth: merl/alum-bronze.binary}                # MERL measurement sampled on the plan
       - {name: mine, table: my_measurement.csv, truth: mine_truth.onnx}   # a user's measured table
     variants:                                  # every model variant: a config file + CLI overrides
       - {name: spectral_mlp, method: spectral_mlp, config: configs/spectral_mlp.yaml,
@@ -75,7 +76,7 @@ class CostSpec:
 
 @dataclass(frozen=True)
 class MaterialSpec:
-    """``truth``: ``virtual:NAME``, an NBRDF ``.h5`` or a reference ``.onnx``; ``table``: a user's own
+    """``truth``: ``virtual:NAME``, an NBRDF ``.h5``, a MERL ``.binary`` or a reference ``.onnx``; ``table``: a user's own
     measurement (then plan and noise sweeps do not apply to it)."""
 
     name: str
@@ -167,15 +168,16 @@ class _Reader:
         return value
 
     def truth(self, value, key: str) -> str:
-        """A truth source: ``virtual:NAME`` of a shipped material, an NBRDF ``.h5`` or a ground truth ``.onnx``."""
+        """A truth source: ``virtual:NAME`` of a shipped material, an NBRDF ``.h5``, a MERL ``.binary`` or a ground
+        truth ``.onnx``."""
         truth = self.file(value, key)
         if truth.startswith("virtual:"):
             if truth.split(":", 1)[1] not in MATERIALS:
                 self.fail(key, f"no virtual material {truth.split(':', 1)[1]!r}; expected one of "
                                f"{', '.join('virtual:' + name for name in MATERIALS)}")
             return truth
-        if Path(truth).suffix not in (".h5", ".onnx"):
-            self.fail(key, "expected virtual:NAME, an NBRDF .h5 or a reference .onnx")
+        if Path(truth).suffix not in (".h5", ".binary", ".onnx"):
+            self.fail(key, "expected virtual:NAME, an NBRDF .h5, a MERL .binary or a reference .onnx")
         if Path(truth).suffix == ".onnx":
             from neuralbrdf.kinds import load_model
 

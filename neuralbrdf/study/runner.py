@@ -31,9 +31,8 @@ from dataclasses import asdict
 from datetime import datetime, timezone
 from pathlib import Path
 
-from tqdm import tqdm
-
 from neuralbrdf.atomic import atomic_write
+from neuralbrdf.console import progress as progress_bar
 from neuralbrdf.folder_lock import folder_lock
 from neuralbrdf.study import aggregate, charts
 from neuralbrdf.study.cache import Repairs, cached_result, read_runs, truth_file, write_runs
@@ -158,7 +157,7 @@ def run_cells(profile: Profile, out_dir: Path, jobs: int, repairs: Repairs, prog
 
     # material by material: a worker's truth evaluator serves the cells that follow (cell.truth_evaluator)
     order = sorted(range(len(cells)), key=lambda i: (materials.index(cells[i].material), not cells[i].is_main))
-    with ThreadPoolExecutor(max_workers=jobs) as pool, tqdm(total=len(cells), unit="cell", desc="study",
+    with ThreadPoolExecutor(max_workers=jobs) as pool, progress_bar(total=len(cells), unit="cell", desc="study",
                                                             disable=not progress, file=sys.stderr) as bar:
         if progress:
             repairs.say = lambda line: bar.write(line, file=sys.stderr)

@@ -1,0 +1,531 @@
+"""The Python API: read a material, fit a model to it, export, load, evaluate and render.
+
+Every name here is also at the package's top level (``neuralbrdf.read``, ``neuralbrdf.fit``, ...),
+imported on first use: ``import neuralbrdf`` loads neither PyTorch nor Mitsuba.  The command line
+is a layer over the same functions, so a script and a shell command do the same thing::
+
+    import neuralbrdf as nb
+
+    gold = nb.read("virtual:gold")                        # or a table, GCMS raw + reference, .h5, .binary
+    result = nb.fit("spectral_mlp", gold, run_dir="runs/gold")
+    model = result.export("gold.onnx")                    # a validated ONNX file (SPEC §6)
+    f = model(wi, wo, wavelength)                         # BRDF in sr^-1, as numpy
+    truth = nb.truth(gold, "gold_truth.onnx")
+    scores = nb.evaluate(model, truth, "gold_eval")       # hemisphere, in-plane and image errors
+    image = nb.render_image(model, "gold.png")            # linear RGB [H, W, 3]
+
+Fits run through the same YAML configs and Lightning modules as ``neuralbrdf train`` (the configs
+stay the single source of hyper-parameters): :data:`FIT_KINDS` names the config of each kind,
+``overrides`` change single values like ``--key value`` on the command line.  Bad input raises
+:class:`~neuralbrdf.errors.InputError` (one line naming the file, row or key); a fit that runs
+and fails raises :class:`~neuralbrdf.errors.FitFailed`.  Units: angles in degrees, wavelengths
+in nm, BRDF values in sr⁻¹ without the cosine factor; directions are unit vectors in the local
+frame, ``z`` the normal, both pointing away from the surface (SPEC §1).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from neuralbrdf.errors import InputError
+from neuralbrdf.render import DEFAULT_VARIANT
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from neuralbrdf.data.table import BrdfTable
+
+PathLike = str | os.PathLike[str]
+
+#: Fit kinds and the shipped config each runs (``configs/NAME.yaml``): a new kind is one entry.
+FIT_KINDS: dict[str, str] = {
+    "abc": "abc",
+    "spectral_mlp": "spectral_mlp",
+    "nlb": "nlb_latent",
+    "nlb_spectral": "nlb_spectral",
+}
+#: Source kinds with a ground truth everywhere (not only at measured directions).
+TRUTH_KINDS = ("nbrdf", "merl", "virtual")
+VIRTUAL_PREFIX = "virtual:"
+
+
+# --------------------------------------------------------------------------- materials
+
+
+@dataclass(frozen=True)
+class Source:
+    """A material read by :func:`read`: where it comes from and its samples.
+
+    ``kind`` is ``table`` (a BRDF sample table, SPEC §2.1), ``gcms`` (a GCMS raw file calibrated
+    against its Munsell N9 ``reference``, SPEC §2.2), ``nbrdf`` (an NBRDF proxy ``.h5``, SPEC §2.4),
+    ``merl`` (a MERL ``.binary`` measurement) or ``virtual`` (a stand-in of the virtual
+    goniospectrophotometer, SPEC §2.5: its shipped DS1 measurement).  ``samples`` is the BRDF table
+    a fit sees: the file, the calibrated measurement, or the proxy / MERL table sampled on ``plan``.
+    """
+
+    kind: str
+    location: str
+    samples: BrdfTable = field(repr=False)
+    name: str
+    reference: str | None = None
+    plan: str | None = None
+
+    @property
+    def is_spectral(self) -> bool:
+        """Whether the samples have one column per wavelength (else linear sRGB)."""
+        return self.samples.is_spectral
+
+    @property
+    def has_truth(self) -> bool:
+        """Whether the material is known everywhere (:func:`truth` can export it), not only at
+        its measured directions."""
+        return self.kind in TRUTH_KINDS
+
+    def options(self) -> dict[str, str]:
+        """The material in the vocabulary of the training configs (``data.*`` keys,
+        :mod:`neuralbrdf.sources`)."""
+        if self.kind == "virtual":
+            return {"virtual": self.location}
+        if self.kind in ("nbrdf", "merl"):
+            return {self.kind: self.location, "plan": self.plan}
+        return {"path": self.location} if self.reference is None else {"path": self.location, "reference": self.reference}
+
+
+def read(source: PathLike, reference: PathLike | None = None, *, plan: str | None = None,
+         name: str | None = None) -> Source:
+    """Read a material: a BRDF table, a GCMS raw file with its Munsell N9 ``reference``, an
+    NBRDF proxy ``NAME.h5`` or a MERL ``NAME.binary`` (both sampled on ``plan``, default DS1), or
+    ``virtual:NAME`` (``cyan``, ``magenta``, ``gold``, ``gonio``: the shipped DS1 measurement).
+
+    >>> import neuralbrdf as nb
+    >>> gold = nb.read("virtual:gold")
+    >>> gold.kind, gold.name, gold.is_spectral, gold.samples.n_rows
+    ('virtual', 'gold', True, 1001)
+    >>> nb.read("virtual:silver")
+    Traceback (most recent call last):
+    neuralbrdf.errors.InputError: unknown virtual material 'silver'; expected one of munsell_n9, cyan, magenta, gold, gonio
+    """
+    from neuralbrdf.data.loading import load_measurement
+    from neuralbrdf.data.plans import PLAN_NAMES
+    from neuralbrdf.sources import sample_file
+
+    text = os.fspath(source)
+    suffix = Path(text).suffix
+    sampled = not text.startswith(VIRTUAL_PREFIX) and suffix in (".h5", ".json", ".binary")
+    if plan is not None and not sampled:
+        raise InputError(f"plan {plan!r} applies to NBRDF (.h5) and MERL (.binary) files, not to {text}")
+    if plan is not None and plan not in PLAN_NAMES:
+        raise InputError(f"unknown plan {plan!r}; expected one of {', '.join(PLAN_NAMES)}")
+    if reference is not None and (text.startswith(VIRTUAL_PREFIX) or sampled):
+        raise InputError(f"a Munsell reference goes with a GCMS raw file, not with {text}")
+    if text.startswith(VIRTUAL_PREFIX):
+        from neuralbrdf.virtual.instrument import default_data_path
+        from neuralbrdf.virtual.materials import REFERENCE_MATERIAL
+
+        material = text[len(VIRTUAL_PREFIX):]
+        samples = load_measurement(default_data_path(material), default_data_path(REFERENCE_MATERIAL))
+        return Source("virtual", material, samples, name or material)
+    if sampled:
+        plan = plan or "DS1"
+        samples = sample_file(text, plan)
+        return Source("merl" if suffix == ".binary" else "nbrdf", text, samples, name or Path(text).stem, plan=plan)
+    samples = load_measurement(text, reference)
+    return Source("table" if reference is None else "gcms", text, samples, name or Path(text).stem,
+                  None if reference is None else os.fspath(reference))
+
+
+# --------------------------------------------------------------------------- fitting
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """A finished fit: its run directory (config.yaml, checkpoints/, metrics.csv, metrics.json),
+    the checkpoint to export and the metrics of ``metrics.json``."""
+
+    kind: str
+    run_dir: Path
+    checkpoint: Path
+    metrics: dict[str, Any] = field(repr=False)
+
+    def export(self, out: PathLike, material: str | None = None) -> Model:
+        """:func:`export` of this fit's checkpoint."""
+        return export(self.checkpoint, out, material)
+
+
+def _option(value) -> str:
+    """A value as jsonargparse reads it from the command line (YAML/JSON)."""
+    if isinstance(value, str):
+        return value
+    return json.dumps(value)
+
+
+def _data_arguments(config: str, source: Source) -> list[str]:
+    """The ``--data.*`` arguments that hand ``source`` to the data module of ``config``: its own
+    keys when it takes them, else one entry of its ``sources`` list."""
+    import yaml
+
+    from neuralbrdf.configs_dir import overlay_base, resolve_config
+    from neuralbrdf.lightning.config_errors import class_options
+
+    path = resolve_config(config)
+    if not path.is_file():
+        from neuralbrdf.configs_dir import config_not_found
+
+        raise config_not_found(config)
+    class_path = None
+    for file in (overlay_base(path), path):
+        if file is not None:
+            data = (yaml.safe_load(file.read_text(encoding="utf-8")) or {}).get("data")
+            class_path = data.get("class_path", class_path) if isinstance(data, dict) else class_path
+    accepted = class_options(class_path) if class_path else []
+    options = source.options()
+    if set(options) <= set(accepted):
+        return [argument for key, value in options.items() for argument in (f"--data.{key}", value)]
+    if "sources" in accepted:
+        return ["--data.sources", json.dumps([options])]
+    takes = [key for key in ("path", "reference", "nbrdf", "merl", "virtual") if key in accepted]
+    raise InputError(f"the {Path(config).stem} config's data module takes {', '.join(takes)}; "
+                     f"{source.location} is a {source.kind} source")
+
+
+def fit(kind: str, data: Source | PathLike | None = None, *, config: PathLike | None = None,
+        run_dir: PathLike | None = None, overrides: Mapping[str, Any] | None = None,
+        overwrite: bool = False) -> FitResult:
+    """Fit a model of ``kind`` (:data:`FIT_KINDS`: ``abc``, ``spectral_mlp``, ``nlb``, ``nlb_spectral``) to ``data``
+    (a :class:`Source` or what :func:`read` takes; ``None``: the config's own data) through the
+    kind's shipped config, or ``config`` (a shipped name or a YAML file); ``overrides`` sets config
+    keys (``{"trainer.max_epochs": 5}``, as ``--trainer.max_epochs 5``).  ``run_dir``: where the run
+    is written (default ``runs/<config>/<timestamp>``); a run there is replaced only with
+    ``overwrite``.  Raises :class:`~neuralbrdf.errors.FitFailed` when the fit fails.
+
+    >>> import tempfile, neuralbrdf as nb
+    >>> quick = {"model.n_starts": 1, "data.eval_plan": None}     # one start, no hemisphere score: seconds
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     result = nb.fit("abc", "virtual:gold", run_dir=f"{folder}/abc", overrides=quick)
+    ...     print(result.checkpoint.name, result.metrics["status"], result.metrics["fit/abc/success"])
+    best.ckpt ok True
+    >>> nb.fit("abc", "virtual:gold", overrides={"model.n_start": 1})
+    Traceback (most recent call last):
+    neuralbrdf.errors.InputError: --model.n_start: AbcFitModule has no option 'n_start'; did you mean n_starts? (valid: bounds, max_evaluations, n_starts, seed)
+    """
+    import torch
+
+    from neuralbrdf.lightning.run import METRICS_FILE, fitted_checkpoint, train
+
+    if kind not in FIT_KINDS:
+        raise InputError(f"unknown fit kind {kind!r}; expected one of {', '.join(FIT_KINDS)}")
+    config = os.fspath(config) if config is not None else FIT_KINDS[kind]
+    source = read(data) if data is not None and not isinstance(data, Source) else data
+    args = ["fit", "--config", config]
+    if source is not None:
+        args += _data_arguments(config, source)
+    for key, value in (overrides or {}).items():
+        args += [f"--{key}", _option(value)]
+    if run_dir is not None:
+        args += ["--run_dir", os.fspath(run_dir)]
+    if overwrite:
+        args.append("--overwrite")
+    threads = torch.get_num_threads()
+    try:
+        cli = train(args)
+    finally:
+        torch.set_num_threads(threads)  # a config's num_threads holds for its run only
+    metrics_path = cli.run_dir / METRICS_FILE
+    metrics = json.loads(metrics_path.read_text(encoding="utf-8")) if metrics_path.is_file() else {}
+    checkpoint = fitted_checkpoint(cli.run_dir)
+    if checkpoint is None:
+        raise InputError(f"the fit left no checkpoint to export in {cli.run_dir / 'checkpoints'}; the {config} "
+                         "config must save one named best or fitted")
+    return FitResult(kind, cli.run_dir, checkpoint, metrics)
+
+
+# --------------------------------------------------------------------------- model files
+
+
+class Model:
+    """An exported model file (SPEC §6), evaluated with onnxruntime: ``model(wi, wo[, wavelength])``.
+
+    ``wi``, ``wo``: unit directions ``[N, 3]`` (or one ``[3]``); ``wavelength``: nm, ``[N]`` or one
+    number, for spectral models only.  Returns the BRDF in sr⁻¹: ``[N]`` for spectral models,
+    ``[N, 3]`` (linear sRGB) otherwise; 0 below the horizon.
+    """
+
+    def __init__(self, path: PathLike) -> None:
+        from neuralbrdf.evaluation.scores import OnnxEvaluator
+
+        self._evaluator = OnnxEvaluator(path)
+        info = self._evaluator.model
+        self.path: Path = Path(path)
+        self.kind: str = info.kind
+        self.material: str = info.material
+        self.is_spectral: bool = info.is_spectral
+        self.wavelength_range_nm: tuple[float, float] | None = info.wavelength_range_nm
+
+    def __call__(self, wi, wo, wavelength=None) -> np.ndarray:
+        import numpy as np
+
+        wi, wo = np.atleast_2d(np.asarray(wi, dtype=np.float64)), np.atleast_2d(np.asarray(wo, dtype=np.float64))
+        if wi.shape != wo.shape or wi.ndim != 2 or wi.shape[1] != 3:
+            raise InputError(f"wi and wo must both be [N, 3] unit vectors, got {list(wi.shape)} and {list(wo.shape)}")
+        if self.is_spectral == (wavelength is None):
+            raise InputError(f"{self.path.name} is {'spectral: give a wavelength (nm)' if self.is_spectral else 'RGB: give no wavelength'}")
+        if wavelength is not None:
+            wavelength = np.broadcast_to(np.asarray(wavelength, dtype=np.float64), (len(wi),))
+        return self._evaluator.values(wi, wo, wavelength)
+
+    def __repr__(self) -> str:
+        spectrum = (f"spectral {self.wavelength_range_nm[0]:g}-{self.wavelength_range_nm[1]:g} nm"
+                    if self.is_spectral else "RGB")
+        return f"Model({str(self.path)!r}, kind={self.kind!r}, material={self.material!r}, {spectrum})"
+
+
+def load(path: PathLike) -> Model:
+    """Open an ``.onnx`` model file, checked against the contract (SPEC §6).
+
+    >>> import numpy as np, tempfile, neuralbrdf as nb
+    >>> from neuralbrdf.geometry import inplane_to_vectors
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     nb.truth("virtual:gold", f"{folder}/gold.onnx")
+    ...     model = nb.load(f"{folder}/gold.onnx")
+    Model('.../gold.onnx', kind='reference', material='gold', spectral 400-700 nm)
+    >>> wi, wo = inplane_to_vectors(np.array([30.0, 30.0]), np.array([30.0, -20.0]))  # mirror, off-mirror
+    >>> f = model(wi, wo, 550.0)                                                     # sr^-1 at 550 nm
+    >>> f.shape, bool(f[0] > 10 * f[1])
+    ((2,), True)
+    """
+    return Model(path)
+
+
+def export(checkpoint: PathLike, out: PathLike, material: str | None = None) -> Model:
+    """Export a trained checkpoint (spectral MLP, ABC or NLB latent fit; ``material`` when it
+    holds several) to one ``.onnx`` file, validated against PyTorch before it is written.
+
+    >>> import tempfile, neuralbrdf as nb
+    >>> quick = {"model.n_starts": 1, "data.eval_plan": None}     # one start, no hemisphere score: seconds
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     result = nb.fit("abc", "virtual:gold", run_dir=f"{folder}/run", overrides=quick)
+    ...     nb.export(result.checkpoint, f"{folder}/gold_abc.onnx")
+    Model('.../gold_abc.onnx', kind='abc', material='gold', spectral 400-700 nm)
+    """
+    from neuralbrdf.onnx_export import ExportValidationError, export_checkpoint
+
+    try:
+        export_checkpoint(checkpoint, out, material)
+    except ExportValidationError as error:
+        raise InputError(f"not written: {error}", path=out) from None
+    return Model(out)
+
+
+def truth(source: Source | PathLike, out: PathLike) -> Model:
+    """Export the ground truth of a material to ``out`` (a ``reference`` model file that renders
+    like a fitted one): ``virtual:NAME`` (spectral), an NBRDF proxy ``.h5`` or a MERL ``.binary``
+    (RGB), or a :class:`Source` of one of those.  A measurement (table, GCMS raw) has no truth.
+
+    >>> import tempfile, neuralbrdf as nb
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     nb.truth(nb.read("virtual:gonio"), f"{folder}/gonio.onnx")
+    Model('.../gonio.onnx', kind='reference', material='gonio', spectral 400-700 nm)
+    """
+    from neuralbrdf.evaluation.truth import export_truth
+
+    if isinstance(source, Source):
+        if not source.has_truth:
+            raise InputError(f"a measurement ({source.kind}) is known only where it was measured; a truth comes from "
+                             "virtual:NAME, an NBRDF .h5 or a MERL .binary", path=source.location)
+        source = VIRTUAL_PREFIX + source.location if source.kind == "virtual" else source.location
+    export_truth(os.fspath(source), out)
+    return Model(out)
+
+
+# --------------------------------------------------------------------------- evaluation and rendering
+
+
+def _model_path(model: Model | PathLike) -> Path:
+    return model.path if isinstance(model, Model) else Path(model)
+
+
+def _positive(**values) -> None:
+    for name, value in values.items():
+        if value is not None and value < 1:
+            raise InputError(f"{name} must be a positive integer, got {value}")
+
+
+def evaluate(model: Model | PathLike, truth: Model | PathLike, out_dir: PathLike, *, scene: PathLike | None = None,
+             material: str | None = None, variant: str = DEFAULT_VARIANT, spp: int = 256,
+             resolution: int | None = None, seed: int = 0, backend: str = "drjit", fast: bool = False,
+             images: bool = True) -> dict:
+    """Score ``model`` against ``truth`` (SPEC §5, §9): log-cosine and relative RMSE over the
+    hemisphere, relative RMSE in the in-plane glossy and diffuse regions, and, with ``images``, the
+    image errors (ΔE2000 mean and p95, PSNR) of both rendered with the same seeds in the material
+    preview or in ``scene`` (any Mitsuba scene using the ``neuralbrdf`` BSDF; ``material`` names the
+    one that carries model, then truth).  Writes ``out_dir/evaluation.json`` (and the images) and
+    returns its content.  ``resolution``: default 128 in the preview, the scene's own film in a scene;
+    ``fast``: render the model's fast path ``f_fast`` (``neuralbrdf export --fast``).  The model's
+    fast paths are always scored against its ``f`` (``result["fast_paths"]``).
+
+    >>> import tempfile, neuralbrdf as nb
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     gold = nb.truth("virtual:gold", f"{folder}/gold.onnx")
+    ...     scores = nb.evaluate(gold, gold, f"{folder}/eval", images=False)   # directions only
+    >>> scores["hemisphere_logcos_rmse"], scores["inplane_glossy_rel_rmse"]
+    (0.0, 0.0)
+    """
+    from neuralbrdf.evaluation.evaluate import DEFAULT_RESOLUTION, RenderSettings, SceneTarget
+    from neuralbrdf.evaluation.evaluate import evaluate as run_evaluation
+
+    settings = RenderSettings(variant, spp, DEFAULT_RESOLUTION if resolution is None else resolution, seed, backend,
+                              fast)  # checked by the evaluation before any work
+    target = None if scene is None else SceneTarget(Path(scene), material, resolution)
+    if target is None and material is not None:
+        raise InputError("material names a material of a scene: give the scene too")
+    return run_evaluation(_model_path(model), _model_path(truth), out_dir, settings, render_images=images, scene=target)
+
+
+class RenderFailed(RuntimeError):
+    """A render that produced a non-finite image (nothing was written)."""
+
+
+def render_image(model: Model | PathLike | None = None, out: PathLike | None = None, *, scene: PathLike | None = None,
+           material: str | None = None, reference_bsdf: str | None = None, variant: str = DEFAULT_VARIANT,
+           spp: int = 64, resolution: int | None = None, seed: int = 0, backend: str | None = None,
+           rgb_tolerance: float | None = None, max_depth: int | None = None, spp_per_pass: int | None = None,
+           exr: bool = False, fast: bool = False, progress: bool = False) -> np.ndarray:
+    """Render ``model`` (a :class:`Model` or ``.onnx`` file; or Mitsuba's built-in
+    ``reference_bsdf``) in the material-preview scene, or in ``scene`` (any Mitsuba scene file using
+    the ``neuralbrdf`` BSDF; with ``model``, the ``neuralbrdf`` material ``material`` carries it,
+    without, the scene renders as it is).  Returns the linear RGB image ``[H, W, 3]``; with ``out``
+    (``.png``) also writes the 8-bit sRGB PNG and, with ``exr``, the linear EXR beside it (both or
+    neither).  Defaults: 256² in the preview (a scene's own film), path depth 5 (a scene's own),
+    the ``drjit`` backend; ``rgb_tolerance``: spectral models in RGB variants (see ``neuralbrdf
+    render --help``); ``fast``: each model's fast path ``f_fast`` (``neuralbrdf export --fast``;
+    refused for a model without one, in a scene such models render full with a warning).
+    Raises :class:`RenderFailed` for a non-finite image.
+
+    >>> import tempfile, neuralbrdf as nb
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     gold = nb.truth("virtual:gold", f"{folder}/gold.onnx")
+    ...     image = nb.render_image(gold, f"{folder}/gold.png", spp=2, resolution=8)
+    >>> image.shape, image.dtype
+    ((8, 8, 3), dtype('float32'))
+    """
+    import numpy as np
+
+    from neuralbrdf.atomic import check_outputs, command_inputs
+    from neuralbrdf.render.mitsuba_bsdf import clamped_values, reset_clamped_values
+    from neuralbrdf.render.preview import set_variant, write_images
+
+    _positive(spp=spp, resolution=resolution, max_depth=max_depth, spp_per_pass=spp_per_pass)
+    written = []
+    if out is not None:
+        out = Path(out)
+        if out.suffix.lower() != ".png":
+            raise InputError("the output must be a .png file (with exr, a linear EXR is written beside it)", path=out)
+        written = [out, out.with_suffix(".exr")] if exr else [out]
+    with command_inputs():  # an output may not be one of the inputs (the model, the scene)
+        if scene is not None:
+            draw = _scene_renderer(Path(scene), None if model is None else _model_path(model), material, resolution,
+                                   max_depth, backend, rgb_tolerance, spp, spp_per_pass, fast)
+        else:
+            draw = _preview_renderer(None if model is None else _model_path(model), reference_bsdf, resolution,
+                                     max_depth, backend, rgb_tolerance, variant, fast)
+        check_outputs(*written)
+        set_variant(variant)
+        reset_clamped_values()
+        image = draw(variant, spp, seed, spp_per_pass, progress)
+        if not np.all(np.isfinite(image)):
+            raise RenderFailed("the render is not finite; nothing written")
+        if out is not None:
+            write_images(image, out, written[1] if exr else None)
+    clamped = clamped_values()
+    if clamped:
+        warnings.warn(f"{clamped} model evaluations were negative or not finite and were clamped to 0 (the model is "
+                      "wrong somewhere its load-time probe did not look)", stacklevel=2)
+    return image
+
+
+def _preview_renderer(model: Path | None, reference_bsdf: str | None, resolution, max_depth, backend, rgb_tolerance,
+                      variant: str, fast: bool):
+    """The preview scene's render, its material checked now (before any output is touched)."""
+    from neuralbrdf.render.preview import DEFAULT_MAX_DEPTH, Material, render as render_preview, within_drjit_budget
+    from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE
+
+    if (model is None) == (reference_bsdf is None):
+        raise InputError("render a model or a built-in reference BSDF (or a scene)")
+    material = within_drjit_budget(Material(
+        model=model, backend=backend or "drjit", reference_bsdf=reference_bsdf,
+        rgb_tolerance=DEFAULT_RMS_TOLERANCE if rgb_tolerance is None else rgb_tolerance, fast=fast,
+    ))
+    if fast:
+        if model is None:
+            raise InputError("fast renders a model's fast path; give a model or a scene", column="--fast")
+        from neuralbrdf.kinds import load_model
+        from neuralbrdf.render.fast_paths import chosen_output
+
+        chosen_output(load_model(model), "_spectral" in variant, True, True)  # one line if it has none
+
+    def draw(variant, spp, seed, spp_per_pass, progress):
+        return render_preview(material, variant, spp, resolution or 256, seed, spp_per_pass,
+                              max_depth or DEFAULT_MAX_DEPTH, progress=progress)
+
+    return draw
+
+
+def _scene_renderer(scene: Path, model: Path | None, material: str | None, resolution, max_depth, backend,
+                    rgb_tolerance, spp, spp_per_pass, fast: bool):
+    """A user's scene with the options given applied (the others left as the scene has them)."""
+    from neuralbrdf.render.preview import check_render_size
+    from neuralbrdf.render.scene_file import SceneFile, render_scene_file
+
+    scene_file = SceneFile(scene)
+    names = [m.name for m in scene_file.materials()]
+    if model is not None:
+        from neuralbrdf.evaluation.evaluate import SceneTarget
+
+        scene_file.set_model(SceneTarget(scene, material).material_name(), model)
+    elif material is not None:
+        raise InputError("material names where a model goes: give the model too")
+    elif not names:
+        warnings.warn(f"{scene} has no neuralbrdf material; rendering it as it is", stacklevel=3)
+    if resolution is not None:
+        check_render_size(resolution, min(spp, spp_per_pass or spp), False)
+        scene_file.set_resolution(resolution)
+    if max_depth is not None:
+        scene_file.set_max_depth(max_depth)
+    if backend is not None:
+        scene_file.set_all("backend", backend)
+    if rgb_tolerance is not None:
+        scene_file.set_all("rgb_tolerance", repr(float(rgb_tolerance)))
+    if fast:
+        _set_fast(scene_file)
+
+    def draw(variant, spp, seed, spp_per_pass, progress):
+        return render_scene_file(scene_file, spp, seed, spp_per_pass, progress=progress)[0]
+
+    return draw
+
+
+def _set_fast(scene_file) -> None:
+    """``fast`` in a scene: property ``fast`` on every material whose model has a fast path."""
+    from neuralbrdf.kinds import load_model
+    from neuralbrdf.onnx_contract import OUTPUT_FAST
+    from neuralbrdf.render.fast_paths import ADD_COMMAND, FAST_PROPERTY
+
+    without = []
+    for material in scene_file.materials():
+        if OUTPUT_FAST in load_model(material.model).fast_paths:
+            scene_file.set_property(material.element, FAST_PROPERTY, "true")
+        else:
+            without.append(material.name)
+    if without:
+        warnings.warn(f"fast: {', '.join(without)} {'has' if len(without) == 1 else 'have'} no fast path and "
+                      f"{'renders' if len(without) == 1 else 'render'} full (add one: {ADD_COMMAND})", stacklevel=4)
+
+
+__all__ = ["FIT_KINDS", "FitResult", "Model", "RenderFailed", "Source", "evaluate", "export", "fit", "load", "read",
+           "render_image", "truth"]

@@ -1,0 +1,164 @@
+"""The Python API (``neuralbrdf.read``, ``fit``, ``export``, ``load``, ``truth``, ``evaluate``,
+``render_image``): a light import, every kind of source, fits through the shipped configs, clear
+errors, and the end-to-end example.  (Each function's docstring example runs as a doctest too.)"""
+
+import json
+import math
+import runpy
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import neuralbrdf as nb
+from neuralbrdf.api import _data_arguments
+from neuralbrdf.data.gcms import write_gcms
+from neuralbrdf.data.merl_binary import write_merl
+from neuralbrdf.errors import FitFailed, InputError
+from neuralbrdf.virtual import instrument
+
+pytestmark = pytest.mark.filterwarnings("ignore:LightningCLI's args parameter is intended")
+REPO = Path(__file__).resolve().parents[1]
+NBRDF = REPO.parent / "shared" / "data" / "merl-nbrdf" / "nylon.h5"
+HEAVY = ("torch", "mitsuba", "drjit", "pytorch_lightning", "onnxruntime")
+QUICK_ABC = {"model.n_starts": 1, "data.eval_plan": None}
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """A MERL file (a blue diffuse term and a white ABC-like lobe), a GCMS session and a spectral table."""
+    folder = tmp_path_factory.mktemp("api")
+    theta_h = (np.arange(90)[:, None, None] + 0.5) ** 2 / 90.0  # MERL's cell centres: i_h = floor(sqrt(90 θh))
+    lobe = 2.0 / (1.0 + 200.0 * (1.0 - np.cos(np.radians(theta_h)))) ** 2 * np.ones((90, 90, 180))
+    write_merl(np.array([0.1, 0.2, 0.4])[:, None, None, None] / math.pi + lobe[None], folder / "blue.binary")
+    device = instrument.VirtualGoniospectrophotometer(noise_rel=0.0, seed=0)
+    for name in ("cyan", "munsell_n9"):
+        write_gcms(device.measure_plan(name, "DS2"), folder / f"{name}.csv")
+    assert nb.read("virtual:gold").samples is not None
+    from neuralbrdf.data.table import write_table
+
+    write_table(nb.read(folder / "cyan.csv", folder / "munsell_n9.csv").samples, folder / "cyan_table.csv")
+    return folder
+
+
+def test_import_neuralbrdf_loads_neither_torch_nor_mitsuba():
+    code = ("import sys, neuralbrdf as nb; nb.read; nb.fit; nb.render_image; nb.FIT_KINDS; nb.InputError; "
+            f"print([m for m in {HEAVY!r} if m in sys.modules])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO).stdout
+    assert out.strip() == "[]"
+    assert {"read", "fit", "export", "load", "truth", "evaluate", "render_image"} <= set(dir(nb))
+    with pytest.raises(AttributeError):
+        nb.no_such_name
+
+
+def test_read_every_kind_of_source(files):
+    table = nb.read(files / "cyan_table.csv")
+    gcms = nb.read(files / "cyan.csv", files / "munsell_n9.csv")
+    merl = nb.read(files / "blue.binary", plan="DS3")
+    virtual = nb.read("virtual:gonio")
+    assert (table.kind, gcms.kind, merl.kind, virtual.kind) == ("table", "gcms", "merl", "virtual")
+    assert table.samples.n_rows == gcms.samples.n_rows == 185 and table.is_spectral and gcms.is_spectral
+    assert merl.samples.n_rows == 57 and not merl.is_spectral and merl.plan == "DS3" and merl.name == "blue"
+    assert np.all(merl.samples.values >= np.array([0.1, 0.2, 0.4]) / math.pi)
+    assert nb.read(files / "blue.binary").plan == "DS1"
+    assert [s.has_truth for s in (table, gcms, merl, virtual)] == [False, False, True, True]
+    assert gcms.options() == {"path": str(files / "cyan.csv"), "reference": str(files / "munsell_n9.csv")}
+
+
+@pytest.mark.skipif(not NBRDF.is_file(), reason="../shared/data/merl-nbrdf is absent")
+def test_read_an_nbrdf_proxy():
+    nylon = nb.read(NBRDF, plan="DS4")
+    assert (nylon.kind, nylon.name, nylon.samples.n_rows) == ("nbrdf", "nylon", 6)
+    assert nylon.options() == {"nbrdf": str(NBRDF), "plan": "DS4"}
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda f: nb.read(f / "cyan_table.csv", plan="DS2"), "applies to NBRDF (.h5) and MERL (.binary) files"),
+    (lambda f: nb.read("virtual:gold", f / "munsell_n9.csv"), "a Munsell reference goes with a GCMS raw file"),
+    (lambda f: nb.read(f / "blue.binary", plan="DS9"), "unknown plan 'DS9'"),
+    (lambda f: nb.read(f / "cyan.csv"), "is a GCMS raw file"),
+    (lambda f: nb.read(f / "missing.csv"), "missing.csv"),
+    (lambda f: nb.fit("mlp", "virtual:gold"), "unknown fit kind 'mlp'; expected one of abc, spectral_mlp, nlb, nlb_spectral"),
+    (lambda f: nb.truth(nb.read(f / "cyan_table.csv"), f / "t.onnx"), "a measurement (table) is known only where"),
+    (lambda f: nb.evaluate("m.onnx", "t.onnx", f / "e", material="gold"), "give the scene too"),
+    (lambda f: nb.evaluate("m.onnx", "t.onnx", f / "e", spp=0), "spp must be a positive integer"),
+    (lambda f: nb.render_image(None, f / "x.png"), "render a model or a built-in reference BSDF"),
+    (lambda f: nb.render_image("m.onnx", f / "x.jpg"), "the output must be a .png file"),
+], ids=["plan for a table", "reference for virtual", "bad plan", "GCMS without reference", "missing file",
+        "unknown kind", "truth of a measurement", "material without scene", "zero spp", "nothing to render",
+        "not a png"])
+def test_bad_input_is_one_input_error(files, call, message):
+    with pytest.raises(InputError) as error:
+        call(files)
+    assert message in str(error.value) and "\n" not in str(error.value)
+
+
+def test_every_fit_kind_names_a_shipped_config():
+    from neuralbrdf.configs_dir import resolve_config
+
+    assert set(nb.FIT_KINDS) == {"abc", "spectral_mlp", "nlb", "nlb_spectral"}
+    assert all(resolve_config(config).is_file() for config in nb.FIT_KINDS.values())
+
+
+def test_a_source_goes_to_the_data_module_in_its_own_vocabulary(files):
+    merl, virtual = nb.read(files / "blue.binary", plan="DS2"), nb.read("virtual:gold")
+    gcms = nb.read(files / "cyan.csv", files / "munsell_n9.csv")
+    assert _data_arguments("abc", merl) == ["--data.merl", str(files / "blue.binary"), "--data.plan", "DS2"]
+    assert _data_arguments("spectral_mlp", gcms) == ["--data.path", str(files / "cyan.csv"),
+                                                     "--data.reference", str(files / "munsell_n9.csv")]
+    assert _data_arguments("nlb_latent", virtual) == _data_arguments("nlb_spectral", virtual) == [
+        "--data.sources", '[{"virtual": "gold"}]']
+    with pytest.raises(InputError, match="the spectral_mlp config's data module takes path, reference, virtual; "
+                                         ".*blue.binary is a merl source"):
+        _data_arguments("spectral_mlp", merl)
+
+
+def test_a_fit_runs_through_the_config_and_exports(files, tmp_path):
+    threads = torch.get_num_threads()
+    result = nb.fit("abc", nb.read(files / "blue.binary", plan="DS2"), run_dir=tmp_path / "run", overrides=QUICK_ABC)
+    assert result.kind == "abc" and result.checkpoint == tmp_path / "run" / "checkpoints" / "best.ckpt"
+    assert result.metrics["status"] == "ok" and result.metrics["fit/abc/success"] is True
+    assert torch.get_num_threads() == threads  # the config's num_threads: 1 held for the run only
+    config = (tmp_path / "run" / "config.yaml").read_text()
+    assert "AbcFitModule" in config and "n_starts: 1" in config and "blue.binary" in config and "plan: DS2" in config
+    model = result.export(tmp_path / "blue.onnx")
+    assert (model.kind, model.material, model.is_spectral) == ("abc", "blue", False)
+    wi = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
+    f = model(wi, wi * [-1, -1, 1])
+    assert f.shape == (2, 3) and np.all(f > 0)
+    with pytest.raises(InputError, match="already holds a run"):
+        nb.fit("abc", "virtual:gold", run_dir=tmp_path / "run", overrides=QUICK_ABC)
+
+
+def test_a_failed_fit_raises_fit_failed_and_leaves_no_best_checkpoint(tmp_path):
+    with pytest.raises(FitFailed, match="no start converged"):
+        nb.fit("abc", "virtual:gold", run_dir=tmp_path / "run",
+               overrides={**QUICK_ABC, "model.max_evaluations": 3})
+    assert json.loads((tmp_path / "run" / "metrics.json").read_text())["status"] == "failed"
+    assert not list((tmp_path / "run").rglob("best*.ckpt"))
+
+
+def test_a_model_checks_its_inputs(tmp_path):
+    gold = nb.truth("virtual:gold", tmp_path / "gold.onnx")
+    up = np.array([0.0, 0.0, 1.0])
+    assert gold(up, up, 550.0).shape == (1,)
+    with pytest.raises(InputError, match="spectral: give a wavelength"):
+        gold(up, up)
+    with pytest.raises(InputError, match=r"wi and wo must both be \[N, 3\]"):
+        gold(np.ones((2, 2)), np.ones((2, 2)), 550.0)
+
+
+@pytest.mark.slow
+def test_the_end_to_end_example_runs_in_reduced_form(tmp_path, monkeypatch, capsys):
+    """``examples/api_end_to_end.py --quick``: read -> fit -> export -> evaluate -> render (~30 s of CPU)."""
+    monkeypatch.setattr(sys, "argv", ["api_end_to_end.py", "--quick", "--out-dir", str(tmp_path)])
+    runpy.run_path(str(REPO / "examples" / "api_end_to_end.py"), run_name="__main__")
+    out = capsys.readouterr().out
+    for step in ("read gold", "fit:", "export:", "evaluate:", "render: 32x32"):
+        assert step in out, out
+    scores = json.loads((tmp_path / "eval" / "evaluation.json").read_text())
+    assert scores["model_kind"] == "spectral_mlp" and scores["truth_material"] == "gold"
+    assert (tmp_path / "gold.png").stat().st_size > 0 and (tmp_path / "eval" / "comparison.png").is_file()
