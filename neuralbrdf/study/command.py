@@ -9,21 +9,31 @@ DESCRIPTION = (
     "sampling plan, relative noise level and seed), score each fit against the material's truth, time it against "
     "Mitsuba's roughconductor, and write DIR/study.json, DIR/figures/*.png and DIR/index.html (SPEC §10). "
     "Finished cells are cached under DIR/cells/ by their settings: a rerun does only what is new, a killed run "
-    "resumes. PROFILE is a shipped profile (quick, full, latent_prior: configs/study/) or your own YAML file."
+    "resumes. PROFILE is a shipped profile (quick, full, latent_prior: configs/study/) or your own YAML file. "
+    "With --report-only, DIR/figures and DIR/index.html are drawn again from DIR/study.json and no cell runs."
 )
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--profile", required=True, help="quick, full, latent_prior or a profile YAML file")
+    parser.add_argument("--profile", help="quick, full, latent_prior or a profile YAML file (needed unless --report-only)")
     parser.add_argument("--out", required=True, help="output folder (cache, figures, study.json, index.html)")
     parser.add_argument("--jobs", type=int, default=1, help="cells run at once, one core each (default 1)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--report-only", action="store_true",
+                        help="draw DIR's figures and index.html again from DIR/study.json; run no cell")
 
 
 def run(args) -> None:
     from neuralbrdf.errors import InputError
     from neuralbrdf.study.runner import run_study
 
+    if args.report_only:
+        from neuralbrdf.study.report import rebuild
+
+        print(f"-> {rebuild(args.out)}")
+        return
+    if args.profile is None:
+        raise InputError("--profile is required (or --report-only to redraw an existing study)", column="--profile")
     if args.jobs < 1:
         raise InputError(f"--jobs must be >= 1, got {args.jobs}", column="--jobs")
     study = run_study(args.profile, args.out, args.jobs, command=f"neuralbrdf study --profile {args.profile} --out {args.out} --jobs {args.jobs}",
