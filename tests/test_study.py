@@ -377,6 +377,20 @@ def test_every_chart_is_legible_at_its_own_size(synthetic):
     assert max(synthetic["widths"].values()) <= FULL_WIDTH_PX
 
 
+def test_speed_accuracy_axes_start_at_zero_with_room_above_the_highest_point(tmp_path, monkeypatch):
+    """Two models of nearly one ΔE: the axis is not a sliver around them with both at its top edge."""
+    from neuralbrdf.study import charts
+
+    drawn = []
+    monkeypatch.setattr(charts, "_save", lambda fig, path: drawn.append(fig) or path.name)
+    entries = [{"model": "abc", "method": "abc", "render_ratio": 1.1, "fit_time_s": 0.8, "image_delta_e2000_mean": 1.0194},
+               {"model": "nlb", "method": "nlb", "render_ratio": 5.2, "fit_time_s": 2.3, "image_delta_e2000_mean": 1.0165}]
+    charts.speed_accuracy(entries, {}, "nylon", tmp_path / "s.png")
+    for ax in drawn[0].axes:
+        assert ax.get_ylim() == pytest.approx((0.0, 1.15 * 1.0194))
+    assert charts.layout_problems(drawn[0]) == []
+
+
 def test_distinct_budget_rows_merge_neighbouring_budgets_that_choose_one_model():
     from neuralbrdf.study.report import distinct_budget_rows
 

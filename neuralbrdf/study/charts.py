@@ -196,8 +196,9 @@ def speed_accuracy(entries: list[dict], fronts: dict[str, list[str]], title: str
             xs, ys = zip(*(named[n] for n in front))
             ax.step(xs, ys, where="post", color="k", lw=1, ls="--")
         _cost_scale(ax, [x for x, _ in named.values()])
-        ax.margins(x=0.12, y=0.15)
-        ax.set_ylim(bottom=0)  # no ΔE below 0
+        ax.margins(x=0.12)
+        highest = max((y for _, y in named.values()), default=0.0)
+        ax.set_ylim(0, 1.15 * highest if highest > 0 else 1.0)  # from 0 (no ΔE is below), room above for labels
         ax.set_xlabel(COST_AXES[cost_key])
         ax.set_ylabel("mean ΔE2000 vs truth render")
         ax.grid(alpha=0.3, which="both")

@@ -159,7 +159,7 @@ def _status(study: dict) -> str:
                      "this study is incomplete, and the recommendation and charts leave those cells out. Running the "
                      f"same command again retries them (finished cells are reused).<ul>{listed}{more}</ul></div>")
     if failed:
-        causes = ", ".join(f"{CAUSE_LETTERS.get(c, (c, c))[1]} ×{n}" for c, n in sorted(failed.items()))
+        causes = ", ".join(f"{CAUSE_LETTERS.get(c, (c, c))[1]}: {n}" for c, n in sorted(failed.items()))
         parts.append(f'<div class="status warn"><b>{sum(failed.values())} of {len(points)} cells failed</b> ({causes}): '
                      "fits that broke under the study's conditions, a finding of the study — where and why under "
                      "<i>Where methods fail</i> below.</div>")
