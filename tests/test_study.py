@@ -513,6 +513,21 @@ def test_committed_reports_read_at_100_percent(folder):
     assert min(size for size, _ in result["fonts"]) >= 11
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("folder", ["docs/study", "docs/study/full"])
+def test_committed_reports_are_what_their_study_json_draws(folder, tmp_path):
+    """``neuralbrdf study --report-only`` on a copy of the committed study.json gives the committed
+    page and the same figure files (redraw them after changing the report)."""
+    from neuralbrdf.study.report import rebuild
+
+    shutil.copy(ROOT / folder / "study.json", tmp_path / "study.json")
+    rebuild(tmp_path)
+    assert (tmp_path / "index.html").read_text(encoding="utf-8") == (ROOT / folder / "index.html").read_text(encoding="utf-8")
+    assert (tmp_path / "study.json").read_bytes() == (ROOT / folder / "study.json").read_bytes()
+    names = sorted(p.relative_to(tmp_path).as_posix() for p in (tmp_path / "figures").rglob("*.png"))
+    assert names == sorted(p.relative_to(ROOT / folder).as_posix() for p in (ROOT / folder / "figures").rglob("*.png"))
+
+
 @pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium (installed by .ci/run)")
 def test_tiny_study_end_to_end(tmp_path, capsys):
     out = tmp_path / "study"
