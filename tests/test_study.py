@@ -427,8 +427,16 @@ def test_report_says_when_every_cell_gave_a_result(synthetic, tmp_path):
     study = {**synthetic["study"], "points": [dict(p, failure=None) for p in synthetic["study"]["points"]]}
     shutil.copytree(synthetic["folder"] / "figures", tmp_path / "figures")
     page = write_report(study, synthetic["figures"], tmp_path).read_text(encoding="utf-8")
-    assert f'<div class="status ok">All {len(study["points"])} cells gave a result.</div>' in page
+    assert f'<div class="status ok">Every one of the {len(study["points"])} cells gave a model.</div>' in page
     assert "status bad" not in page and "status warn" not in page
+    assert "Over seeds 0, 1, 2 on gold, cyan, nylon (DS1, no noise)." in page
+    points = [dict(p) for p in study["points"]]
+    points[3]["failure"], points[3]["message"] = "non_finite_loss", "loss is nan at step 12"
+    page = write_report({**study, "points": points, "health": {"repaired": [{"file": "x", "problem": "y"}]}},
+                        synthetic["figures"], tmp_path).read_text(encoding="utf-8")
+    assert (f'<div class="status bad"><b>1 of {len(points)} cells failed and have no model</b> (non-finite loss: 1)'
+            in page) and "loss is nan at step 12" in page
+    assert "1 cached file was damaged or stale and redone." in page
 
 
 PROBE = """<script>

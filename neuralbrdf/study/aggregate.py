@@ -31,6 +31,8 @@ from neuralbrdf.data.plans import in_plane_plan
 
 THRESHOLD_FACTOR = 2.0
 THRESHOLD_METRIC = "hemisphere_logcos_rmse"
+#: The failure cause of a cell above the threshold: a fit that gave a model, measured as broken.
+THRESHOLD_CAUSE = "error_above_2x_ds1"
 ACCURACY_METRIC = "image_delta_e2000_mean"
 BUDGETS_DELTA_E = (1.0, 2.0, 5.0, 10.0)
 #: Every failure cause a point can carry (:mod:`neuralbrdf.study.cell`, :func:`points_from_results`).
@@ -63,7 +65,7 @@ def points_from_results(results: list[dict], methods: dict[str, str]) -> list[di
         values = reference.get((p["material"], p["model"]))
         value = p["error"].get(THRESHOLD_METRIC)
         if p["failure"] is None and values and value is not None and value > THRESHOLD_FACTOR * statistics.median(values):
-            p["failure"] = "error_above_2x_ds1"
+            p["failure"] = THRESHOLD_CAUSE
             p["message"] = (f"{THRESHOLD_METRIC} {value:.4g} > {THRESHOLD_FACTOR:g} x DS1 noise-free "
                             f"{statistics.median(values):.4g}")
     return points

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from neuralbrdf.atomic import atomic_write
 from neuralbrdf.errors import InputError
-from neuralbrdf.study.aggregate import ACCURACY_METRIC, BUDGETS_DELTA_E
+from neuralbrdf.study.aggregate import ACCURACY_METRIC, BUDGETS_DELTA_E, THRESHOLD_CAUSE, THRESHOLD_FACTOR
 from neuralbrdf.study.charts import CAUSE_LETTERS
 from neuralbrdf.study.figures import pooled_materials, rendered, write_figures
 
@@ -38,8 +38,8 @@ HEADINGS = {"render_ratio": "render time ÷ roughconductor", "mqueries_per_s": "
             "inplane_glossy_rel_rmse": "in-plane glossy rel. RMSE", "inplane_diffuse_rel_rmse": "in-plane diffuse rel. RMSE"}
 #: The failure cause of a cell whose process ended without a result (no finding about a method).
 CRASHED = "cell_crashed"
-#: Crashed cells listed by name at the top of the page; the rest are counted.
-CRASHED_LISTED = 20
+#: Cells without a result or model listed by name at the top of the page; the rest are counted.
+LISTED = 20
 #: Pixels a render is shown at (its pixels enlarged, not smoothed).
 RENDER_PX = 256
 STYLE = """
@@ -143,28 +143,43 @@ def _recommendation(study: dict) -> str:
     return "".join(out) + "</table>"
 
 
+def _listed(points: list[dict]) -> str:
+    """The first :data:`LISTED` cells by name, condition and message; the rest counted."""
+    items = "".join(f"<li>{html.escape(p['material'])} / {html.escape(p['model'])} / {html.escape(_condition(p))}: "
+                    f"{html.escape(p.get('message') or 'no message')}</li>" for p in points[:LISTED])
+    more = f"<li>and {len(points) - LISTED} more (see <i>Every cell</i>)</li>" if len(points) > LISTED else ""
+    return f"<ul>{items}{more}</ul>"
+
+
 def _status(study: dict) -> str:
-    """Whether every cell gave a result: crashed cells (the study is incomplete) in red and named,
-    the methods' failures (findings of the study) counted by cause."""
+    """Whether every cell gave a model, from the points' failure causes: crashed cells (the study
+    is incomplete) and cells without a model (a fit, export or evaluation that failed) in red and
+    named; cells whose error is above the threshold, a measurement of the study, counted; cached
+    files the run had to redo (``health.repaired``), when ``study.json`` records them."""
     points = study["points"]
     crashed = [p for p in points if p["failure"] == CRASHED]
-    failed = Counter(p["failure"] for p in points if p["failure"] and p["failure"] != CRASHED)
+    no_model = [p for p in points if p["failure"] not in (None, CRASHED, THRESHOLD_CAUSE)]
+    above = sum(p["failure"] == THRESHOLD_CAUSE for p in points)
+    repaired = (study.get("health") or {}).get("repaired") or []
     parts = []
     if crashed:
-        listed = "".join(
-            f"<li>{html.escape(p['material'])} / {html.escape(p['model'])} / {html.escape(_condition(p))}: "
-            f"{html.escape(p.get('message') or 'no message')}</li>" for p in crashed[:CRASHED_LISTED])
-        more = f"<li>and {len(crashed) - CRASHED_LISTED} more (see Every cell)</li>" if len(crashed) > CRASHED_LISTED else ""
         parts.append(f'<div class="status bad"><b>{len(crashed)} of {len(points)} cells crashed and have no result</b>: '
                      "this study is incomplete, and the recommendation and charts leave those cells out. Running the "
-                     f"same command again retries them (finished cells are reused).<ul>{listed}{more}</ul></div>")
-    if failed:
-        causes = ", ".join(f"{CAUSE_LETTERS.get(c, (c, c))[1]}: {n}" for c, n in sorted(failed.items()))
-        parts.append(f'<div class="status warn"><b>{sum(failed.values())} of {len(points)} cells failed</b> ({causes}): '
-                     "fits that broke under the study's conditions, a finding of the study — where and why under "
-                     "<i>Where methods fail</i> below.</div>")
+                     f"same command again retries them (finished cells are reused).{_listed(crashed)}</div>")
+    if no_model:
+        causes = ", ".join(f"{CAUSE_LETTERS.get(c, (c, c))[1]}: {n}"
+                           for c, n in sorted(Counter(p["failure"] for p in no_model).items()))
+        parts.append(f'<div class="status bad"><b>{len(no_model)} of {len(points)} cells failed and have no model</b> '
+                     f"({causes}): their models are missing from the recommendation and the charts.{_listed(no_model)}</div>")
     if not parts:
-        parts.append(f'<div class="status ok">All {len(points)} cells gave a result.</div>')
+        parts.append(f'<div class="status ok">Every one of the {len(points)} cells gave a model.</div>')
+    if above:
+        parts.append(f'<div class="status warn"><b>{above} of {len(points)} cells</b> have an error above '
+                     f"{THRESHOLD_FACTOR:g}× the same model's DS1 noise-free error: fits that broke under fewer samples "
+                     "or noise, a finding of the study — where and why under <i>Where methods fail</i> below.</div>")
+    if repaired:
+        files = f"{len(repaired)} cached file" + ("s were" if len(repaired) != 1 else " was")
+        parts.append(f'<div class="status warn">{files} damaged or stale and redone.</div>')
     return "".join(parts)
 
 
@@ -256,18 +271,28 @@ def _stability_section(study: dict, figs: dict, figures_dir: Path) -> str:
     sweep = [figure(figures_dir, stability[key], alt) for key, alt in (
         ("plans", "box plots of the hemisphere log-cos error per sampling plan, per model"),
         ("noise", "box plots of the hemisphere log-cos error per relative noise level, per model")) if key in stability]
+    seeding = "".join(f"<li>{html.escape(method)}: {html.escape(what)}</li>" for method, what in study.get("seeding", {}).items())
     parts = ["<p>Hemisphere log-cosine RMSE against the truth over seeds and materials per sampling plan "
              "(report Figs. 6.5/6.6/6.11/6.12) and per relative measurement noise.</p>",
+             f"<p>What a seed changes:</p><ul>{seeding}</ul>" if seeding else "",
              f'<div class="pair">{"".join(sweep)}</div>']
     groups = [figure(figures_dir, stability[f"group {t['group']}"],
                      f"{t['group']}: box plot of the error over seeds per member",
-                     f"Over seeds on {html.escape(', '.join(t['materials']))} (DS1, no noise).")
+                     f"{_seeds(study['points'], t)} on {html.escape(', '.join(t['materials']))} (DS1, no noise).")
               for t in study.get("groups", []) if f"group {t['group']}" in stability]
     if groups:
         parts += ["<h3>Variant groups</h3>", f'<div class="pair">{"".join(groups)}</div>',
                   "<p>Median hemisphere log-cos RMSE over seeds per material (DS1, no noise; the materials every "
                   "member fits).</p>", _group_tables(study)]
     return _section("Stability over sampling plans, noise and seeds", "".join(parts))
+
+
+def _seeds(points: list[dict], table: dict) -> str:
+    """``Over seeds 0, 1, 2`` (or ``One seed (0)``): the seeds a variant group's box plot is over."""
+    models = {row["model"] for row in table["members"]}
+    seeds = sorted({p["seed"] for p in points if p["model"] in models and p["plan"] == "DS1" and not p["noise"]
+                    and p["material"] in table["materials"]})
+    return f"Over seeds {', '.join(map(str, seeds))}" if len(seeds) > 1 else f"One seed ({', '.join(map(str, seeds))})"
 
 
 def _failure_section(study: dict, figs: dict, figures_dir: Path) -> str:
