@@ -177,26 +177,40 @@ def test_group_tables_take_medians_over_seeds_on_shared_materials():
         assert value == NUMBER_FORMAT.format(_lookup(study, path))
 
 
-def test_spread_labels_leaves_no_two_labels_overlapping():
+def test_place_labels_keeps_labels_apart_and_inside_their_axes():
     import matplotlib.pyplot as plt
 
-    from neuralbrdf.study.charts import spread_labels
+    from neuralbrdf.study.charts import layout_problems, place_labels
 
-    fig, ax = plt.subplots()
+    fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
     ax.set_xlim(0, 5)
     ax.set_ylim(0, 5)
-    points = [(1.0, 1.0), (1.02, 1.01), (1.01, 1.0), (3.0, 4.0), (1.0, 1.03)]
-    labels = [ax.annotate(f"spectral_mlp_{i}", xy, xytext=(3, 3), textcoords="offset points") for i, xy in enumerate(points)]
-    renderer = fig.canvas.get_renderer()
+    points = [(1.0, 1.0), (1.02, 1.01), (1.01, 1.0), (3.0, 4.0), (1.0, 1.03), (4.95, 2.0), (4.9, 2.02)]
+    labels = [ax.annotate(f"spectral_mlp_{i}", xy, xytext=(4, 2), textcoords="offset points", fontsize=9,
+                          arrowprops={"arrowstyle": "-"}) for i, xy in enumerate(points)]
+    before = layout_problems(fig)
+    assert any("overlap" in p for p in before) and any("leaves its axes" in p for p in before)
+    place_labels(ax, labels)
+    assert layout_problems(fig) == []
+    assert labels[3].xyann == (4, 2)  # a label alone stays beside its point
+    plt.close(fig)
 
-    def overlapping():
-        boxes = [a.get_window_extent(renderer) for a in labels]
-        return sum(boxes[i].overlaps(boxes[j]) for i in range(len(boxes)) for j in range(i))
 
-    assert overlapping() > 0
-    spread_labels(ax, labels)
-    assert overlapping() == 0
-    assert labels[3].xyann == (3, 3)  # a label alone stays where it was
+def test_layout_problems_names_small_cut_off_and_overlapping_text():
+    import matplotlib.pyplot as plt
+
+    from neuralbrdf.study.charts import layout_problems
+
+    fig, ax = plt.subplots(figsize=(4, 3), dpi=100)
+    ax.set_title("fine title", fontsize=10)
+    fig.text(0.1, 0.5, "tiny", fontsize=7)  # 9.7 px at 100 dpi
+    fig.text(0.9, 0.9, "runs past the right edge")
+    fig.text(0.3, 0.3, "first"), fig.text(0.31, 0.3, "second")
+    problems = layout_problems(fig)
+    assert "'tiny' is 9.7 px" in problems
+    assert "'runs past the right edge' is cut off by the figure's edge" in problems
+    assert "'second' and 'first' overlap" in problems
+    assert not any("fine title" in p for p in problems)
     plt.close(fig)
 
 
@@ -274,41 +288,218 @@ def _lookup(study: dict, path: str):
     return value
 
 
+SYNTHETIC_MODELS = ("abc", "nlb", "nlb_compact", "nlb_64x4", "nlb_report_recipe", "spectral_mlp", "spectral_mlp_paper",
+                    "spectral_mlp_2x8", "spectral_mlp_3x20", "spectral_mlp_4x32", "spectral_mlp_relu", "spectral_mlp_in_rgb")
+LATENT_GROUP = [("32, blends + prior (default)", "nlb"), ("16 (nlb_compact)", "nlb_compact"), ("4", "nlb_64x4"),
+                ("32 (from scratch)", "nlb_report_recipe")]
+
+
+def synthetic_study(crashed: int = 0) -> dict:
+    """A study.json as the full profile's: twelve models, most of them crowded at one cost and
+    error, per-angle data (31 wavelengths on gold, RGB on nylon, none on cyan), sweeps over plans,
+    noise and seeds, a variant group with long labels, and ``crashed`` cells without a result."""
+    import numpy as np
+
+    from neuralbrdf.study.cost import machine
+
+    rng = np.random.default_rng(7)
+    angles = list(np.arange(-60.0, 60.1, 5.0))
+    results = []
+    for material, channels in (("gold", list(np.arange(400.0, 701.0, 10.0))), ("cyan", list(np.arange(400.0, 701.0, 10.0))),
+                               ("nylon", ["R", "G", "B"])):
+        for k, model in enumerate(SYNTHETIC_MODELS):
+            if material == "nylon" and model.startswith("spectral"):
+                continue
+            crowded = model.startswith("spectral_mlp_")
+            cost = {"render_ratio": 1.0 + (0.01 * k if crowded else 0.3 * k), "mqueries_per_s": 10.0, "parameters": 100 + k,
+                    "fit_time_s": 20.0 + (0.2 * k if crowded else 3.0 * k)}
+            error = {"hemisphere_logcos_rmse": 0.01 + 0.001 * k, "image_delta_e2000_mean": 0.3 + (0.01 * k if crowded else 0.4 * k),
+                     "image_delta_e2000_p95": 1.5}
+            per_angle = {"theta_i_deg": angles, "glossy_rel_rmse": list(0.01 + 0.01 * rng.random(len(angles))),
+                         "channels": channels, "per_channel": [list(0.01 + 0.05 * rng.random(len(channels))) for _ in angles]}
+            results.append({"material": material, "variant": model, "plan": "DS1", "noise": 0.0, "seed": 0, "is_main": True,
+                            "failure": None, "message": None, "cost": cost, "error": error,
+                            "per_angle": None if material == "cyan" else per_angle, "key": f"{material}-{model}"})
+            sweeps = [(plan, 0.0, seed) for plan in ("DS1", "DS2", "DS3", "DS4") for seed in range(3)][1:] + [
+                ("DS1", noise, seed) for noise in (0.01, 0.1) for seed in range(3)] if model in ("abc", "nlb", "spectral_mlp") else (
+                [("DS1", 0.0, seed) for seed in (1, 2)] if model in dict(map(reversed, LATENT_GROUP)) else [])
+            for plan, noise, seed in sweeps:
+                results.append({"material": material, "variant": model, "plan": plan, "noise": noise, "seed": seed,
+                                "is_main": False, "failure": None, "message": None, "cost": {"fit_time_s": 1.0},
+                                "error": {"hemisphere_logcos_rmse": 0.01 * (1 + int(plan[2]) ** 2 * rng.random())}})
+    for i in range(crashed):
+        results[-1 - i] = {**results[-1 - i], "failure": "cell_crashed", "error": {},
+                           "message": "the cell's worker process died: Killed (log: cells/x/log.txt)"}
+    methods = {m: "abc" if m == "abc" else "nlb" if m.startswith("nlb") else "spectral_mlp" for m in SYNTHETIC_MODELS}
+    points = aggregate.points_from_results(results, methods)
+    failures = aggregate.failures(points)
+    return {"format": 1, "points": points, "pareto": aggregate.pareto(points), "failures": failures,
+            "failure_causes": list(aggregate.CAUSES), "summary": aggregate.budgets(points),
+            "groups": aggregate.groups(points, {"NLB latent size": LATENT_GROUP}, ["gold", "cyan", "nylon"]),
+            "sentences": aggregate.method_sentences(points, failures), "machine": machine(),
+            "run": {"profile": "configs/study/full.yaml", "command": "neuralbrdf study --profile full --out DIR --jobs 2",
+                    "jobs": 2, "seeds": [0, 1, 2], "started": "2026-12-02T14:11:20+00:00", "cells_run": len(points),
+                    "cells_cached": 0, "hemisphere_pairs": 6400}}
+
+
+@pytest.fixture(scope="module")
+def synthetic(tmp_path_factory):
+    """:func:`synthetic_study` with two crashed cells, its figures drawn once into a folder, and
+    what :func:`~neuralbrdf.study.charts.layout_problems` and the width said of each figure."""
+    from neuralbrdf.study import charts, figures
+
+    folder = tmp_path_factory.mktemp("synthetic")
+    study = synthetic_study(crashed=2)
+    problems, widths = {}, {}
+    save = charts._save
+
+    def checked(fig, path):
+        problems[path.name] = charts.layout_problems(fig)
+        widths[path.name] = fig.bbox.width
+        return save(fig, path)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(charts, "_save", checked)
+        figs = figures.write_figures(study, folder)
+    return {"study": study, "figures": figs, "folder": folder, "problems": problems, "widths": widths}
+
+
+def test_every_chart_is_legible_at_its_own_size(synthetic):
+    """Each figure of a study as crowded as the full one: no text under 11 px, none cut off or over
+    another, every point label inside its axes; no wider than the page shows unscaled."""
+    from neuralbrdf.study.charts import FULL_WIDTH_PX
+
+    figs = synthetic["figures"]
+    assert set(figs["stability"]) == {"plans", "noise", "group NLB latent size"}
+    assert set(figs["rel_rmse_vs_angle"]) == set(figs["per_channel"]) == {"gold", "nylon"}
+    assert len(synthetic["problems"]) == 1 + 3 + 3 + 1 + 2 + 2
+    assert {name: p for name, p in synthetic["problems"].items() if p} == {}
+    assert max(synthetic["widths"].values()) <= FULL_WIDTH_PX
+
+
+def test_speed_accuracy_axes_start_at_zero_with_room_above_the_highest_point(tmp_path, monkeypatch):
+    """Two models of nearly one ΔE: the axis is not a sliver around them with both at its top edge."""
+    from neuralbrdf.study import charts
+
+    drawn = []
+    monkeypatch.setattr(charts, "_save", lambda fig, path: drawn.append(fig) or path.name)
+    entries = [{"model": "abc", "method": "abc", "render_ratio": 1.1, "fit_time_s": 0.8, "image_delta_e2000_mean": 1.0194},
+               {"model": "nlb", "method": "nlb", "render_ratio": 5.2, "fit_time_s": 2.3, "image_delta_e2000_mean": 1.0165}]
+    charts.speed_accuracy(entries, {}, "nylon", tmp_path / "s.png")
+    for ax in drawn[0].axes:
+        assert ax.get_ylim() == pytest.approx((0.0, 1.15 * 1.0194))
+    assert charts.layout_problems(drawn[0]) == []
+
+
+def test_distinct_budget_rows_merge_neighbouring_budgets_that_choose_one_model():
+    from neuralbrdf.study.report import distinct_budget_rows
+
+    def row(material, budget, model):
+        return {"material": material, "budget_delta_e": budget, "model": model}
+
+    summary = [row("gold", 1, "relu"), row("gold", 2, "relu"), row("gold", 5, "abc"), row("gold", 10, "abc"),
+               row("acrylic", 1, None), row("acrylic", 2, "abc"), row("acrylic", 5, "abc"), row("cyan", 1, "abc")]
+    assert [(r["material"], r["model"], r["first"], r["last"]) for r in distinct_budget_rows(summary)] == [
+        ("gold", "relu", 0, 1), ("gold", "abc", 2, 3), ("acrylic", None, 4, 4), ("acrylic", "abc", 5, 6), ("cyan", "abc", 7, 7)]
+
+
+def test_report_leads_with_status_recommendation_and_pooled_chart(synthetic):
+    from neuralbrdf.study.report import write_report
+
+    study = synthetic["study"]
+    page = write_report(study, synthetic["figures"], synthetic["folder"]).read_text(encoding="utf-8")
+    order = [page.index(marker) for marker in (
+        '<div class="status bad"><b>2 of', '<div class="status warn">', "<h2>Which model to use</h2>", 'class="rec"',
+        "speed_accuracy_pooled.png", "<details>")]
+    assert order == sorted(order)
+    top = page[:page.index("<details>")]
+    assert top.count("worker process died") == 2  # each crashed cell named at the top
+    recommended = re.findall(r'<tr>(?:<td class="t m"[^>]*>[^<]*</td>)?<td>(.*?)</td><td class="t"><b>([^<]+)</b>', top)
+    assert len(recommended) == len({(budget, model) for budget, model in recommended}) < len(study["summary"])
+    assert "–" in recommended[0][0]  # budgets 1 to 10 that choose one model: one row
+    assert "runs.jsonl" not in page and "history" not in page
+    assert page.count("<details>") == 7 and 'alt=""' not in page
+
+
+def test_report_says_when_every_cell_gave_a_result(synthetic, tmp_path):
+    from neuralbrdf.study.report import write_report
+
+    study = {**synthetic["study"], "points": [dict(p, failure=None) for p in synthetic["study"]["points"]]}
+    shutil.copytree(synthetic["folder"] / "figures", tmp_path / "figures")
+    page = write_report(study, synthetic["figures"], tmp_path).read_text(encoding="utf-8")
+    assert f'<div class="status ok">Every one of the {len(study["points"])} cells gave a model.</div>' in page
+    assert "status bad" not in page and "status warn" not in page
+    assert "Over seeds 0, 1, 2 on gold, cyan, nylon (DS1, no noise)." in page
+    points = [dict(p) for p in study["points"]]
+    points[3]["failure"], points[3]["message"] = "non_finite_loss", "loss is nan at step 12"
+    page = write_report({**study, "points": points, "health": {"repaired": [{"file": "x", "problem": "y"}]}},
+                        synthetic["figures"], tmp_path).read_text(encoding="utf-8")
+    assert (f'<div class="status bad"><b>1 of {len(points)} cells failed and have no model</b> (non-finite loss: 1)'
+            in page) and "loss is nan at step 12" in page
+    assert "1 cached file was damaged or stale and redone." in page
+
+
 PROBE = """<script>
 window.__errors = [];
 window.addEventListener('error', e => window.__errors.push(String(e.message || e.target && e.target.src)), true);
 window.addEventListener('load', () => {
-  const out = {images: [...document.images].map(i => [i.getAttribute('src'), i.naturalWidth]),
+  const collapsedHeight = document.documentElement.scrollHeight;
+  const fonts = [];
+  const walker = document.createTreeWalker(document.body, NodeFilter.SHOW_TEXT);
+  while (walker.nextNode()) {
+    const node = walker.currentNode;
+    if (node.textContent.trim())
+      fonts.push([parseFloat(getComputedStyle(node.parentElement).fontSize), node.textContent.trim().slice(0, 60)]);
+  }
+  document.querySelectorAll('details').forEach(d => { d.open = true; });
+  const out = {images: [...document.images].map(i => [i.getAttribute('src'), i.naturalWidth,
+                                                      i.getBoundingClientRect().width, i.getAttribute('alt') || '']),
                numbers: [...document.querySelectorAll('[data-json]')].map(e => [e.dataset.json, e.textContent]),
-               errors: window.__errors};
+               fonts: fonts, collapsedHeight: collapsedHeight,
+               expandedHeight: document.documentElement.scrollHeight, errors: window.__errors};
   const pre = document.createElement('pre'); pre.id = 'probe'; pre.textContent = JSON.stringify(out);
   document.body.appendChild(pre);
 });
 </script>"""
+#: The page's width the report is checked at, and the most it may be tall with its details closed.
+PAGE_WIDTH_PX = 1400
+MAX_COLLAPSED_HEIGHT_PX = 15000
 
 
 def check_in_browser(out_dir: Path) -> dict:
-    """Open index.html (with a probe script added) in headless Chromium; assert images, console, numbers."""
+    """Open ``out_dir/index.html`` (with a probe script added, from a copy in a temporary folder)
+    in headless Chromium 1400 px wide; assert images, alt texts, console, numbers, that no text is
+    under 11 px, that no figure is shown smaller than drawn, and the height with details closed."""
+    import html
+    import tempfile
+
+    from neuralbrdf.study.charts import MIN_TEXT_PX
+
     page = (out_dir / "index.html").read_text(encoding="utf-8")
     assert "<script" not in page and "http://" not in page and "https://" not in page  # static, nothing fetched
-    probe = out_dir.resolve() / "probe.html"
-    probe.write_text(page.replace("<head>", "<head>" + PROBE, 1), encoding="utf-8")
-    try:
+    base = f'<base href="{out_dir.resolve().as_uri()}/">'
+    with tempfile.TemporaryDirectory() as scratch:
+        probe = Path(scratch) / "probe.html"
+        probe.write_text(page.replace("<head>", "<head>" + base + PROBE, 1), encoding="utf-8")
         run = subprocess.run(
-            [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--allow-file-access-from-files",
+            [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+             "--disable-component-update", "--disable-sync", "--no-first-run", f"--user-data-dir={scratch}/profile",
+             "--allow-file-access-from-files", "--hide-scrollbars", f"--window-size={PAGE_WIDTH_PX},1000",
              "--enable-logging=stderr", "--v=0", "--virtual-time-budget=20000", "--dump-dom", probe.as_uri()],
-            capture_output=True, text=True, timeout=120)
-    finally:
-        probe.unlink()
+            capture_output=True, text=True, timeout=180)
     found = re.search(r'<pre id="probe">(.*?)</pre>', run.stdout, re.S)
     assert found, run.stderr[-2000:]
-    import html
-
     result = json.loads(html.unescape(found.group(1)))
     console = [line for line in run.stderr.splitlines() if "CONSOLE" in line]
     assert not console, console
     assert not result["errors"], result["errors"]
-    assert result["images"] and all(width > 0 for _, width in result["images"]), result["images"]
+    assert result["images"] and all(natural > 0 for _, natural, _, _ in result["images"]), result["images"]
+    assert all(alt.strip() for *_, alt in result["images"]), [src for src, *_, alt in result["images"] if not alt.strip()]
+    shrunk = [(src, natural, shown) for src, natural, shown, _ in result["images"] if shown < natural - 0.5]
+    assert not shrunk, shrunk  # chart text is >= 11 px only at the chart's own size
+    small = [(size, text) for size, text in result["fonts"] if size < MIN_TEXT_PX]
+    assert not small, small[:5]
+    assert result["collapsedHeight"] <= MAX_COLLAPSED_HEIGHT_PX, result["collapsedHeight"]
     study = json.loads((out_dir / "study.json").read_text())
     assert result["numbers"]
     for path, shown in result["numbers"]:
@@ -319,6 +510,30 @@ def check_in_browser(out_dir: Path) -> dict:
             assert shown == NUMBER_FORMAT.format(value), (path, shown, value)
             assert math.isclose(float(shown), value, rel_tol=1e-3, abs_tol=1e-12)
     return result
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium (installed by .ci/run)")
+@pytest.mark.parametrize("folder", ["docs/study", "docs/study/full"])
+def test_committed_reports_read_at_100_percent(folder):
+    """The reports in the repository: legible at 1400 px, short with details closed, every figure
+    with alt text and at its own size, every number as in their study.json."""
+    result = check_in_browser(ROOT / folder)
+    assert min(size for size, _ in result["fonts"]) >= 11
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("folder", ["docs/study", "docs/study/full"])
+def test_committed_reports_are_what_their_study_json_draws(folder, tmp_path):
+    """``neuralbrdf study --report-only`` on a copy of the committed study.json gives the committed
+    page and the same figure files (redraw them after changing the report)."""
+    from neuralbrdf.study.report import rebuild
+
+    shutil.copy(ROOT / folder / "study.json", tmp_path / "study.json")
+    rebuild(tmp_path)
+    assert (tmp_path / "index.html").read_text(encoding="utf-8") == (ROOT / folder / "index.html").read_text(encoding="utf-8")
+    assert (tmp_path / "study.json").read_bytes() == (ROOT / folder / "study.json").read_bytes()
+    names = sorted(p.relative_to(tmp_path).as_posix() for p in (tmp_path / "figures").rglob("*.png"))
+    assert names == sorted(p.relative_to(ROOT / folder).as_posix() for p in (ROOT / folder / "figures").rglob("*.png"))
 
 
 @pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium (installed by .ci/run)")
@@ -339,7 +554,9 @@ def test_tiny_study_end_to_end(tmp_path, capsys):
     assert [(f["condition"], f["cells"]) for f in study["failures"]] == [("DS1", 1), ("DS1", 1)]
     result = check_in_browser(out)
     assert len(result["images"]) >= 6
-    # a second run with nothing new reuses every cell, and the report still shows the run that made them
+    assert {"figures/renders/gold/truth.png", "figures/renders/gold/abc.png"} <= {src for src, *_ in result["images"]}
+    assert all(p.get("per_angle") for p in points)  # the data of the per-angle charts is in study.json
+    # a second run with nothing new reuses every cell, and study.json still keeps the run that made them
     assert cli(["study", "--profile", str(TINY), "--out", str(out), "--no-progress"]) == 0
     again = json.loads((out / "study.json").read_text())
     assert again["run"]["cells_run"] == 0 and again["run"]["cells_cached"] == 2
@@ -347,7 +564,29 @@ def test_tiny_study_end_to_end(tmp_path, capsys):
     history = again["run"]["history"]
     assert [(h["cells_run"], h["cells_cached"]) for h in history] == [(2, 0), (0, 2)]
     assert history[0]["wall_time_s"] == study["run"]["wall_time_s"]
-    assert "runs.jsonl" in (out / "index.html").read_text(encoding="utf-8")
+    # the page is drawn again from study.json alone: no cell folder, figures and renders as before
+    shutil.rmtree(out / "cells")
+    (out / "index.html").unlink()
+    for figure in (out / "figures").glob("*.png"):
+        figure.unlink()
+    (out / "figures" / "left_over.png").write_bytes(b"an earlier report's figure")
+    before = (out / "study.json").read_text()
+    assert cli(["study", "--report-only", "--out", str(out)]) == 0
+    assert (out / "study.json").read_text() == before  # its figures were already listed: nothing changed
+    assert not (out / "figures" / "left_over.png").exists()
+    assert check_in_browser(out)["images"] == result["images"]
+
+
+def test_report_only_and_missing_profile_are_one_line_errors(tmp_path, capsys):
+    assert cli(["study", "--report-only", "--out", str(tmp_path)]) == 2
+    error = capsys.readouterr().err.strip()
+    assert error.count("\n") == 0 and str(tmp_path / "study.json") in error and "no study.json here" in error
+    (tmp_path / "study.json").write_text('{"points": []}')
+    assert cli(["study", "--report-only", "--out", str(tmp_path)]) == 2
+    assert "missing key(s) pareto, failures" in capsys.readouterr().err
+    assert cli(["study", "--out", str(tmp_path)]) == 2
+    assert "--profile is required" in capsys.readouterr().err
+    assert not (tmp_path / "index.html").exists()
 
 
 def test_killed_cell_is_rerun(tmp_path):

@@ -3,7 +3,10 @@
 * **Points** — one per cell: ``material, model, method, plan, noise, seed``, ``cost`` (the render
   ratio against ``roughconductor``, M queries/s of the fastest backend and the parameter count
   of the variant's main cell — speed does not depend on the weights — and the cell's own fit
-  wall time) and ``error`` (the metrics of :mod:`neuralbrdf.evaluation`), ``failure``.
+  wall time) and ``error`` (the metrics of :mod:`neuralbrdf.evaluation`), ``failure``; a rendered
+  main cell also ``per_angle`` (the glossy relative RMSE per incident angle and per angle ×
+  channel, :func:`neuralbrdf.study.cell.per_angle`), so that every figure can be drawn again from
+  ``study.json`` alone.
 * **Error threshold** — a cell that ran but whose ``hemisphere_logcos_rmse`` exceeds
   :data:`THRESHOLD_FACTOR` × the median of the same (material, model) at DS1 without noise gets
   the cause ``error_above_2x_ds1``.
@@ -28,6 +31,8 @@ from neuralbrdf.data.plans import in_plane_plan
 
 THRESHOLD_FACTOR = 2.0
 THRESHOLD_METRIC = "hemisphere_logcos_rmse"
+#: The failure cause of a cell above the threshold: a fit that gave a model, measured as broken.
+THRESHOLD_CAUSE = "error_above_2x_ds1"
 ACCURACY_METRIC = "image_delta_e2000_mean"
 BUDGETS_DELTA_E = (1.0, 2.0, 5.0, 10.0)
 #: Every failure cause a point can carry (:mod:`neuralbrdf.study.cell`, :func:`points_from_results`).
@@ -49,7 +54,7 @@ def points_from_results(results: list[dict], methods: dict[str, str]) -> list[di
             "material": r["material"], "model": r["variant"], "method": methods[r["variant"]], "plan": r["plan"],
             "noise": r["noise"], "seed": r["seed"], "is_main": bool(r.get("is_main")), "cost": cost,
             "error": r.get("error") or {}, "failure": r.get("failure"), "message": r.get("message"),
-            "key": r.get("key"),
+            "key": r.get("key"), **({"per_angle": r["per_angle"]} if r.get("per_angle") else {}),
         })
     reference: dict[tuple[str, str], list[float]] = defaultdict(list)
     for p in points:
@@ -60,7 +65,7 @@ def points_from_results(results: list[dict], methods: dict[str, str]) -> list[di
         values = reference.get((p["material"], p["model"]))
         value = p["error"].get(THRESHOLD_METRIC)
         if p["failure"] is None and values and value is not None and value > THRESHOLD_FACTOR * statistics.median(values):
-            p["failure"] = "error_above_2x_ds1"
+            p["failure"] = THRESHOLD_CAUSE
             p["message"] = (f"{THRESHOLD_METRIC} {value:.4g} > {THRESHOLD_FACTOR:g} x DS1 noise-free "
                             f"{statistics.median(values):.4g}")
     return points

@@ -10,20 +10,23 @@ DESCRIPTION = (
     "Mitsuba's roughconductor, and write DIR/study.json, DIR/figures/*.png and DIR/index.html (SPEC §10). "
     "Finished cells are cached under DIR/cells/ by their settings: a rerun does only what is new, a killed run "
     "resumes; cached files that are damaged or belong elsewhere are redone. One study at a time runs in DIR. "
-    "PROFILE is a shipped profile (quick, full, latent_prior: configs/study/) or your own YAML file. Exit status: "
-    "0 when every cell gave a model; 1 when a cell crashed (the study is incomplete; a rerun retries it) or a fit "
-    "failed (unless --allow-failures); 2 for bad input. The report and study.json's health say which cells."
+    "PROFILE is a shipped profile (quick, full, latent_prior: configs/study/) or your own YAML file. "
+    "With --report-only, DIR/figures and DIR/index.html are drawn again from DIR/study.json and no cell runs. Exit "
+    "status: 0 when every cell gave a model; 1 when a cell crashed (the study is incomplete; a rerun retries it) or a "
+    "fit failed (unless --allow-failures); 2 for bad input. The report and study.json's health say which cells."
 )
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--profile", required=True, help="quick, full, latent_prior or a profile YAML file")
+    parser.add_argument("--profile", help="quick, full, latent_prior or a profile YAML file (needed unless --report-only)")
     parser.add_argument("--out", required=True, help="output folder (cache, figures, study.json, index.html)")
     parser.add_argument("--jobs", type=int, default=1, help="cells run at once, one core each (default 1)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--allow-failures", action="store_true",
                         help="exit 0 although some fits failed or were refused (expected in a stability sweep on "
                         "sparse plans; the failure map records them); a crashed cell still exits 1")
+    parser.add_argument("--report-only", action="store_true",
+                        help="draw DIR's figures and index.html again from DIR/study.json; run no cell")
 
 
 def run(args) -> int:
@@ -33,6 +36,13 @@ def run(args) -> int:
     from neuralbrdf.errors import InputError
     from neuralbrdf.study.runner import run_study
 
+    if args.report_only:
+        from neuralbrdf.study.report import rebuild
+
+        print(f"-> {rebuild(args.out)}")
+        return
+    if args.profile is None:
+        raise InputError("--profile is required (or --report-only to redraw an existing study)", column="--profile")
     if args.jobs < 1:
         raise InputError(f"--jobs must be >= 1, got {args.jobs}")
     allow = " --allow-failures" if args.allow_failures else ""

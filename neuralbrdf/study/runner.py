@@ -34,10 +34,11 @@ from pathlib import Path
 from neuralbrdf.atomic import atomic_write
 from neuralbrdf.console import progress as progress_bar
 from neuralbrdf.folder_lock import folder_lock
-from neuralbrdf.study import aggregate, charts
+from neuralbrdf.study import aggregate
 from neuralbrdf.study.cache import Repairs, cached_result, read_runs, truth_file, write_runs
 from neuralbrdf.study.cell import WORKER_THREADS
 from neuralbrdf.study.cells import Cell, cell_key, is_rendered, plan_cells, seeding_description
+from neuralbrdf.study.figures import write_figures
 from neuralbrdf.study.health import health
 from neuralbrdf.study.profile import Profile, load_profile
 
@@ -174,57 +175,6 @@ def run_cells(profile: Profile, out_dir: Path, jobs: int, repairs: Repairs, prog
     return results, ran
 
 
-def write_figures(profile: Profile, results: list[dict], study: dict, out_dir: Path) -> dict:
-    figures_dir = out_dir / "figures"
-    points, front = study["points"], study["pareto"]
-    pooled_entries = {}
-    for cost_key in ("render_ratio", "fit_time_s"):
-        for q in front[cost_key]["pooled_points"]:
-            pooled_entries.setdefault(q["model"], {"model": q["model"], "method": q["method"]})[cost_key] = q[cost_key]
-            pooled_entries[q["model"]][aggregate.ACCURACY_METRIC] = q[aggregate.ACCURACY_METRIC]
-    pooled_materials = {m for q in front["render_ratio"]["pooled_points"] for m in q["materials"]}
-    shared = [m.name for m in profile.materials if m.name in pooled_materials]
-    figs = {"speed_accuracy_pooled": charts.speed_accuracy(
-        list(pooled_entries.values()), {k: front[k]["pooled"] for k in front},
-        f"pooled: each model's median over {', '.join(shared) or 'no shared material'}",
-        figures_dir / "speed_accuracy_pooled.png"),
-        "speed_accuracy": {}, "stability": {}, "rel_rmse_vs_angle": {}, "per_channel": {}, "renders": {}}
-    for m in profile.materials:
-        entries = [{"model": p["model"], "method": p["method"], **p["cost"],
-                    aggregate.ACCURACY_METRIC: p["error"].get(aggregate.ACCURACY_METRIC)}
-                   for p in points if p["material"] == m.name and p["is_main"] and p["failure"] is None]
-        figs["speed_accuracy"][m.name] = charts.speed_accuracy(
-            entries, {k: front[k]["per_material"].get(m.name, []) for k in front}, f"{m.name}",
-            figures_dir / f"speed_accuracy_{m.name}.png")
-        main = [r for r in results if r["material"] == m.name and r.get("is_main") and r.get("per_angle")]
-        if main:
-            figs["rel_rmse_vs_angle"][m.name] = charts.rel_rmse_vs_angle(main, m.name, figures_dir / f"rel_rmse_angle_{m.name}.png")
-            figs["per_channel"][m.name] = charts.per_channel_boxes(main, m.name, figures_dir / f"per_channel_{m.name}.png")
-            rows = [(r["variant"], out_dir / "cells" / r["key"] / "evaluation") for r in main]
-            figs["renders"][m.name] = charts.renders_grid(rows, m.name, figures_dir / f"renders_{m.name}.png")
-    stable = [v for v in profile.stability.variants]
-    if stable:
-        sweep = [p for p in points if p["model"] in stable]
-        plans = [pl for pl in ("DS1", "DS2", "DS3", "DS4") if pl in profile.stability.plans]
-        figs["stability"]["plans"] = charts.box_by_condition(
-            [p for p in sweep if p["noise"] == 0.0], stable, plans, lambda p: p["plan"], str,
-            "error per sampling plan (no noise)", figures_dir / "stability_plans.png")
-        noise = sorted(set(profile.stability.noise))
-        figs["stability"]["noise"] = charts.box_by_condition(
-            [p for p in sweep if p["plan"] == "DS1"], stable, noise, lambda p: p["noise"], lambda n: f"{n * 100:g}%",
-            "error per relative measurement noise (DS1)", figures_dir / "stability_noise.png")
-    for g, table in enumerate(study["groups"]):
-        # boxes over the same materials only (a member may fit more materials than the others)
-        label_of = {row["model"]: row["label"] for row in table["members"]}
-        labelled = [dict(p, model=label_of[p["model"]]) for p in points if p["model"] in label_of
-                    and p["plan"] == "DS1" and p["noise"] == 0.0 and p["material"] in table["materials"]]
-        figs["stability"][f"group {table['group']}"] = _group_figure(
-            labelled, list(label_of.values()), table["group"], table["materials"], figures_dir / f"stability_group{g}.png")
-    if study["failures"]:
-        figs["failure_map"] = charts.failure_map(study["failures"], figures_dir / "failure_map.png")
-    return figs
-
-
 def group_members(profile: Profile) -> dict[str, list[tuple[str, str]]]:
     """The profile's variant groups in order of appearance: group → ``(label, variant)`` pairs."""
     members: dict[str, list[tuple[str, str]]] = {}
@@ -232,17 +182,6 @@ def group_members(profile: Profile) -> dict[str, list[tuple[str, str]]]:
         if v.group:
             members.setdefault(v.group, []).append((v.label, v.name))
     return members
-
-
-def _group_figure(labelled: list[dict], labels: list[str], group: str, materials: list[str], path: Path) -> str:
-    """Box plot of a group's members over the seeds they ran (one seed: a deterministic fit,
-    :data:`~neuralbrdf.study.cells.SEEDING`) and the shared materials."""
-    points = [dict(p, condition=p["model"], model=group) for p in labelled]
-    seeds = sorted({p["seed"] for p in labelled})
-    over = (f"over seeds {', '.join(map(str, seeds))} on" if len(seeds) > 1
-            else "one seed (a deterministic fit), over")
-    return charts.box_by_condition(points, [group], labels, lambda p: p["condition"], str,
-                                   f"{group}: error {over} {', '.join(materials)} (DS1, no noise)", path)
 
 
 def _shown_path(path: Path) -> str:
@@ -301,7 +240,7 @@ def _run_locked(profile: Profile, profile_name: str, out_dir: Path, jobs: int, c
                 "cells_cpu_time_s": sum(r.get("cell_cpu_time_s") or 0.0 for r in results),
                 "hemisphere_pairs": (profile.render.hemisphere_strata[0] * profile.render.hemisphere_strata[1]) ** 2},
     }
-    study["figures"] = write_figures(profile, results, study, out_dir)
+    study["figures"] = write_figures(study, out_dir)
     study["run"]["wall_time_s"] = time.perf_counter() - started
     study["run"]["history"] = [*history, {key: study["run"][key] for key in _RUN_FIELDS}]
     write_runs(out_dir, study["run"]["history"])
@@ -309,5 +248,5 @@ def _run_locked(profile: Profile, profile_name: str, out_dir: Path, jobs: int, c
         json.dump(study, handle, indent=1, allow_nan=False)
     from neuralbrdf.study.report import write_report
 
-    write_report(study, out_dir)
+    write_report(study, study["figures"], out_dir)
     return study
