@@ -249,6 +249,19 @@ def networks_section() -> list[str]:
                                                                        num(reference[n]["abc_low2012"])]
             for n in held]
     lines += table(["material"] + [f"{name} ({prior})" for name, prior in keys] + ["ABC DS1", "Löw"], rows)
+    lines += ["Latent-fit recipes on each network (DS1; the recipes are described in "
+              "[models.md](models.md#latent-fit-rgb-nlb)):", ""]
+    rows = []
+    for (name, prior), materials in per_material.items():
+        for key, title in NLB_COLUMNS:
+            if not key.startswith("nlb_DS1") or any(materials[n].get(key) is None for n in held):
+                continue
+            recipe = "default" if key == "nlb_DS1" else title.replace("DS1 ", "")
+            rows.append([name, prior, recipe, num(median([materials[n][key] for n in held])),
+                         num(mean([materials[n][key] for n in held])), _wins(materials, held, key, "abc_DS1"),
+                         num(mean([m[key] for m in materials.values() if m.get(key) is not None]))])
+    lines += table(["network", "fit", "recipe", "held-out median", "held-out mean", "wins vs ABC DS1", "all 15 mean"],
+                   rows)
     compact = load("benchmarks/models_nlb_compact.json").get("pretraining")
     if compact and compact.get("curve"):
         points = " · ".join(f"{p['step']}: {p['val_logcos_rmse']:.4f}" for p in compact["curve"])
@@ -388,9 +401,29 @@ def speed_section() -> list[str]:
     batch = f"{settings.get('batch'):,}".replace(",", " ")
     lines += [f"Evaluation throughput at a batch of {batch} queries, M queries/s:", ""]
     lines += table(["model"] + backends, rows)
-    rows = [[key, str(value)] for key, value in data.get("targets", {}).items()]
-    lines += ["Targets quoted by the benchmark (not asserted):", ""] + table(["quantity", "target"], rows)
+    rows = [[f"`{key}`", str(value)] + _speed_measured(data, key, str(value))
+            for key, value in data.get("targets", {}).items()]
+    lines += ["Targets quoted by the benchmark (not asserted):", ""]
+    lines += table(["quantity", "target", "measured", ""], rows)
     return lines
+
+
+def _speed_measured(data: dict, key: str, target: str) -> list[str]:
+    """The measured value of a target of ``benchmarks/results.json`` and whether it is met."""
+    first, _, name = key.partition("/")
+    try:
+        if first in data["render"]:
+            value = data["render"][first]["ratios"][name]
+            shown = f"{value:.2f}×"
+        else:
+            model = data["throughput"][first]
+            value = model["backends"][model["fastest"]]["queries_per_s"]
+            shown = f"{value / 1e6:.1f} M/s ({model['fastest']})"
+        relation, bound = target.split()[0], float(target.split()[1])
+    except (KeyError, IndexError, ValueError):
+        return ["—", ""]
+    met = value <= bound if relation == "<=" else value >= bound
+    return [shown, "met" if met else "**missed**"]
 
 
 def lod_section() -> list[str]:
@@ -415,9 +448,21 @@ def lod_section() -> list[str]:
                      f"{run['selection_time_s']:.0f} s ({run['selection_cpu_s']:.0f} s CPU; {selection['noise']['spp']} spp)",
                      f"{num(run['image_delta_e2000_mean'], 2)} ({num(run.get('image_delta_e2000_p95'), 2)})", objects,
                      f"{run['full_time_s']:.2f} s → {run['selected_time_s']:.2f} s",
-                     f"{run['speedup']:.2f}× (medians {run['speedup_of_medians']:.2f}×)"])
+                     f"{run['speedup']:.2f}× (medians {run['speedup_of_medians']:.2f}×)",
+                     ", ".join(("" if met else "**missed** ") + name.replace("_", " ")
+                               for name, met in run.get("targets", {}).items()) or "—"])
     lines += table(["scene", "variant", "chosen", "selection wall", "ΔE whole image (p95)", "ΔE on each object",
-                    "all-full → selected", "speed-up"], rows)
+                    "all-full → selected", "speed-up", "targets (met unless marked)"], rows)
+    rows = []
+    for path in runs:
+        run = json.loads(path.read_text(encoding="utf-8"))
+        scene = "preview, gold alone" if path.name.startswith("preview") else Path(run["scene"]).name
+        rows.append([scene, f"`{run['variant']}`", num(run.get("image_delta_e2000_mean_own_proposals"), 2),
+                     num(run.get("reference_noise_delta_e2000_mean"), 2)])
+    lines += ["The selected scene as written (each stand-in with its own sampler) against the all-full one, and the "
+              "all-full scene against itself at another seed — the Monte Carlo noise both carry at the reference "
+              "sample count:", ""]
+    lines += table(["scene", "variant", "ΔE selected as written", "ΔE all-full seed to seed"], rows)
     lines += ["Each rung's hemisphere log-cos RMSE against its parent / relative Dr.Jit cost, as measured by "
               "`neuralbrdf ladder` (the ladders of `export/lod_models.sh`):", ""]
     ladders: dict[str, dict[str, dict]] = defaultdict(dict)
