@@ -118,6 +118,21 @@ def test_every_picture_says_what_it_shows(page):
 
 
 @pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_table_row_has_the_header_s_cells(page):
+    """A ``|`` inside a code span splits a Markdown table cell: write it ``\\|``."""
+    width, bad = None, []
+    for number, line in enumerate(_prose(page).splitlines(), 1):
+        if not line.startswith("|"):
+            width = None
+            continue
+        cells = len(re.findall(r"(?<!\\)\|", line))
+        width = cells if width is None else width
+        if cells != width:
+            bad.append(f"line {number}: {cells - 1} cells, header {width - 1}")
+    assert not bad, f"{page.relative_to(ROOT)}: " + "; ".join(bad)
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(ROOT)))
 def test_no_page_tells_the_project_history(page):
     text = page.read_text(encoding="utf-8")
     found = [m.group(0) for pattern in HISTORY for m in re.finditer(pattern, text, flags=re.IGNORECASE)]
