@@ -242,13 +242,13 @@ def networks_section() -> list[str]:
     lines += table(["network", "fit", "held-out DS1 median (× ABC DS1)", "mean", "wins vs ABC DS1", "wins vs Löw",
                     "held-out DS3 median", "DS4 median", "report's five DS1 median", "file"], rows)
     lines += ["Commands:", ""]
-    lines += [f"- {name}, {prior}: `{command}`" for name, prior, _, command in NETWORK_FILES]
-    lines += ["", "Held-out ten, NLB from DS1, per material:", ""]
+    lines += [f"- {name}, {prior}: `{command}`" for name, prior, _, command in NETWORK_FILES] + [""]
     keys = list(per_material)
-    rows = [[n] + [num(per_material[k][n]["nlb_DS1"]) for k in keys] + [num(reference[n]["abc_DS1"]),
-                                                                       num(reference[n]["abc_low2012"])]
-            for n in held]
-    lines += table(["material"] + [f"{name} ({prior})" for name, prior in keys] + ["ABC DS1", "Löw"], rows)
+    for plan in ("DS1", "DS3", "DS4"):
+        lines += [f"Held-out ten, NLB from {plan}, per material:", ""]
+        rows = [[n] + [num(per_material[k][n].get(f"nlb_{plan}")) for k in keys]
+                + [num(reference[n]["abc_DS1"]), num(reference[n]["abc_low2012"])] for n in held]
+        lines += table(["material"] + [f"{name} ({prior})" for name, prior in keys] + ["ABC DS1", "Löw"], rows)
     lines += ["Latent-fit recipes on each network (DS1; the recipes are described in "
               "[models.md](models.md#latent-fit-rgb-nlb)):", ""]
     rows = []

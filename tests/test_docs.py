@@ -119,10 +119,13 @@ def test_every_picture_says_what_it_shows(page):
 
 @pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(ROOT)))
 def test_every_table_row_has_the_header_s_cells(page):
-    """A ``|`` inside a code span splits a Markdown table cell: write it ``\\|``."""
+    """A ``|`` inside a code span splits a Markdown table cell (write it ``\\|``), and a text line
+    right after a table is read as one more row (leave a blank line)."""
     width, bad = None, []
     for number, line in enumerate(_prose(page).splitlines(), 1):
         if not line.startswith("|"):
+            if width is not None and line.strip():
+                bad.append(f"line {number}: text right after a table")
             width = None
             continue
         cells = len(re.findall(r"(?<!\\)\|", line))
