@@ -172,3 +172,16 @@ def test_the_slug_follows_github():
     assert _slug("`metrics.json`") == "metricsjson"
     assert _slug("Where users look: the held-out ten rendered") == "where-users-look-the-held-out-ten-rendered"
     assert _slug("`nlb_spectral` fit") == "nlb_spectral-fit"
+
+
+def test_the_spectral_nlb_benchmark_file_becomes_tables():
+    """benchmarks/spectral_nlb.json is not always committed: its tables are checked on a small file."""
+    data = {"spectral_args": [], "groups": {"virtual DS1": {
+        "materials": {"gold": {"nlb_spectral": {"hemisphere_logcos_rmse": 0.01, "image_delta_e2000_mean": 0.5},
+                               "abc": {"failed": "non_finite_loss"}}},
+        "summary": {"failed": {"nlb_spectral": 0, "abc": 1},
+                    "hemisphere_logcos_rmse": {"materials": 1, "median": {"nlb_spectral": 0.01, "abc": 0.02},
+                                               "nlb_spectral_beats": {"abc": 1.0}}}}}}
+    text = "\n".join(_make_results().spectral_nlb_tables(data))
+    assert "| gold | 0.0100 / 0.50 | failed |" in text
+    assert "the spectral NLB beats `abc` on 100% of them" in text and "failed fits: `abc` 1" in text
