@@ -1,0 +1,683 @@
+"""Write docs/results.md from the committed result files, so that the page cannot drift from them.
+
+    python docs/make_results.py            # rewrite docs/results.md
+    python docs/make_results.py --check    # exit 1 if docs/results.md is not what this script writes
+
+Every table on the page is computed here from a JSON or TSV file committed in ``benchmarks/`` or
+``docs/study/``, and each section names its file and the command that reproduces it.  Only the
+Python standard library is used, so the page can be checked anywhere (``tests/test_docs.py``).
+To change a number on the page, rerun the command that makes its file, then this script.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import statistics
+import sys
+from collections import Counter, defaultdict
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "docs" / "results.md"
+
+#: Legend of the fits of ``benchmarks/nlb_render_check.sh``, by the label its summary uses.
+RENDER_CHECK_LABELS = {
+    "nlb_compact": "network `nlb_compact`, no latent prior",
+    "nlb_latent32_scratch": "network `nlb_latent32_scratch`, no latent prior",
+    "nlb_latent32_blends": "network `nlb_latent32_blends`, no latent prior",
+    "nlb_latent32_blends_prior0.01_measured": "network `nlb_latent32_blends`, latent prior 0.01 fitted to the "
+                                              "measured materials' codes",
+    "nlb_latent32_blends_prior0.01": "network `nlb_latent32_blends`, latent prior 0.01 fitted to all codes: the "
+                                     "default fit",
+}
+#: The latent-fit recipes of ``benchmarks/models.py`` (columns of its per-material results).
+NLB_COLUMNS = (
+    ("nlb_DS1", "NLB DS1"), ("nlb_DS3", "NLB DS3"), ("nlb_DS4", "NLB DS4"),
+    ("nlb_DS1_report_recipe", "DS1 report recipe"), ("nlb_DS1_centroid_start", "DS1 centroid start"),
+    ("nlb_DS1_one_start", "DS1 one start"), ("abc_DS1", "ABC DS1"), ("abc_low2012", "Löw ABC"),
+)
+#: The pretrained networks compared without a prior, and the default fit, with their result files.
+NETWORK_FILES = (
+    ("`nlb_compact`", "no prior", "benchmarks/models_nlb_compact.json",
+     "python benchmarks/models.py --checkpoint nlb_compact --latent-prior-weight 0 --out benchmarks/models_nlb_compact.json"),
+    ("`nlb_latent32_scratch`", "no prior", "benchmarks/models_latent32_scratch.json",
+     "python benchmarks/models.py --only-nlb --plans DS1,DS3,DS4 --skip-timing --latent-prior-weight 0 "
+     "--checkpoint nlb_latent32_scratch --out benchmarks/models_latent32_scratch.json"),
+    ("`nlb_latent32_blends`", "no prior", "benchmarks/models_latent32_blends.json",
+     "python benchmarks/models.py --only-nlb --plans DS1,DS3,DS4 --skip-timing --latent-prior-weight 0 "
+     "--checkpoint nlb_latent32_blends --out benchmarks/models_latent32_blends.json"),
+    ("`nlb_latent32_blends`", "prior 0.01, all codes (default)", "benchmarks/models.json", "python benchmarks/models.py"),
+)
+#: The latent prior's sweeps and the commands that made them.
+SWEEP_FILES = (
+    ("benchmarks/latent_prior_sweep.json", "python benchmarks/latent_prior_sweep.py --codes measured"),
+    ("benchmarks/latent_prior_sweep_all_codes.json",
+     "python benchmarks/latent_prior_sweep.py --checkpoints nlb_latent32_blends --weights 0.003,0.01,0.03 "
+     "--out benchmarks/latent_prior_sweep_all_codes.json"),
+    ("benchmarks/latent_prior_sweep_ds34.json",
+     "python benchmarks/latent_prior_sweep.py --checkpoints nlb_latent32_blends --plans DS3,DS4 "
+     "--weights 0,0.003,0.01,0.03 --codes measured --out benchmarks/latent_prior_sweep_ds34.json"),
+)
+STUDIES = (
+    ("docs/study/full/study.json", "docs/study/full/index.html"),
+    ("docs/study/study.json", "docs/study/index.html"),
+)
+SPECTRAL_NLB = "benchmarks/spectral_nlb.json"
+SPECTRAL_PRETRAIN = "benchmarks/nlb_spectral_pretrain.json"
+
+
+# -- formatting ------------------------------------------------------------------------------
+
+
+def num(value, digits: int = 4) -> str:
+    """A number with ``digits`` decimals; ``—`` for a missing value."""
+    if value is None:
+        return "—"
+    return f"{value:.{digits}f}"
+
+
+def table(header: list[str], rows: list[list[str]]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return lines + [""]
+
+
+def load(relative: str):
+    return json.loads((ROOT / relative).read_text(encoding="utf-8"))
+
+
+def link(relative: str) -> str:
+    """A link from docs/results.md to a file of the repository."""
+    return f"[`{relative}`](../{relative})"
+
+
+def machine_line(machine: dict | None) -> str:
+    if not machine:
+        return "Machine: not recorded."
+    parts = [machine.get("cpu"), f"{machine['cores']} cores" if machine.get("cores") else None,
+             f"{machine['cpus']} cores" if machine.get("cpus") else None, machine.get("platform")]
+    versions = machine.get("versions") or {}
+    if machine.get("torch"):
+        versions = {"torch": machine["torch"], **versions}
+    text = ", ".join(p for p in parts if p)
+    if versions:
+        text += "; " + ", ".join(f"{k} {v}" for k, v in versions.items())
+    return f"Machine: {text}."
+
+
+def source_lines(relative: str, command: str, machine: dict | None = None) -> list[str]:
+    lines = [f"Source: {link(relative)}. Reproduce: `{command}`."]
+    if machine is not None:
+        lines.append(machine_line(machine))
+    return lines + [""]
+
+
+def median(values):
+    values = [v for v in values if v is not None]
+    return statistics.median(values) if values else None
+
+
+def mean(values):
+    values = [v for v in values if v is not None]
+    return statistics.fmean(values) if values else None
+
+
+# -- NLB latent fits against ABC (benchmarks/models*.json) ----------------------------------
+
+
+def _material_table(materials: dict, held_out: bool) -> list[str]:
+    names = sorted(n for n, m in materials.items() if bool(m.get("held_out")) == held_out)
+    rows = [[n] + [num(materials[n].get(key)) for key, _ in NLB_COLUMNS] for n in names]
+    for label, reduce in (("**median**", median), ("mean", mean)):
+        rows.append([label] + [num(reduce([materials[n].get(key) for n in names])) for key, _ in NLB_COLUMNS])
+    return table(["material"] + [title for _, title in NLB_COLUMNS], rows)
+
+
+def _wins(materials: dict, names: list[str], key: str, against: str) -> str:
+    pairs = [(materials[n].get(key), materials[n].get(against)) for n in names]
+    pairs = [(a, b) for a, b in pairs if a is not None and b is not None]
+    return f"{sum(a < b for a, b in pairs)}/{len(pairs)}"
+
+
+TARGETS = (
+    ("nlb_DS1_beats_abc_DS1_share", "held-out share where NLB from DS1 beats the in-plane ABC fit", ">=",
+     lambda d: d["nlb_vs_abc"]["summary"]["held_out"]["nlb_DS1_beats_abc_DS1"], "{:.0%}"),
+    ("median_nlb_DS1_over_abc_DS1", "held-out median of NLB DS1 over ABC DS1's", "<=",
+     lambda d: d["nlb_vs_abc"]["summary"]["held_out"]["median_nlb_DS1_over_abc_DS1"], "{:.2f}×"),
+    ("nlb_DS1_beats_low2012_share", "held-out share where NLB from DS1 beats Löw's full-data ABC fit", ">=",
+     lambda d: d["nlb_vs_abc"]["summary"]["held_out"]["nlb_DS1_beats_low2012"], "{:.0%}"),
+    ("median_nlb_DS3_over_nlb_DS1", "held-out median of NLB DS3 over NLB DS1's", "<=",
+     lambda d: d["nlb_vs_abc"]["summary"]["held_out"]["median_nlb_DS3_over_nlb_DS1"], "{:.2f}×"),
+    ("latent_fit_s", "one material's latent fit on DS1, s", "<=",
+     lambda d: d["nlb_vs_abc"]["latent_fit_s"]["single_DS1"], "{:.2f}"),
+    ("latent_fit_batched_100_per_material_s", "100 materials in one batch, s per material", "<=",
+     lambda d: d["nlb_vs_abc"]["latent_fit_s"]["batched_100_per_material"], "{:.3f}"),
+    ("abc_known_logcos_rmse", "ABC fit of known ABC parameters, hemisphere log-cos RMSE", "<=",
+     lambda d: d["abc_known"]["hemisphere_logcos_rmse"], "{:.5f}"),
+    ("abc_fit_s", "that ABC fit, s", "<=", lambda d: d["abc_known"]["fit_wall_time_s"], "{:.2f}"),
+    ("spectral_mlp_fit_s", "spectral MLP 30-epoch fit, slowest material, s", "<=",
+     lambda d: max(m["fit_wall_time_s"] for m in d["spectral_mlp"].values()), "{:.1f}"),
+    ("spectral_mlp_rel_rmse", "spectral MLP test glossy relative RMSE (median), worst material", "<=",
+     lambda d: max(m["test_rel_rmse_glossy_median"] for m in d["spectral_mlp"].values()), "{:.3f}"),
+)
+
+
+def _target_rows(models: dict) -> list[list[str]]:
+    rows = []
+    for key, what, relation, measured, fmt in TARGETS:
+        target = models.get("targets", {}).get(key)
+        try:
+            value = measured(models)
+        except (KeyError, TypeError, ValueError):
+            continue
+        if target is None or value is None:
+            continue
+        met = value >= target if relation == ">=" else value <= target
+        shown_target = fmt.format(target) if "%" in fmt or "×" in fmt else f"{target:g}"
+        rows.append([what, f"{relation.replace('>=', '≥').replace('<=', '≤')} {shown_target}", fmt.format(value),
+                     "met" if met else "**missed**"])
+    return rows
+
+
+def _prior_text(weight) -> str:
+    if isinstance(weight, (int, float)):
+        return f"latent prior weight {weight:g}"
+    return "the config's latent prior"
+
+
+def nlb_section() -> list[str]:
+    models = load("benchmarks/models.json")
+    nlb = models["nlb_vs_abc"]
+    materials = nlb["materials"]
+    lines = ["## NLB latent fits against ABC on MERL proxies", ""]
+    lines += ["Hemisphere log-cosine RMSE of each fit against the material's NBRDF proxy on the Löw et al. "
+              "direction set (SPEC §5). NLB is the default latent fit (`configs/nlb_latent.yaml`: network "
+              f"`{Path(nlb['checkpoint']).stem}`, {_prior_text(nlb.get('latent_prior_weight'))}), all "
+              "fifteen materials in one batch; ABC DS1 is `fit_abc` on the same DS1 samples; Löw is the published "
+              "full-data ABC fit. The recipes (report recipe, centroid start, one start) are described in "
+              "[models.md](models.md#latent-fit-rgb-nlb). No network was pretrained on the held-out ten or on "
+              "the report's five.", ""]
+    lines += source_lines("benchmarks/models.json", "python benchmarks/models.py", models.get("machine"))
+    lines += ["### The ten held-out materials", ""] + _material_table(materials, True)
+    lines += ["### The report's five materials", ""] + _material_table(materials, False)
+    lines += ["### Against the targets", ""]
+    lines += table(["quantity", "target", "measured", ""], _target_rows(models))
+    fits = nlb.get("latent_fit_s", {})
+    rows = [[key.replace("_per_material", "").replace("_", " "), num(value, 3)]
+            for key, value in fits.items() if isinstance(value, (int, float))]
+    lines += ["### Fit times", "", "Latent fits, seconds per material (the 15-material batches include the "
+              "evaluation on the Löw set, 15 × 230 400 pairs; `single DS1` and `batched 100` do not):", ""]
+    lines += table(["fit", "s per material"], rows)
+    if models.get("spectral_mlp"):
+        rows = [[name, num(m["fit_wall_time_s"], 1), num(m["test_rel_rmse_glossy_median"], 4)]
+                for name, m in models["spectral_mlp"].items()]
+        lines += ["Spectral MLP, 30 epochs on the shipped DS1 measurement:", ""]
+        lines += table(["material", "fit s", "test glossy relative RMSE (median)"], rows)
+    return lines
+
+
+def networks_section() -> list[str]:
+    reference = load("benchmarks/models.json")["nlb_vs_abc"]["materials"]
+    held = sorted(n for n, m in reference.items() if m.get("held_out"))
+    report = sorted(n for n, m in reference.items() if not m.get("held_out"))
+    abc_median = median([reference[n]["abc_DS1"] for n in held])
+    lines = ["## Pretrained networks compared", "",
+             "The same benchmark for each shipped RGB network (latent fit from DS1, DS3 and DS4 of the held-out "
+             "ten; the report's five from DS1). The networks are described in "
+             "[models.md](models.md#shipped-rgb-networks).", ""]
+    rows, per_material = [], {}
+    for name, prior, relative, command in NETWORK_FILES:
+        materials = load(relative)["nlb_vs_abc"]["materials"]
+        ds1 = median([materials[n]["nlb_DS1"] for n in held])
+        per_material[(name, prior)] = materials
+        rows.append([
+            name, prior, f"{num(ds1)} ({ds1 / abc_median:.2f}×)", num(mean([materials[n]["nlb_DS1"] for n in held])),
+            _wins(materials, held, "nlb_DS1", "abc_DS1"), _wins(materials, held, "nlb_DS1", "abc_low2012"),
+            num(median([materials[n].get("nlb_DS3") for n in held])),
+            num(median([materials[n].get("nlb_DS4") for n in held])),
+            num(median([materials[n]["nlb_DS1"] for n in report])),
+            f"[json](../{relative})",
+        ])
+    lines += table(["network", "fit", "held-out DS1 median (× ABC DS1)", "mean", "wins vs ABC DS1", "wins vs Löw",
+                    "held-out DS3 median", "DS4 median", "report's five DS1 median", "file"], rows)
+    lines += ["Commands:", ""]
+    lines += [f"- {name}, {prior}: `{command}`" for name, prior, _, command in NETWORK_FILES] + [""]
+    keys = list(per_material)
+    for plan in ("DS1", "DS3", "DS4"):
+        lines += [f"Held-out ten, NLB from {plan}, per material:", ""]
+        rows = [[n] + [num(per_material[k][n].get(f"nlb_{plan}")) for k in keys]
+                + [num(reference[n]["abc_DS1"]), num(reference[n]["abc_low2012"])] for n in held]
+        lines += table(["material"] + [f"{name} ({prior})" for name, prior in keys] + ["ABC DS1", "Löw"], rows)
+    lines += ["Latent-fit recipes on each network (DS1; the recipes are described in "
+              "[models.md](models.md#latent-fit-rgb-nlb)):", ""]
+    rows = []
+    for (name, prior), materials in per_material.items():
+        for key, title in NLB_COLUMNS:
+            if not key.startswith("nlb_DS1") or any(materials[n].get(key) is None for n in held):
+                continue
+            recipe = "default" if key == "nlb_DS1" else title.replace("DS1 ", "")
+            rows.append([name, prior, recipe, num(median([materials[n][key] for n in held])),
+                         num(mean([materials[n][key] for n in held])), _wins(materials, held, key, "abc_DS1"),
+                         num(mean([m[key] for m in materials.values() if m.get(key) is not None]))])
+    lines += table(["network", "fit", "recipe", "held-out median", "held-out mean", "wins vs ABC DS1", "all 15 mean"],
+                   rows)
+    compact = load("benchmarks/models_nlb_compact.json").get("pretraining")
+    if compact and compact.get("curve"):
+        points = curve_points(compact["curve"])
+        lines += ["Validation log-cos RMSE of the last pretraining stage of `nlb_compact` "
+                  f"(`{compact['run_dir']}`, {compact['wall_time_s'] / 60:.0f} min), by optimiser step of that "
+                  f"stage: {points}. Drawn in [nlb_pretrain_curve.png](nlb_pretrain_curve.png) by "
+                  "`python benchmarks/models.py --pretrain-run DIR --curve-png PNG`.", ""]
+    return lines
+
+
+# -- the latent prior's weight (benchmarks/latent_prior_sweep*.json) ------------------------------
+
+
+def prior_section() -> list[str]:
+    abc = load("benchmarks/models.json")["nlb_vs_abc"]["materials"]
+    abc_median = median([m["abc_DS1"] for m in abc.values() if m.get("held_out")])
+    lines = ["## The latent prior's weight", "",
+             "Latent fits of the held-out ten and the report's five in one batch, hemisphere log-cos RMSE against "
+             "the proxy; wins counted on the held-out ten; `× ABC` against the held-out median of ABC DS1 "
+             f"({num(abc_median)}). The prior is described in [models.md](models.md#nlb-latent-prior). "
+             "Leave-one-out: the weight chosen for each material on the other fourteen (by their mean or median "
+             "error), and the held-out result of those choices.", ""]
+    for relative, command in SWEEP_FILES:
+        sweep = load(relative)
+        rows = []
+        for row in sweep["rows"]:
+            held, rep = row["held_out"], row["report"]
+            everything = mean(list(row["materials"].values()))
+            rows.append([f"`{row['checkpoint']}`", row["codes"], row["plan"], f"{row['weight']:g}",
+                         f"{num(held['median'])} ({held['median'] / abc_median:.2f}×)", num(held["mean"]),
+                         f"{held['wins_vs_abc_DS1']}/10, {held['wins_vs_low2012']}/10",
+                         f"{num(rep['median'])} / {num(rep['mean'])}", num(everything),
+                         num(row.get("fit_s_per_material"), 2)])
+        lines += [f"### {Path(relative).name}", ""] + source_lines(relative, command)
+        lines += table(["network", "codes", "plan", "weight", "held-out median (× ABC)", "held-out mean",
+                        "wins vs ABC DS1 / Löw", "report's five median / mean", "all 15 mean", "fit s per material"],
+                       rows)
+        rows = []
+        for key, choice in sweep.get("leave_one_out", {}).items():
+            for by, result in choice.items():
+                chosen = Counter(result["weights"].values())
+                weights = ", ".join(f"{w:g} ×{n}" for w, n in sorted(chosen.items()))
+                rows.append([key, by.replace("_", " "), weights, num(result["held_out_median"]),
+                             num(result["held_out_mean"])])
+        if rows:
+            lines += table(["network, plan", "choice", "weights chosen (materials)", "held-out median",
+                            "held-out mean"], rows)
+    return lines
+
+
+# -- where users look (nlb_render_check, accuracy_merl) ----------------------------------------
+
+
+def render_check_section() -> list[str]:
+    relative = "benchmarks/nlb_render_check/summary.tsv"
+    with open(ROOT / relative, encoding="utf-8", newline="") as handle:
+        records = list(csv.DictReader(handle, delimiter="\t"))
+    labels = list(dict.fromkeys(r["model"] for r in records))
+    materials = list(dict.fromkeys(r["material"] for r in records))
+    cell = {(r["model"], r["material"]): r for r in records}
+    lines = ["## Where users look: the held-out ten rendered", "",
+             "The held-out ten fitted from DS1 in one batch per fit, exported, and scored by `neuralbrdf evaluate` "
+             "against the proxy's own export in the material-preview scene (`llvm_ad_rgb`, 128 px, 256 spp, model "
+             "and truth at the same seeds). The truth rendered against itself with other seeds gives the render "
+             "noise, stated in each `evaluation.json`. Fits:", ""]
+    lines += [f"- `{label}`: {RENDER_CHECK_LABELS.get(label, label)}" for label in labels]
+    lines += [""] + source_lines(relative, "bash benchmarks/nlb_render_check.sh OUT [CHECKPOINT[:WEIGHT[:CODES]] ...]")
+    lines += ["Image CIEDE2000, mean / p95:", ""]
+    rows = [[m] + [f"{float(cell[(l, m)]['image_delta_e2000_mean']):.2f} / {float(cell[(l, m)]['image_delta_e2000_p95']):.2f}"
+                   if (l, m) in cell else "—" for l in labels] for m in materials]
+    means = {l: [float(cell[(l, m)]["image_delta_e2000_mean"]) for m in materials if (l, m) in cell] for l in labels}
+    rows.append(["median (mean)"] + [f"{median(means[l]):.2f} ({mean(means[l]):.2f})" for l in labels])
+    lines += table(["material"] + [f"`{l}`" for l in labels], rows)
+    noise = [_render_noise(ROOT / "benchmarks" / "nlb_render_check" / f"{l}_{m}.json") for l in labels for m in materials]
+    noise = [n for n in noise if n is not None]
+    if noise:
+        lines += [f"Render noise (the truth against itself at other seeds), ΔE2000 mean: {min(noise):.2f}–"
+                  f"{max(noise):.2f} over these cells.", ""]
+    lines += ["Hemisphere log-cos RMSE of the same fits (102 400 stratified pairs):", ""]
+    rows = [[m] + [num(float(cell[(l, m)]["hemisphere_logcos_rmse"])) if (l, m) in cell else "—" for l in labels]
+            for m in materials]
+    lines += table(["material"] + [f"`{l}`" for l in labels], rows)
+    return lines
+
+
+def _render_noise(path: Path):
+    if not path.is_file():
+        return None
+    return (json.loads(path.read_text(encoding="utf-8")).get("noise") or {}).get("image_delta_e2000_mean")
+
+
+def accuracy_section() -> list[str]:
+    relative = "benchmarks/accuracy_merl.json"
+    data = load(relative)
+    settings = data.get("settings", {})
+    lines = ["## ABC against NLB in the image: the report's five", "",
+             "DS1 samples of each NBRDF proxy, fitted by `configs/abc.yaml` and by the default latent fit "
+             "(`configs/nlb_latent.yaml`), scored by `neuralbrdf evaluate` against `neuralbrdf export-truth NAME.h5` "
+             f"(`llvm_ad_rgb`, {settings.get('resolution')}², {settings.get('spp')} spp). The render noise is the "
+             "truth against itself at other seeds.", ""]
+    lines += source_lines(relative, data.get("command", "python benchmarks/accuracy.py --part merl"), data.get("machine"))
+    rows = [[r["material"], r["model"], num(r["image_delta_e2000_mean"], 2), num(r["image_delta_e2000_p95"], 2),
+             num(r["noise_delta_e2000_mean"], 2), num(r["hemisphere_logcos_rmse"]), num(r["inplane_glossy_rel_rmse"], 3),
+             num(r["inplane_diffuse_rel_rmse"], 3)] for r in data["rows"]]
+    lines += table(["material", "model", "ΔE mean", "ΔE p95", "render noise ΔE", "hemisphere log-cos",
+                    "in-plane glossy", "in-plane diffuse"], rows)
+    return lines
+
+
+# -- rendering speed (benchmarks/results.json) and level of detail (benchmarks/lod_demo) ---------
+
+
+def speed_section() -> list[str]:
+    relative = "benchmarks/results.json"
+    data = load(relative)
+    settings = data.get("settings", {})
+    lines = ["## Rendering speed and throughput", "",
+             f"Material-preview scene, {settings.get('resolution')}² at {settings.get('spp')} spp, path depth 5, "
+             f"median of {settings.get('repeats')} round-robin renders; the spectral MLP trained on the virtual gold "
+             f"({settings.get('epochs')} epochs, seed {data.get('seed')}). Render time over Mitsuba's `roughconductor` "
+             "(GGX gold, α = 0.2) in the same variant and mode, same process. Where the time goes: "
+             "[design.md](design.md#rendering-speed).", ""]
+    lines += source_lines(relative, data.get("command", "python benchmarks/run.py"), data.get("machine"))
+    ratio_names = []
+    for variant in data["render"].values():
+        ratio_names += [k for k in variant["ratios"] if k not in ratio_names]
+    rows = [[f"`{variant}`"] + [f"{block['ratios'][k]:.2f}×" if k in block["ratios"] else "—" for k in ratio_names]
+            for variant, block in data["render"].items()]
+    lines += table(["variant"] + [k.replace("_vs_roughconductor", " ÷ roughconductor").replace("_", " ")
+                                  for k in ratio_names], rows)
+    backends = []
+    for model in data["throughput"].values():
+        backends += [b for b in model["backends"] if b not in backends]
+    rows = [[f"{name} ({model.get('note', '')})"]
+            + [f"{model['backends'][b]['queries_per_s'] / 1e6:.1f}" if b in model["backends"] else "—" for b in backends]
+            for name, model in data["throughput"].items()]
+    batch = f"{settings.get('batch'):,}".replace(",", " ")
+    lines += [f"Evaluation throughput at a batch of {batch} queries, M queries/s:", ""]
+    lines += table(["model"] + backends, rows)
+    rows = [[f"`{key}`", str(value)] + _speed_measured(data, key, str(value))
+            for key, value in data.get("targets", {}).items()]
+    lines += ["Targets quoted by the benchmark (not asserted):", ""]
+    lines += table(["quantity", "target", "measured", ""], rows)
+    return lines
+
+
+def _speed_measured(data: dict, key: str, target: str) -> list[str]:
+    """The measured value of a target of ``benchmarks/results.json`` and whether it is met."""
+    first, _, name = key.partition("/")
+    try:
+        if first in data["render"]:
+            value = data["render"][first]["ratios"][name]
+            shown = f"{value:.2f}×"
+        else:
+            model = data["throughput"][first]
+            value = model["backends"][model["fastest"]]["queries_per_s"]
+            shown = f"{value / 1e6:.1f} M/s ({model['fastest']})"
+        relation, bound = target.split()[0], float(target.split()[1])
+    except (KeyError, IndexError, ValueError):
+        return ["—", ""]
+    met = value <= bound if relation == "<=" else value >= bound
+    return [shown, "met" if met else "**missed**"]
+
+
+def lod_section() -> list[str]:
+    folder = ROOT / "benchmarks" / "lod_demo"
+    runs = sorted(p for p in folder.glob("*.json") if not p.name.endswith("_SELECTED.json"))
+    lines = ["## Level of detail: selection on the demo scenes", "",
+             "`neuralbrdf select` on `export/scenes/lod_demo.xml` (the four spectral MLPs of `export/lod_models.sh`) "
+             "and on the preview scene with the gold alone; both tolerances 1.0. ΔE: the selected scene at matched "
+             "paths against the all-full one (the stand-ins' bias), over the whole image and over each object's "
+             "pixels. Speed: shortest of the interleaved renders after a compiling one (Dr.Jit symbolic mode).", ""]
+    lines += [f"Source: [`benchmarks/lod_demo/`](../benchmarks/lod_demo/). Reproduce: "
+              "`bash export/lod_models.sh && python benchmarks/lod_demo.py --variant V [--preview-gold]`.",
+              machine_line(load(str(runs[0].relative_to(ROOT))).get("machine")) if runs else "", ""]
+    rows = []
+    for path in runs:
+        run = json.loads(path.read_text(encoding="utf-8"))
+        scene = "preview, gold alone" if path.name.startswith("preview") else Path(run["scene"]).name
+        chosen = " / ".join(f"{m}: `{r}`" for m, r in run["chosen"].items())
+        objects = " / ".join(f"{num(o['delta_e2000_mean'], 2)}" for o in run["on_object"].values())
+        selection = run["selection"]
+        rows.append([scene, f"`{run['variant']}`", chosen,
+                     f"{run['selection_time_s']:.0f} s ({run['selection_cpu_s']:.0f} s CPU; {selection['noise']['spp']} spp)",
+                     f"{num(run['image_delta_e2000_mean'], 2)} ({num(run.get('image_delta_e2000_p95'), 2)})", objects,
+                     f"{run['full_time_s']:.2f} s → {run['selected_time_s']:.2f} s",
+                     f"{run['speedup']:.2f}× (medians {run['speedup_of_medians']:.2f}×)",
+                     ", ".join(("" if met else "**missed** ") + name.replace("_", " ")
+                               for name, met in run.get("targets", {}).items()) or "—"])
+    lines += table(["scene", "variant", "chosen", "selection wall", "ΔE whole image (p95)", "ΔE on each object",
+                    "all-full → selected", "speed-up", "targets (met unless marked)"], rows)
+    rows = []
+    for path in runs:
+        run = json.loads(path.read_text(encoding="utf-8"))
+        scene = "preview, gold alone" if path.name.startswith("preview") else Path(run["scene"]).name
+        rows.append([scene, f"`{run['variant']}`", num(run.get("image_delta_e2000_mean_own_proposals"), 2),
+                     num(run.get("reference_noise_delta_e2000_mean"), 2)])
+    lines += ["The selected scene as written (each stand-in with its own sampler) against the all-full one, and the "
+              "all-full scene against itself at another seed — the Monte Carlo noise both carry at the reference "
+              "sample count:", ""]
+    lines += table(["scene", "variant", "ΔE selected as written", "ΔE all-full seed to seed"], rows)
+    lines += ["Each rung's hemisphere log-cos RMSE against its parent / relative Dr.Jit cost, as measured by "
+              "`neuralbrdf ladder` (the ladders of `export/lod_models.sh`):", ""]
+    ladders: dict[str, dict[str, dict]] = defaultdict(dict)
+    for path in sorted(folder.glob("demo_*_SELECTED.json")):
+        for material, candidates in json.loads(path.read_text(encoding="utf-8"))["candidates"].items():
+            for c in candidates:
+                ladders[c["rung"]].setdefault(material, c)
+    materials = list(dict.fromkeys(m for rungs in ladders.values() for m in rungs))
+    rows = [[f"`{rung}`"] + [f"{num(by[m]['hemisphere_logcos_rmse'])} / {by[m]['relative_cost']:.2f}" if m in by else "—"
+                             for m in materials] for rung, by in ladders.items() if rung != "full"]
+    lines += table(["rung"] + materials, rows)
+    return lines
+
+
+# -- the study (docs/study/**/study.json) ---------------------------------------------------------
+
+
+def _by_model(points, key):
+    out: dict[str, dict[str, float]] = defaultdict(dict)
+    for p in points:
+        value = key(p)
+        if value is not None:
+            out[p["model"]][p["material"]] = value
+    return out
+
+
+def study_section(relative: str, report: str) -> list[str]:
+    study = load(relative)
+    run = study.get("run", {})
+    materials = list(dict.fromkeys(p["material"] for p in study["points"]))
+    main = [p for p in study["points"] if p.get("is_main") and p.get("cost") and p["cost"].get("render_ratio")]
+    lines = [f"### `{run.get('profile', relative)}`", "",
+             f"Report: [`{report}`](../{report}). Reproduce: `{run.get('command')}`. {len(study['points'])} cells "
+             f"({run.get('cells_run')} run, {run.get('cells_cached')} from the cache in the last run: "
+             f"{run.get('wall_time_s', 0):.0f} s wall, {run.get('cells_cpu_time_s', 0):.0f} s of the cells' CPU); "
+             f"{run.get('jobs')} jobs; hemisphere metrics on {run.get('hemisphere_pairs')} pairs; seeds "
+             f"{', '.join(str(s) for s in run.get('seeds', []))}.", machine_line(study.get("machine")), ""]
+    delta_e = _by_model(main, lambda p: p["error"].get("image_delta_e2000_mean"))
+    logcos = _by_model(main, lambda p: p["error"].get("hemisphere_logcos_rmse"))
+    models = list(dict.fromkeys(p["model"] for p in main))
+    lines += ["Main cells (DS1, no noise, seed 0): image ΔE2000 mean against the truth on matched paths / "
+              "hemisphere log-cos RMSE; — where the model does not fit that material:", ""]
+    rows = [[f"`{m}`"] + [f"{num(delta_e[m].get(mat), 2)} / {num(logcos[m].get(mat))}" if mat in logcos[m] else "—"
+                          for mat in materials] for m in models]
+    lines += table(["model"] + materials, rows)
+    common = [mat for mat in materials if all(mat in delta_e[m] for m in models)]
+    costs = {m: [p["cost"] for p in main if p["model"] == m and p["material"] in common] for m in models}
+    rows = [[f"`{m}`", num(median([delta_e[m][mat] for mat in common]), 2), num(median([logcos[m][mat] for mat in common])),
+             num(median([c["render_ratio"] for c in costs[m]]), 2),
+             num(median([c.get("mqueries_per_s") for c in costs[m]]), 1), num(median([c.get("fit_time_s") for c in costs[m]]), 1),
+             str(costs[m][0].get("parameters", "—")) if costs[m] else "—"] for m in models]
+    lines += [f"Pooled over {', '.join(common)} (the materials every model fits; medians): the numbers of the "
+              "report's pooled chart.", ""]
+    lines += table(["model", "ΔE mean", "log-cos RMSE", "render time ÷ roughconductor", "M queries/s", "fit s",
+                    "parameters"], rows)
+    rows = [[f"`{f['model']}`", f["condition"], f"{f['failed']}/{f['cells']}", num(f.get("median_error")),
+             ", ".join(f"{k} {v}" for k, v in f.get("causes", {}).items()) or "—"]
+            for f in study.get("failures", [])]
+    lines += ["Failure map: a cell fails on a non-finite loss, an optimiser failure, a refused fit or export, or an "
+              "error above twice the same model's noise-free DS1 median.", ""]
+    lines += table(["model", "condition", "failed / cells", "median log-cos RMSE", "causes"], rows)
+    for group in study.get("groups", []):
+        names = group["materials"]
+        rows = [[member["label"], f"`{member['model']}`", num(member["median"])]
+                + [num(next((x["median"] for x in member["per_material"] if x["material"] == n), None)) for n in names]
+                for member in group["members"]]
+        lines += [f"Group *{group['group']}*: median log-cos RMSE over seeds per material, and the median of those:", ""]
+        lines += table(["member", "model", "median"] + names, rows)
+    lines += _seed_lines(study["points"])
+    return lines
+
+
+def _seed_lines(points) -> list[str]:
+    """How many noise-free cell groups (model, material, plan) have the same error for every seed."""
+    groups: dict[tuple, list] = defaultdict(list)
+    for p in points:
+        error = (p.get("error") or {}).get("hemisphere_logcos_rmse")
+        if error is not None:
+            groups[(p["model"], p["material"], p["plan"], p["noise"])].append(error)
+    same, total = Counter(), Counter()
+    for (model, _, _, noise), errors in groups.items():
+        if len(errors) > 1 and noise == 0:
+            total[model] += 1
+            same[model] += len({round(e, 12) for e in errors}) == 1
+    if not total:
+        return []
+    rows = [[f"`{m}`", f"{same[m]}/{total[m]}"] for m in total]
+    return ["Seeds: noise-free groups (model, material, plan) with more than one seed in which every seed gave the "
+            "same error. A fit that is deterministic without noise spreads over materials only; its spread over "
+            "seeds is no evidence of stability.", ""] + table(["model", "groups with one error for all seeds"], rows)
+
+
+def studies_section() -> list[str]:
+    lines = ["## The study", "",
+             "`neuralbrdf study` (see [study.md](study.md)): every variant fitted to every material, scored against "
+             "the truth, timed against `roughconductor` in the same process, and swept over plans, noise and seeds.",
+             ""]
+    for relative, report in STUDIES:
+        if (ROOT / relative).is_file():
+            lines += study_section(relative, report)
+    return lines
+
+
+# -- the spectral NLB (benchmarks/nlb_spectral_pretrain.json, benchmarks/spectral_nlb.json) ----------
+
+
+def curve_points(curve: list[dict]) -> str:
+    """``step: value`` of a pretraining's validation curve, in one line."""
+    return " · ".join(f"{p['step']}: {p['val_logcos_rmse']:.4f}" for p in curve)
+
+
+def spectral_nlb_section() -> list[str]:
+    lines = ["## The spectral NLB", ""]
+    if (ROOT / SPECTRAL_PRETRAIN).is_file():
+        run = load(SPECTRAL_PRETRAIN)
+        best = min(run["curve"], key=lambda p: p["val_logcos_rmse"])
+        lines += ["### Pretraining", ""]
+        lines += source_lines(SPECTRAL_PRETRAIN, run.get("command", "neuralbrdf train fit --config nlb_spectral_pretrain"))
+        lines += [f"{run['curve'][-1]['step']} steps of 8192 samples in {run['wall_time_s'] / 60:.0f} min; the best "
+                  f"validation log-cos RMSE {best['val_logcos_rmse']:.4f} at step {best['step']} (epoch "
+                  f"{best['epoch']}) is the shipped `neuralbrdf/pretrained/nlb_spectral.ckpt`. By step: "
+                  f"{curve_points(run['curve'])}. Drawn in [nlb_spectral_pretrain_curve.png](nlb_spectral_pretrain_curve.png).",
+                  ""]
+    lines += ["### Against the RGB NLB, ABC and the spectral MLP", "",
+              "Each group's materials fitted from one plan by the spectral NLB (`configs/nlb_spectral.yaml`: "
+              "spectral measurements band by band, RGB proxies per channel), the RGB NLB's default fit, the in-plane "
+              "ABC fit and, for the virtual groups, the spectral MLP; each scored by `neuralbrdf evaluate` against the "
+              "material's truth (hemisphere log-cos RMSE; image ΔE2000 at 128 px, 64 spp, `llvm_ad_rgb` for proxies "
+              "and `llvm_ad_spectral` for virtual materials, matched seeds). Settings are chosen on the validation "
+              "groups (`rgl_validation`, `virtual_validation`), never on the others.", ""]
+    if not (ROOT / SPECTRAL_NLB).is_file():
+        return lines + [f"No result file is committed: `python benchmarks/spectral_nlb.py` writes `{SPECTRAL_NLB}`, "
+                        "and `python docs/make_results.py` then shows it here.", ""]
+    data = load(SPECTRAL_NLB)
+    lines += source_lines(SPECTRAL_NLB, "python benchmarks/spectral_nlb.py", data.get("machine"))
+    return lines + spectral_nlb_tables(data)
+
+
+def spectral_nlb_tables(data: dict) -> list[str]:
+    """The tables of a ``benchmarks/spectral_nlb.json``: per group, every material and method."""
+    lines = []
+    if data.get("spectral_args"):
+        lines += [f"Spectral NLB settings: `{' '.join(data['spectral_args'])}`.", ""]
+    for label, block in data["groups"].items():
+        methods = list(dict.fromkeys(m for row in block["materials"].values() for m in row))
+
+        def cell(scores):
+            if scores is None:
+                return "—"
+            if "failed" in scores:
+                return "failed"
+            return f"{num(scores.get('hemisphere_logcos_rmse'))} / {num(scores.get('image_delta_e2000_mean'), 2)}"
+
+        rows = [[name] + [cell(row.get(m)) for m in methods] for name, row in block["materials"].items()]
+        lines += [f"#### {label}", "", "Hemisphere log-cos RMSE / image ΔE2000 mean:", ""]
+        lines += table(["material"] + [f"`{m}`" for m in methods], rows)
+        summary = block.get("summary", {})
+        for metric in ("hemisphere_logcos_rmse", "image_delta_e2000_mean"):
+            if metric not in summary:
+                continue
+            result = summary[metric]
+            medians = ", ".join(f"`{m}` {num(v, 4 if 'logcos' in metric else 2)}" for m, v in result["median"].items())
+            beats = result.get("nlb_spectral_beats", {})
+            wins = ", ".join(f"`{m}` on {v:.0%}" for m, v in beats.items())
+            lines += [f"- {metric}, medians over {result.get('materials', len(rows))} materials: {medians}"
+                      + (f"; the spectral NLB beats {wins} of them." if wins else ".")]
+        failed = {m: n for m, n in summary.get("failed", {}).items() if n}
+        if failed:
+            lines += [f"- failed fits: {', '.join(f'`{m}` {n}' for m, n in failed.items())}."]
+        lines += [""]
+    return lines
+
+
+# -- the page -----------------------------------------------------------------------------------
+
+
+def build() -> str:
+    lines = ["# Results", "",
+             "<!-- Generated by docs/make_results.py from the committed result files: edit the script, not this "
+             "page. -->", "",
+             "Every table below is computed by `python docs/make_results.py` from a result file committed in "
+             "`benchmarks/` or `docs/study/`; each section names its file, the command that rewrites it and the "
+             "machine it ran on. Absolute times are of that machine; compare ratios measured in one run. "
+             "Metrics are defined in [evaluate.md](evaluate.md#metrics); the decisions they justify are in "
+             "[design.md](design.md).", "",
+             "Contents: [NLB against ABC](#nlb-latent-fits-against-abc-on-merl-proxies) · "
+             "[networks](#pretrained-networks-compared) · [latent prior](#the-latent-priors-weight) · "
+             "[rendered held-out ten](#where-users-look-the-held-out-ten-rendered) · "
+             "[ABC against NLB in the image](#abc-against-nlb-in-the-image-the-reports-five) · "
+             "[speed](#rendering-speed-and-throughput) · [level of detail](#level-of-detail-selection-on-the-demo-scenes) · "
+             "[study](#the-study) · [spectral NLB](#the-spectral-nlb)", ""]
+    for section in (nlb_section, networks_section, prior_section, render_check_section, accuracy_section,
+                    speed_section, lod_section, studies_section, spectral_nlb_section):
+        lines += section()
+    while lines and lines[-1] == "":
+        lines.pop()
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--check", action="store_true", help="exit 1 if docs/results.md differs from what is built")
+    args = parser.parse_args(argv)
+    text = build()
+    if args.check:
+        current = OUT.read_text(encoding="utf-8") if OUT.is_file() else ""
+        if current != text:
+            print(f"{OUT.relative_to(ROOT)} is stale: run python docs/make_results.py", file=sys.stderr)
+            return 1
+        return 0
+    OUT.write_text(text, encoding="utf-8")
+    print(f"wrote {OUT.relative_to(ROOT)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
