@@ -99,6 +99,9 @@ OUTPUT_RGB = "f_rgb"
 #: ... and a cheaper copy of ``f``.
 OUTPUT_FAST = "f_fast"
 FAST_PATH_OUTPUTS = (OUTPUT_RGB, OUTPUT_FAST)
+#: Metadata namespaces ``neuralbrdf.<name>.*`` any kind may carry besides its own and its fast
+#: paths' (``ladder``: a rung's parent, error and cost, :mod:`neuralbrdf.lod.ladder`).
+SHARED_NAMESPACES = ("ladder",)
 #: Metadata fields of a fast path, ``neuralbrdf.<output>.<field>`` (:func:`fast_path_key`).
 FAST_PATH_KEYS = ("approximates", "hemisphere_logcos_rmse", "relative_cost")
 
@@ -432,6 +435,11 @@ def _check_metadata(metadata: Mapping[str, str], path, is_spectral: bool):
         )
     if not metadata[MATERIAL_KEY].strip():
         raise InputError("material name is empty", path=path, column=MATERIAL_KEY)
+    foreign = sorted(key for key in metadata if key.startswith("neuralbrdf.") and key.count(".") >= 2
+                     and key.split(".")[1] not in (kind, *FAST_PATH_OUTPUTS, *SHARED_NAMESPACES))
+    if foreign:  # e.g. a fitted model whose kind was edited to 'reference': its own keys say what it is
+        raise InputError(f"metadata key {foreign[0]!r} belongs to kind {foreign[0].split('.')[1]!r}, but the file "
+                         f"declares kind {kind!r}", path=path, column=KIND_KEY)
     wavelength_keys = [k for k in (WAVELENGTH_MIN_KEY, WAVELENGTH_MAX_KEY) if k in metadata]
     wavelength_range = None
     if is_spectral:

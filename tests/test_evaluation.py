@@ -317,7 +317,7 @@ def test_a_model_sampled_with_another_files_proposal_renders_the_same_expectatio
 
 @pytest.mark.parametrize("options, message", [
     (["--resolution", "1"], "--resolution must be 16 to 2048 pixels, got 1"),
-    (["--resolution", "100000"], "--resolution must be 16 to 2048 pixels, got 100000"),
+    (["--resolution", "100000"], "--resolution must be 16 to 2048 pixels, got 100000 (larger images are not needed"),
     (["--spp", "0"], "--spp must be a positive integer, got 0"),
     (["--seed", "-5"], "--seed must be a non-negative integer, got -5"),
     (["--variant", "bogus"], "unknown Mitsuba variant 'bogus'"),

@@ -173,6 +173,19 @@ def test_abc_without_parameters(tmp_path):
     expect_error(path, "ABC model lacks metadata keys", ABC_KD_KEY)
 
 
+def test_a_kind_edited_away_from_its_own_metadata_is_refused(tmp_path):
+    """A fitted ABC file whose kind is edited to 'reference' would pass as a ground truth; its own
+    keys say what it is."""
+    metadata = {**contract_metadata("abc", "m", "p", kind_metadata=ABC.entries()), KIND_KEY: "reference"}
+    path = fx.save(fx.tiny_rgb_model(metadata), tmp_path / "edited.onnx")
+    expect_error(path, f"metadata key {ABC_A_KEY!r} belongs to kind 'abc', but the file declares kind 'reference'")
+
+
+def test_ladder_metadata_is_allowed_on_any_kind(tmp_path):
+    metadata = {**fx.rgb_metadata("nlb", "brass"), "neuralbrdf.ladder.rung": "fast"}
+    assert load_model(fx.save(fx.tiny_rgb_model(metadata), tmp_path / "rung.onnx")).kind == "nlb"
+
+
 def test_nan_weights(tmp_path):
     weight = np.full((6, 3), 0.1, dtype=np.float32)
     weight[2, 1] = math.nan

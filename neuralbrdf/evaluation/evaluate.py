@@ -104,8 +104,10 @@ def check_settings(settings: RenderSettings, model_path: Path, render_images: bo
     if settings.spp < 1:
         raise InputError(f"--spp must be a positive integer, got {settings.spp}")
     if not MIN_RESOLUTION <= settings.resolution <= MAX_RESOLUTION:
+        why = (f"below {MIN_RESOLUTION} the sphere covers too few pixels for the image metrics to score it"
+               if settings.resolution < MIN_RESOLUTION else "larger images are not needed to score a model")
         raise InputError(f"--resolution must be {MIN_RESOLUTION} to {MAX_RESOLUTION} pixels, got {settings.resolution} "
-                         f"(below {MIN_RESOLUTION} the sphere covers too few pixels for the image metrics to score it)")
+                         f"({why})")
     from neuralbrdf.render.preview import Material, check_render_size, default_spp_per_pass, set_variant
 
     wavefront = Material(model=model_path, backend=settings.backend).needs_wavefront
