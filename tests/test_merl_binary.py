@@ -114,11 +114,15 @@ def test_the_merl_truth_module_follows_merls_lookup(merl_file):
     theta = np.degrees(np.arccos(rng.uniform(0.02, 1, (2, n))))
     wi = spherical_to_vector(theta[0], rng.uniform(0, 360, n))
     wo = spherical_to_vector(theta[1], rng.uniform(0, 360, n))
-    with pytest.warns(UserWarning, match="did not measure"):
-        expected = brdf.evaluate(wi, wo)
+    expected = brdf.evaluate(wi, wo)  # no pair reaches the unmeasured theta_d cells (below 87 deg here)
     got = MerlTruth(brdf)(torch.tensor(wi, dtype=torch.float32), torch.tensor(wo, dtype=torch.float32)).numpy()
     same = np.isclose(got, expected, rtol=1e-5, atol=1e-7).all(axis=1)
     assert same.mean() > 0.999  # float32 indices may land a pair on a cell boundary in the next cell
+    grazing_i = spherical_to_vector(np.array([89.8]), np.array([0.0]))  # theta_d ~ 89.8: a cell MERL did not measure
+    grazing_o = spherical_to_vector(np.array([89.8]), np.array([180.0]))
+    with pytest.warns(UserWarning, match="did not measure"):
+        assert not brdf.evaluate(grazing_i, grazing_o).any()
+    assert not MerlTruth(brdf)(torch.tensor(grazing_i).float(), torch.tensor(grazing_o).float()).any()
     below = wi.copy()
     below[:, 2] *= -1
     assert not MerlTruth(brdf)(torch.tensor(below[:5]).float(), torch.tensor(wo[:5]).float()).any()
