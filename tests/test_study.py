@@ -735,3 +735,20 @@ def test_parameter_count_of_an_abc_file_counts_every_fitted_value(tmp_path):
     path = tmp_path / "abc.onnx"
     write_model(abc_kind.exportable(parameters, "m", "test"), path)
     assert parameter_count(onnx.load(str(path)), "abc") == 3 + 3 + 3
+
+
+def test_seeds_that_repeat_a_fit_exactly_count_once():
+    """A deterministic fit run at five seeds is one fit: the stability figures, the group tables and
+    the seed captions see one point, while seeds that changed the result all stay."""
+    def point(model, seed, error, noise=0.0):
+        return {"material": "gold", "model": model, "plan": "DS1", "noise": noise, "seed": seed, "failure": None,
+                "error": {aggregate.THRESHOLD_METRIC: error, "per_angle_list": [seed]}}
+
+    same = [point("nlb", seed, 0.01) for seed in range(5)]
+    varied = [point("abc", seed, 0.02 + seed * 1e-4) for seed in range(5)]
+    noisy = [point("nlb", seed, 0.01, noise=0.01) for seed in range(2)]  # same value, another condition
+    kept = aggregate.distinct_fits(same + varied + noisy)
+    assert [(p["model"], p["seed"], p["noise"]) for p in kept] == [
+        ("nlb", 0, 0.0), *[("abc", s, 0.0) for s in range(5)], ("nlb", 0, 0.01)]
+    table = aggregate.groups(same + varied, {"g": [("NLB", "nlb"), ("ABC", "abc")]}, ["gold"])[0]
+    assert [row["cells"] for row in table["members"]] == [1, 5]

@@ -41,6 +41,20 @@ CAUSES = ("non_finite_loss", "optimizer_failure", "fit_refused", "error_above_2x
 COST_FROM_MAIN = ("render_ratio", "mqueries_per_s", "parameters", "fastest_backend")
 
 
+def distinct_fits(points: list[dict]) -> list[dict]:
+    """``points`` without those that repeat another seed's result exactly (same material, model,
+    plan, noise, errors and failure): a deterministic fit run at several seeds is one fit, and a
+    spread over its copies would claim a stability nobody measured."""
+    seen, kept = set(), []
+    for p in points:
+        identity = (p["material"], p["model"], p["plan"], p["noise"], p.get("failure"),
+                    tuple(sorted((k, v) for k, v in p["error"].items() if not isinstance(v, (list, dict)))))
+        if identity not in seen:
+            seen.add(identity)
+            kept.append(p)
+    return kept
+
+
 def points_from_results(results: list[dict], methods: dict[str, str]) -> list[dict]:
     """The points of module docstring (threshold failures included), in cell order."""
     main_cost = {(r["material"], r["variant"]): r.get("cost", {}) for r in results if r.get("is_main")}
@@ -147,9 +161,10 @@ def groups(points: list[dict], members: dict[str, list[tuple[str, str]]], materi
     """Per group (``members``: group name → ``(label, model)`` pairs): the materials every member has
     a DS1 noise-free point on (in ``material_order``), and per member the median :data:`THRESHOLD_METRIC` over seeds per
     material (``per_material``, in the order of ``materials``), the median of those medians
-    (``median``) and the number of cells with a value."""
+    (``median``) and the number of distinct fits with a value (:func:`distinct_fits`)."""
     tables = []
-    runs = [p for p in points if p["plan"] == "DS1" and p["noise"] == 0.0 and p["error"].get(THRESHOLD_METRIC) is not None]
+    runs = [p for p in distinct_fits(points)
+            if p["plan"] == "DS1" and p["noise"] == 0.0 and p["error"].get(THRESHOLD_METRIC) is not None]
     for group, pairs in members.items():
         shared = shared_materials(runs, [model for _, model in pairs])
         materials = [m for m in material_order if m in shared]

@@ -70,7 +70,8 @@ def _speed_accuracy(study: dict, figures_dir: Path) -> dict:
 
 
 def _stability(study: dict, figures_dir: Path) -> dict:
-    points, figs = study["points"], {}
+    """Box plots over seeds: each distinct fit once (:func:`~neuralbrdf.study.aggregate.distinct_fits`)."""
+    points, figs = aggregate.distinct_fits(study["points"]), {}
     models = sweep_models(points)
     sweep = [p for p in points if p["model"] in models]
     plans = [plan for plan in PLAN_ORDER if any(p["plan"] == plan for p in sweep)]

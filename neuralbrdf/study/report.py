@@ -24,6 +24,7 @@ from pathlib import Path
 
 from neuralbrdf.atomic import atomic_write
 from neuralbrdf.errors import InputError
+from neuralbrdf.study import aggregate
 from neuralbrdf.study.aggregate import ACCURACY_METRIC, BUDGETS_DELTA_E, THRESHOLD_CAUSE, THRESHOLD_FACTOR
 from neuralbrdf.study.charts import CAUSE_LETTERS
 from neuralbrdf.study.figures import pooled_materials, rendered, write_figures
@@ -273,7 +274,8 @@ def _stability_section(study: dict, figs: dict, figures_dir: Path) -> str:
         ("noise", "box plots of the hemisphere log-cos error per relative noise level, per model")) if key in stability]
     seeding = "".join(f"<li>{html.escape(method)}: {html.escape(what)}</li>" for method, what in study.get("seeding", {}).items())
     parts = ["<p>Hemisphere log-cosine RMSE against the truth over seeds and materials per sampling plan "
-             "(report Figs. 6.5/6.6/6.11/6.12) and per relative measurement noise.</p>",
+             "(report Figs. 6.5/6.6/6.11/6.12) and per relative measurement noise. A seed whose fit repeats "
+             "another seed's exactly (a deterministic fit) is counted once.</p>",
              f"<p>What a seed changes:</p><ul>{seeding}</ul>" if seeding else "",
              f'<div class="pair">{"".join(sweep)}</div>']
     groups = [figure(figures_dir, stability[f"group {t['group']}"],
@@ -288,10 +290,11 @@ def _stability_section(study: dict, figs: dict, figures_dir: Path) -> str:
 
 
 def _seeds(points: list[dict], table: dict) -> str:
-    """``Over seeds 0, 1, 2`` (or ``One seed (0)``): the seeds a variant group's box plot is over."""
+    """``Over seeds 0, 1, 2`` (or ``One seed (0)``): the seeds of distinct fits a variant group's box
+    plot is over."""
     models = {row["model"] for row in table["members"]}
-    seeds = sorted({p["seed"] for p in points if p["model"] in models and p["plan"] == "DS1" and not p["noise"]
-                    and p["material"] in table["materials"]})
+    seeds = sorted({p["seed"] for p in aggregate.distinct_fits(points) if p["model"] in models and p["plan"] == "DS1"
+                    and not p["noise"] and p["material"] in table["materials"]})
     return f"Over seeds {', '.join(map(str, seeds))}" if len(seeds) > 1 else f"One seed ({', '.join(map(str, seeds))})"
 
 
