@@ -1,4 +1,4 @@
-"""Accuracy where users look: fitted models against their truths (SPEC §5, §9; issue "ground truth").
+"""Accuracy where users look: fitted models against their truths (SPEC §5, §9).
 
     python benchmarks/accuracy.py [--out benchmarks/accuracy.json] [--work-dir out/accuracy] [--quick]
         [--part all|virtual|merl]

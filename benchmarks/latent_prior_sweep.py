@@ -1,4 +1,4 @@
-"""The latent prior's weight, swept (issue 14; README, *NLB latent prior*).
+"""The latent prior's weight, swept (docs/models.md, *NLB latent prior*).
 
     python benchmarks/latent_prior_sweep.py [--checkpoints nlb_latent32_blends,nlb_compact]
         [--weights 0,0.001,0.003,0.01,0.03,0.1,1] [--codes all|measured] [--plans DS1]

@@ -1,4 +1,4 @@
-"""Accuracy and fit time of the models against the targets of the models issue (SPEC §4, §5, §8).
+"""Accuracy and fit time of the models against their targets (SPEC §4, §5, §8).
 
     python benchmarks/models.py [--quick] [--only-nlb] [--checkpoint X.ckpt] [--out benchmarks/models.json]
 
@@ -18,7 +18,7 @@ machine, seeds from the configs:
    (no screening of starts), (b) an ABC fit on the same DS1
    samples, (c) Löw et al.'s published full-data ABC parameters; wall time of the latent fit of
    one material alone and per material in batches of 15 and of 100 (the 50 proxies on DS1 and
-   DS3).  Targets of the NLB issue on the held-out subset: (a) DS1 beats (b) on ≥ 80 % with a
+   DS3).  Targets on the held-out subset: (a) DS1 beats (b) on ≥ 80 % with a
    median ≤ 0.75 × (b)'s, beats (c) on ≥ 50 %, DS3 median ≤ 1.3 × DS1's; fits ≤ 5 s single,
    ≤ 1 s per material batched.
 4. **Pretraining** of the shipped checkpoint, if its run directory is given with
@@ -204,7 +204,7 @@ def nlb_vs_abc(work: Path, quick: bool, checkpoint: str | None, plans=("DS1", "D
 
 
 def _summary(rows: dict) -> dict:
-    """Medians and the issue's win rates over a group of materials."""
+    """Medians and the targets' win rates over a group of materials."""
     if not rows:
         return {}
     keys = [k for k in (*NLB_COLUMNS, "abc_DS1", "abc_low2012")

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Rendered-image check of NLB latent fits (issue 14): the held-out ten fitted from DS1 with each
+# Rendered-image check of NLB latent fits : the held-out ten fitted from DS1 with each
 # pretrained network, exported, and scored by `neuralbrdf evaluate` against the NBRDF proxy's own
 # export (material-preview scene, llvm_ad_rgb, 128 px, 256 spp; direction metrics beside the image).
 #   benchmarks/nlb_render_check.sh OUT_DIR [CHECKPOINT[:PRIOR_WEIGHT[:PRIOR_CODES]] ...]

@@ -17,7 +17,7 @@
 
   On linear values Eq. 5.1 fits the glossy peak (many sr⁻¹) and leaves the off-specular
   region (~0.01 sr⁻¹) almost unconstrained; a relative or logarithmic residual scores every
-  region by its *relative* error (the comparison is in the README, spectral MLP).
+  region by its *relative* error (the comparison is in docs/design.md, *Spectral MLP loss*).
 * :func:`l1_loss` — mean absolute error (Fan et al. 2022, the NLB latent fits);
 * :func:`nlb_loss` — that L1 in the linear or the log-cosine domain (:func:`log_cosine`).
 

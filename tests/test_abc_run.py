@@ -50,7 +50,7 @@ def _fit(tmp_path, *args):
 
 def test_fit_recovers_known_parameters_and_writes_the_run(tmp_path):
     path = _table_of(tmp_path, lambda wi, wo: abc_brdf(wi, wo, **{k: np.asarray(v) for k, v in KNOWN.items()}))
-    # the flow the README documents: --data.path alone (issue 8: it used to need --data.virtual null)
+    # the flow the docs describe: --data.path alone, no --data.virtual null needed
     status, run_dir = _fit(tmp_path, "--data.path", str(path))
     assert status == 0
     metrics = json.loads((run_dir / "metrics.json").read_text())
@@ -75,7 +75,7 @@ def test_a_failed_fit_is_reported_as_failed(tmp_path):
     metrics = json.loads((run_dir / "metrics.json").read_text())
     assert metrics["fit/abc/success"] is False and metrics["fit/abc/failure_reason"]
     assert metrics["fit/train/success"] == 0.0
-    # Issue 13 class 3: the failure is also the command's (exit 1, status failed, no best).
+    # The failure is also the command's (exit 1, status failed, no best).
     assert status == 1 and metrics["status"] == "failed" and metrics["fit/abc/failure_reason"] in metrics["cause"]
     assert not (run_dir / "checkpoints" / "best.ckpt").exists()
 

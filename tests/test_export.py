@@ -423,13 +423,13 @@ def _edited(make, edit):
 _resized_spectral_mlp = _edited(
     spectral_mlp_checkpoint, lambda c: c["state_dict"].__setitem__("network.layers.0.weight", torch.zeros(4, 3))
 )
-#: Issue 13 class 5: hyper-parameters asking for ~7e9 weights, refused before allocation.
+#: Hyper-parameters asking for ~7e9 weights, refused before allocation.
 _huge_spectral_mlp = _edited(spectral_mlp_checkpoint, lambda c: c["hyper_parameters"].__setitem__("hidden", 60_000))
 _huge_nlb = _edited(nlb_checkpoint, lambda c: c["nlb_config"].__setitem__("width", 60_000))
 
 
 def test_out_equal_to_the_checkpoint_is_refused_and_the_checkpoint_kept(tmp_path, capsys):
-    """Issue 13 class 1: ``--out c.ckpt --ckpt c.ckpt`` used to replace the checkpoint."""
+    """``--out c.ckpt --ckpt c.ckpt`` must not replace the checkpoint."""
     path = spectral_mlp_checkpoint(tmp_path / "c.ckpt")
     before = path.read_bytes()
     assert export_command.main(["--ckpt", str(path), "--out", str(path)]) == 2
@@ -499,7 +499,7 @@ class _CancellingNetwork(torch.nn.Module):
     """``f = exp(y + 0.5)`` where ``y`` is a difference of two equal sums of terms of size ~300: zero
     in exact arithmetic, float32 rounding (~4e-3) in practice — a well-defined model whose float32
     evaluation order matters, like deep networks with exponential outputs at grazing angles
-    (a correct NLB latent fit of nylon was refused at 1.1e-5 relative before issue 8)."""
+    (a correct NLB latent fit of nylon would be refused at 1.1e-5 relative by a bound without it)."""
 
     def __init__(self) -> None:
         super().__init__()

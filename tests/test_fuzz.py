@@ -1,4 +1,4 @@
-"""Property-based tests of the readers of untrusted files (issue 13 class 9; SPEC §12).
+"""Property-based tests of the readers of untrusted files (SPEC §12).
 
 For any byte string, and for any mutation of a valid file, the CSV reader, the BRDF table and
 GCMS readers (and :func:`~neuralbrdf.data.loading.load_measurement`), the ONNX contract check

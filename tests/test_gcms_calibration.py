@@ -121,7 +121,7 @@ def test_negative_calibrated_values_within_the_table_tolerance_are_clipped_with_
 
 @pytest.mark.parametrize("beta", [-1e-3, -1000.0])
 def test_negative_calibrated_values_beyond_the_tolerance_are_refused_at_their_cell(tmp_path, beta):
-    """Issue 13 class 7: a cell of -1000 (or -1e-3 among values of ~1) is not sensor noise."""
+    """A cell of -1000 (or -1e-3 among values of ~1) is not sensor noise."""
     _, sample, reference = _session()
     sample.beta[3, 10] = beta
     write_gcms(sample, tmp_path / "sample.csv")

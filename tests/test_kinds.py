@@ -1,4 +1,4 @@
-"""The kind registry (issue 12): one module per kind, found without a list to edit; the
+"""The kind registry: one module per kind, found without a list to edit; the
 exporter, the contract check and the renderer's proposal all ask it."""
 
 import subprocess

@@ -1,4 +1,4 @@
-"""The package's layers point one way (issue 12): every import, at module level or inside a
+"""The package's layers point one way: every import, at module level or inside a
 function, goes from a floor to the same floor or one below, and the packages never import each
 other in a cycle.  Read bottom-up::
 

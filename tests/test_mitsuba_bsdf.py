@@ -157,7 +157,7 @@ def _large_model():
 
 
 def test_drjit_backend_refuses_networks_above_its_budget_before_compiling(monkeypatch):
-    """Issue 13 class 5: the size is counted from the weights, and refused, before any unrolling."""
+    """The size is counted from the weights, and refused, before any unrolling."""
     from types import SimpleNamespace
 
     from neuralbrdf.errors import InputError

@@ -647,7 +647,7 @@ def latent_run(pretrained_run, tmp_path, sources, *extra):
     ids=["few-epochs", "uneven-epochs", "early-stop"],
 )
 def test_latent_fit_checkpoint_is_the_model_its_metrics_describe(pretrained_run, tmp_path, extra, steps):
-    """Issue 13, class 4: fitted.ckpt always exists and holds the final latents, which the
+    """fitted.ckpt always exists and holds the final latents, which the
     last-logged metrics describe (validation follows the last step whatever the epoch count)."""
     module = tiny_module()
     sources = [{"path": str(network_table(module, k, "DS2", tmp_path / f"m{k}.csv"))} for k in (1, 4)]

@@ -222,7 +222,7 @@ def test_contract_metadata_refuses_what_load_model_refuses():
         contract_metadata("spectral_mlp", "m", "p", wavelength_range_nm=(700.0, 400.0))
 
 
-# --------------------------------------------------------------------------- issue 13: classes 5 and 6
+# --------------------------------------------------------------------------- damaged and hostile files
 
 
 class _NegativeNearMirror(torch.nn.Module):
@@ -237,7 +237,7 @@ class _NegativeNearMirror(torch.nn.Module):
 
 
 def test_the_old_80_direction_probe_misses_a_negative_mirror_spike_the_dense_probe_finds(tmp_path):
-    """Issue 13 class 6: a model negative only near the mirror direction is refused at load."""
+    """A model negative only near the mirror direction is refused at load."""
     import onnx_fixtures as fx
     import onnxruntime
 
@@ -263,7 +263,7 @@ def test_dense_probe_covers_mirror_and_grazing_directions():
 
 
 def test_external_weight_data_is_refused_before_it_is_read(tmp_path):
-    """Issue 13 class 5: a file claiming GBs of external data is refused without reading them."""
+    """A file claiming GBs of external data is refused without reading them."""
     from onnx import TensorProto
 
     model = fx.tiny_rgb_model()

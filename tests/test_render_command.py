@@ -144,11 +144,11 @@ def test_bad_input_exits_2_with_one_line(models, case, tmp_path, capsys):
     assert list(tmp_path.iterdir()) == []
 
 
-# --------------------------------------------------------------------------- issue 13
+# --------------------------------------------------------------------------- bad input and outputs
 
 
 def test_user_errors_are_one_line_before_any_rendering(models, tmp_path, capsys, monkeypatch):
-    """Issue 13 classes 1 and 8: outputs and sizes are checked before rendering starts."""
+    """Outputs and sizes are checked before rendering starts."""
     from neuralbrdf.render import preview
 
     monkeypatch.setattr(preview, "render_passes", lambda *a, **k: pytest.fail("rendered before refusing"))
@@ -187,7 +187,7 @@ def test_cuda_variant_without_a_gpu_is_one_line(models, tmp_path, capsys):
 
 
 def test_negative_model_values_are_clamped_and_counted(tmp_path, monkeypatch, capsys):
-    """Issue 13 class 6: what the load-time probe misses never reaches the image as negative radiance."""
+    """What the load-time probe misses never reaches the image as negative radiance."""
     import torch
     import onnx_fixtures as fx
     from neuralbrdf import onnx_contract
@@ -236,7 +236,7 @@ def test_an_llvm_older_than_19_is_one_line_before_rendering(models, tmp_path):
 
 
 def test_a_scene_loaded_without_the_plugin_registered_says_what_to_call(models, tmp_path):
-    """Issue 12 item 9: not Mitsuba's bare 'Plugin "neuralbrdf" not found!'."""
+    """Not Mitsuba's bare 'Plugin "neuralbrdf" not found!'."""
     scene = tmp_path / "mine.xml"
     scene.write_text(f'<scene version="3.0.0"><bsdf type="neuralbrdf" id="m">'
                      f'<string name="filename" value="{models["grey"]}"/></bsdf></scene>')

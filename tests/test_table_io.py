@@ -224,14 +224,14 @@ def test_failed_write_leaves_existing_file_untouched(tmp_path):
 
 
 def test_an_exact_repeat_is_kept_not_dropped(tmp_path):
-    """Issue 13 class 8: only repeats that disagree are refused; identical ones stay (no row dropped)."""
+    """Only repeats that disagree are refused; identical ones stay (no row dropped)."""
     path = tmp_path / "t.csv"
     path.write_text(f"{RGB_HEADER}\n{GOOD_ROW}\n{GOOD_ROW}\n")
     assert read_table(path).n_rows == 2
 
 
 def test_oversized_and_endless_inputs_are_refused_before_reading(tmp_path, monkeypatch):
-    """Issue 13 class 5: a CSV above the documented limit, or a FIFO/device, is never read."""
+    """A CSV above the documented limit, or a FIFO/device, is never read."""
     import os
 
     from neuralbrdf.data import csvio

@@ -192,7 +192,7 @@ def test_metrics_json_refuses_to_merge_into_a_corrupt_file(tmp_path):
 @pytest.mark.parametrize("material", ["gold", "gonio", "cyan", "magenta"])
 def test_full_training_fits_glossy_and_diffuse_against_the_truth(tmp_path, material):
     """30 epochs of the default config on the shipped DS1 data, scored against the noiseless truth on
-    the Table 5.1 test angles: glossy relative RMSE <= 0.05, diffuse <= 0.10 (issue 8 targets)."""
+    the Table 5.1 test angles: glossy relative RMSE <= 0.05, diffuse <= 0.10 (the spectral MLP's accuracy targets)."""
     shipped = instrument.default_data_path(material)
     if not shipped.is_file():
         pytest.skip(f"shipped measurement {shipped} not generated")
@@ -217,7 +217,7 @@ def test_full_training_fits_glossy_and_diffuse_against_the_truth(tmp_path, mater
     assert scores["inplane_diffuse_rel_rmse"] <= 0.10
 
 
-# --------------------------------------------------------------------------- issue 13: runs and failures
+# --------------------------------------------------------------------------- runs and failures
 
 
 def _fit(run_dir, gcms_session, *extra):
@@ -236,7 +236,7 @@ def short_run(tmp_path, gcms_session):
 
 
 def test_a_run_is_never_overwritten_without_resume_or_overwrite(short_run, gcms_session, capsys):
-    """Issue 13 class 2."""
+    """An existing run is refused, unchanged, unless --resume or --overwrite is given."""
     before = _snapshot(short_run)
     assert _fit(short_run, gcms_session) == 2
     err = capsys.readouterr().err
@@ -323,7 +323,7 @@ def test_resume_continues_from_last_appending_the_log_and_summing_wall_time(shor
 
 @pytest.mark.parametrize("damage", ["missing", "truncated"])
 def test_resume_from_a_missing_or_truncated_checkpoint_is_one_line(short_run, gcms_session, damage):
-    """Issue 13 class 8: no traceback."""
+    """No traceback."""
     last = short_run / "checkpoints" / "last.ckpt"
     if damage == "missing":
         last.unlink()
@@ -372,7 +372,7 @@ def _assert_failed_run(run_dir, cause_fragment, capsys):
     ids=["dead network after a huge learning rate", "non-finite loss"],
 )
 def test_a_failed_fit_exits_1_with_its_cause_and_no_best_checkpoint(tmp_path, gcms_session, capsys, extra, cause):
-    """Issue 13 class 3."""
+    """A failed fit is the command's failure too."""
     run_dir = tmp_path / "run"
     assert _fit(run_dir, gcms_session, *extra) == 1
     _assert_failed_run(run_dir, cause, capsys)
@@ -435,7 +435,7 @@ def test_checkpoints_are_written_whole_or_not_at_all(tmp_path, monkeypatch):
     assert [p.name for p in path.parent.iterdir()] == ["last.ckpt"]
 
 
-# --------------------------------------------------------------------------- issue 12: the command's habits
+# --------------------------------------------------------------------------- the command's habits
 
 
 def test_a_fit_ends_with_a_summary_that_says_how_to_export(tmp_path, gcms_session, capsys):

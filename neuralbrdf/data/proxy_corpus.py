@@ -31,7 +31,7 @@ sampled).
 **Blends** (``n_blends``): the 35 measured materials are a sparse sample of real appearance;
 the hypothesis is that a new material's latent lands between them, where only the analytic
 corpus constrains the network.  ``n_blends`` further materials, fixed by ``seed``, fill that
-gap (measured in the README, *Latent 32 from scratch with proxy blends*): each is the
+gap (measured in docs/design.md, *The default network*): each is the
 weighted geometric mean of two distinct proxies, ``f = f_j^a · f_k^(1 − a)`` per RGB channel
 with ``a`` uniform in :data:`BLEND_WEIGHTS`.  In log space this interpolates lobe shapes (the
 geometric mean of two Gaussian lobes is a Gaussian of intermediate width) rather than

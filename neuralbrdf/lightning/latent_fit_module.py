@@ -30,8 +30,8 @@ pretrained codes (:mod:`neuralbrdf.models.latent_prior`): a MAP fit that keeps t
 those the network learned.  ``latent_prior_codes: measured`` fits the Gaussian to the codes of
 the measured materials (``merl:``) and their blends (``merl-blend:``,
 :mod:`neuralbrdf.data.proxy_corpus`); ``all`` to every code, the analytic corpus included.
-Screening and the fit minimise the same loss.  Measured on the held-out MERL materials in the
-README (*NLB latent prior*).
+Screening and the fit minimise the same loss.  Measured on the held-out MERL materials in
+docs/design.md (*The latent prior*).
 
 **Early stopping** (``early_stop_patience``).  The fit stops when the training loss has not
 improved by a relative ``early_stop_tolerance`` for that many steps.
@@ -81,8 +81,8 @@ from neuralbrdf.models.latent_prior import gaussian_of_codes, latent_prior_penal
 from neuralbrdf.models.nlb import LatentTable
 from neuralbrdf.shipped import resolve_pretrained
 
-#: How the default checkpoint is made (for the error message when it is missing; README, *Latent 32 from
-#: scratch with proxy blends*).
+#: How the default checkpoint is made (for the error message when it is missing; docs/models.md,
+#: *Shipped RGB networks*).
 PRETRAIN_COMMAND = ("python train.py fit --config configs/nlb_pretrain.yaml --model.latent_dim 32 "
                     "--data.proxy_blends 1024 --model.n_materials 5155")
 

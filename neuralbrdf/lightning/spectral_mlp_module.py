@@ -6,7 +6,7 @@
   region without gradient, SPEC §4.4), the residual ``r`` and the floor from the config.  The
   module's defaults (``residual="linear"``, ``weight_floor=0``) are Eq. 5.1 exactly
   (``configs/spectral_mlp_paper.yaml``); ``configs/spectral_mlp.yaml`` chooses the residual
-  that fits the whole in-plane range (README, spectral MLP).
+  that fits the whole in-plane range (docs/design.md, "Spectral MLP loss").
 * **Optimiser** — Adam with a decaying learning rate, both injected from the config
   (``optimizer`` and ``lr_scheduler``, stepped once per epoch); one optimiser step per batch of
   ``data.batch_size`` samples, taken by :meth:`SpectralMlpModule.training_step` over an epoch's

@@ -8,7 +8,7 @@
   (fewer layers/units) queried out of plane like the full one
   (:class:`~neuralbrdf.models.directional.SpectralMlpOnDirections`), fitted to the teacher's
   values by Adam on the log residual ``ln(f̂ + ε) − ln(f + ε)`` (the default training loss of the
-  spectral MLP, README *Spectral MLP loss*: a ratio costs the same at every BRDF level).
+  spectral MLP, docs/design.md, *Spectral MLP loss*: a ratio costs the same at every BRDF level).
 * :func:`distill_student` — a :class:`~neuralbrdf.models.student.DirectionalStudent` (RGB or
   spectral, on Rusinkiewicz coordinates) fitted the same way: the fast paths of an exported file
   (:mod:`neuralbrdf.lod.fast_paths`) — an RGB head of a spectral model, whose teacher is the

@@ -100,7 +100,7 @@ class NlbConfig:
 #: Default for CPU rendering (SPEC §4.2: the paper size is far too slow on CPU): 48 wide, 3
 #: layers, ~6 k weights; 5184 multiply-adds per query with the latent folded into the input bias
 #: (:meth:`NlbNetwork.split_input_layer`).  Chosen by held-out error against evaluation cost
-#: among 32×4, 32×5, 48×3 and 64×4 (README, "NLB network size").
+#: among 32×4, 32×5, 48×3 and 64×4 (docs/design.md, "NLB network size").
 COMPACT = NlbConfig(latent_dim=16, width=48, depth=3, residual=False, half_vector=True)
 #: Fan et al. (2022): 256 wide, an input layer then 16 residual layers (~1.06 M weights),
 #: Cartesian directions only.
