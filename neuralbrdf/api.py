@@ -107,9 +107,9 @@ def read(source: PathLike, reference: PathLike | None = None, *, plan: str | Non
     >>> gold = nb.read("virtual:gold")
     >>> gold.kind, gold.name, gold.is_spectral, gold.samples.n_rows
     ('virtual', 'gold', True, 1001)
-    >>> nb.read("virtual:silver")
+    >>> nb.read("virtual:silver")  # doctest: +ELLIPSIS
     Traceback (most recent call last):
-    neuralbrdf.errors.InputError: unknown virtual material 'silver'; expected one of munsell_n9, cyan, magenta, gold, gonio
+    neuralbrdf.errors.InputError: unknown virtual material 'silver'; expected one of munsell_n9, cyan, magenta, gold, gonio, ...
     """
     from neuralbrdf.data.loading import load_measurement
     from neuralbrdf.data.plans import PLAN_NAMES
@@ -303,8 +303,9 @@ def load(path: PathLike) -> Model:
 
 
 def export(checkpoint: PathLike, out: PathLike, material: str | None = None) -> Model:
-    """Export a trained checkpoint (spectral MLP, ABC or NLB latent fit; ``material`` when it
-    holds several) to one ``.onnx`` file, validated against PyTorch before it is written.
+    """Export a trained checkpoint (spectral MLP, ABC, or an NLB or spectral NLB latent fit;
+    ``material`` when it holds several) to one ``.onnx`` file, validated against PyTorch before it
+    is written.
 
     >>> import tempfile, neuralbrdf as nb
     >>> quick = {"model.n_starts": 1, "data.eval_plan": None}     # one start, no hemisphere score: seconds

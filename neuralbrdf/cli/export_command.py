@@ -44,7 +44,8 @@ def _kinds_help() -> str:
 def build_parser(prog: str = "neuralbrdf export") -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog=prog,
-        description="Export a trained checkpoint (spectral MLP, NLB latent fit or ABC fit) to one self-contained "
+        description="Export a trained checkpoint (spectral MLP, ABC fit, or a latent fit of the NLB or the spectral "
+        "NLB) to one self-contained "
         "ONNX file (SPEC §6), validated against PyTorch with onnxruntime before it is written, with fast paths "
         "distilled from it (a spectral model's RGB head by default; --fast: a compact copy). Exit status: 0 "
         "written, 2 bad input, 1 the graph failed validation or a fast path its error bound (nothing written).",

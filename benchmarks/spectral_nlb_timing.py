@@ -1,0 +1,113 @@
+"""Fit time of the spectral NLB's latent fit, single and batched, beside the RGB NLB's (SPEC §4.2,
+§8).
+
+    python benchmarks/spectral_nlb_timing.py [--batch 100] [--work runs/spectral_nlb_timing]
+        [--out benchmarks/spectral_nlb_timing.json]
+
+Four fits of each of ``configs/nlb_spectral.yaml`` and ``configs/nlb_latent.yaml`` (the RGB
+NLB, the baseline measured in the same run), through ``neuralbrdf train fit`` as a user runs them:
+
+* **single, spectral**: the virtual gold measured on DS1 (31 bands, 1 % noise) alone;
+* **batched, spectral**: ``--batch`` spectral DS1 measurements in one fit — the ten virtual
+  materials (four stand-ins, six validation materials) measured again with other noise seeds
+  until the batch is full;
+* **single, RGB** and **batched, RGB**: the same tables in linear sRGB (what the RGB NLB reads;
+  the spectral NLB fits them per channel).
+
+Reported: ``fit/wall_time_s`` of each run (the latent fit proper: data set-up and the optimiser,
+not the Python start-up), per material, and the spectral NLB over the RGB NLB.  The tables are
+kept in ``--work``; the runs are redone every time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from neuralbrdf.atomic import atomic_write  # noqa: E402
+from neuralbrdf.data.calibration import calibrate  # noqa: E402
+from neuralbrdf.data.table import read_table, write_table  # noqa: E402
+from neuralbrdf.lightning.run import main as train_main  # noqa: E402
+from neuralbrdf.virtual.instrument import VirtualGoniospectrophotometer  # noqa: E402
+from neuralbrdf.virtual.materials import REFERENCE_MATERIAL, VALIDATION_MATERIALS  # noqa: E402
+
+MATERIALS = ("gold", "gonio", "cyan", "magenta", *VALIDATION_MATERIALS)
+CONFIGS = {"nlb_spectral": "nlb_spectral.yaml", "nlb": "nlb_latent.yaml"}
+NOISE = 0.01
+PLAN = "DS1"
+
+
+def measurement(work: Path, material: str, seed: int, rgb: bool) -> Path:
+    """A calibrated DS1 measurement of ``material`` (noise seed ``seed``), spectral or in sRGB."""
+    spectral = work / "tables" / f"{material}_seed{seed}.csv"
+    if not spectral.is_file():
+        sample = VirtualGoniospectrophotometer(NOISE, seed=2 * seed).measure_plan(material, PLAN)
+        reference = VirtualGoniospectrophotometer(NOISE, seed=2 * seed + 1).measure_plan(REFERENCE_MATERIAL, PLAN)
+        spectral.parent.mkdir(parents=True, exist_ok=True)
+        write_table(calibrate(sample, reference), spectral)
+    if not rgb:
+        return spectral
+    path = spectral.with_name(f"{spectral.stem}_rgb.csv")
+    if not path.is_file():
+        write_table(read_table(spectral).to_rgb(), path)
+    return path
+
+
+def fit_seconds(work: Path, method: str, tables: list[Path], label: str) -> float:
+    """``fit/wall_time_s`` of one latent fit of ``tables`` in one batch."""
+    run_dir = work / "runs" / f"{method}_{label}"
+    sources = [{"path": str(t), "name": t.stem} for t in tables]
+    args = ["fit", "--config", str(REPO / "configs" / CONFIGS[method]), "--run_dir", str(run_dir), "--overwrite",
+            "--trainer.enable_progress_bar", "false", "--data.sources", json.dumps(sources),
+            "--data.eval_plan", "null"]
+    if train_main(args) != 0:
+        raise RuntimeError(f"neuralbrdf train {' '.join(args)} failed")
+    return json.loads((run_dir / "metrics.json").read_text())["fit/wall_time_s"]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--batch", type=int, default=100, help="materials in the batched fits")
+    parser.add_argument("--work", default=str(REPO / "runs" / "spectral_nlb_timing"))
+    parser.add_argument("--out", default=str(REPO / "benchmarks" / "spectral_nlb_timing.json"))
+    args = parser.parse_args(argv)
+    work = Path(args.work)
+    load_before = os.getloadavg()
+    batches = {"single": [("gold", 0)], "batched": [(MATERIALS[i % len(MATERIALS)], i // len(MATERIALS))
+                                                    for i in range(args.batch)]}
+    results = {}
+    for colour in ("spectral", "rgb"):
+        for label, members in batches.items():
+            tables = [measurement(work, m, seed, colour == "rgb") for m, seed in members]
+            row = {"materials": len(tables)}
+            for method in CONFIGS:
+                seconds = fit_seconds(work, method, tables, f"{colour}_{label}")
+                row[method] = {"fit_s": seconds, "fit_s_per_material": seconds / len(tables)}
+            row["nlb_spectral_over_nlb"] = row["nlb_spectral"]["fit_s"] / row["nlb"]["fit_s"]
+            results[f"{colour} {label}"] = row
+    output = {
+        "command": "python benchmarks/spectral_nlb_timing.py" + (f" --batch {args.batch}" if args.batch != 100 else ""),
+        "machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
+                    "python": platform.python_version(), "load_average_before": load_before,
+                    "load_average_after": os.getloadavg()},
+        "targets": {"single_s_per_material": 2.0, "batched_s_per_material": 0.1},
+        "fits": results,
+    }
+    with atomic_write(Path(args.out)) as handle:
+        handle.write(json.dumps(output, indent=2) + "\n")
+    print(f"{'fit':<20}{'materials':>10}{'spectral NLB s/mat':>20}{'RGB NLB s/mat':>16}{'ratio':>8}")
+    for label, row in results.items():
+        print(f"{label:<20}{row['materials']:>10}{row['nlb_spectral']['fit_s_per_material']:>20.3f}"
+              f"{row['nlb']['fit_s_per_material']:>16.3f}{row['nlb_spectral_over_nlb']:>8.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
