@@ -147,6 +147,15 @@ def test_an_unknown_bound_is_one_line(tmp_path, capsys):
     assert not (tmp_path / "run").exists()
 
 
+@pytest.mark.parametrize("key, value", [("n_starts", "0"), ("n_starts", "-1"), ("max_evaluations", "0"), ("seed", "-2")])
+def test_fit_settings_out_of_range_are_one_line_before_the_run(tmp_path, capsys, key, value):
+    status = main(["fit", "--config", str(CONFIG), "--run_dir", str(tmp_path / "run"), f"--model.{key}", value])
+    err = capsys.readouterr().err
+    assert status == 2 and err.count("\n") == 1
+    assert f"'model.{key}': expected an integer >= " in err and f"got {value}" in err, err
+    assert not (tmp_path / "run").exists()
+
+
 @pytest.mark.slow
 def test_a_smooth_material_from_a_merl_binary_fits_on_ds1_and_exports(tmp_path):
     """Lambert + Beckmann as a MERL .binary, sampled on DS1 -> fitted in the Gaussian limit -> ONNX."""

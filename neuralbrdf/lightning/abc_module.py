@@ -23,6 +23,7 @@ import pytorch_lightning as pl
 from pytorch_lightning.utilities import rank_zero_warn
 
 from neuralbrdf.evaluation.scores import fit_scores
+from neuralbrdf.errors import InputError
 from neuralbrdf.fitting.abc_fit import AbcBounds, AbcFitResult, fit_abc
 from neuralbrdf.lightning.common import WritesKind
 from neuralbrdf.metrics import hemisphere_logcos_rmse
@@ -41,6 +42,9 @@ class AbcFitModule(WritesKind, pl.LightningModule):
         self, n_starts: int = 8, seed: int = 0, max_evaluations: int = 500, bounds: dict | None = None
     ) -> None:
         super().__init__()
+        for key, value, least in (("n_starts", n_starts, 1), ("max_evaluations", max_evaluations, 1), ("seed", seed, 0)):
+            if isinstance(value, bool) or not isinstance(value, int) or value < least:
+                raise InputError(f"expected an integer >= {least}, got {value!r}", column=f"model.{key}")
         self.save_hyperparameters()
         self.automatic_optimization = False
         self.bounds = AbcBounds.from_config(bounds)
