@@ -62,7 +62,7 @@ def measurement(work: Path, material: str, seed: int, rgb: bool) -> Path:
 
 def fit_seconds(work: Path, method: str, tables: list[Path], label: str) -> float:
     """``fit/wall_time_s`` of one latent fit of ``tables`` in one batch."""
-    run_dir = work / "runs" / f"{method}_{label}"
+    run_dir = work / "runs" / method / label
     sources = [{"path": str(t), "name": t.stem} for t in tables]
     args = ["fit", "--config", str(REPO / "configs" / CONFIGS[method]), "--run_dir", str(run_dir), "--overwrite",
             "--trainer.enable_progress_bar", "false", "--data.sources", json.dumps(sources),

@@ -64,7 +64,10 @@ STUDIES = (
     ("docs/study/full/study.json", "docs/study/full/index.html"),
     ("docs/study/study.json", "docs/study/index.html"),
 )
-SPECTRAL_NLB = "benchmarks/spectral_nlb.json"
+SPECTRAL_NLB = (("benchmarks/spectral_nlb.json", "python benchmarks/spectral_nlb.py"),
+                ("benchmarks/spectral_nlb_virtual.json", "python benchmarks/spectral_nlb.py --groups virtual "
+                 "--plans DS1,DS3,DS4 --out benchmarks/spectral_nlb_virtual.json"))
+SPECTRAL_NLB_VALIDATION = "benchmarks/spectral_nlb_validation.json"
 SPECTRAL_PRETRAIN = "benchmarks/nlb_spectral_pretrain.json"
 
 
@@ -381,50 +384,88 @@ def speed_section() -> list[str]:
     settings = data.get("settings", {})
     lines = ["## Rendering speed and throughput", "",
              f"Material-preview scene, {settings.get('resolution')}² at {settings.get('spp')} spp, path depth 5, "
-             f"median of {settings.get('repeats')} round-robin renders; the spectral MLP trained on the virtual gold "
-             f"({settings.get('epochs')} epochs, seed {data.get('seed')}). Render time over Mitsuba's `roughconductor` "
-             "(GGX gold, α = 0.2) in the same variant and mode, same process. Where the time goes: "
-             "[design.md](design.md#rendering-speed).", ""]
+             f"{settings.get('repeats')} renders per configuration taken round-robin; the spectral MLP trained on the "
+             f"virtual gold ({settings.get('epochs')} epochs, seed {data.get('seed')}), the default NLB network with "
+             "one pretraining material's latent, an ABC model. Render time over Mitsuba's `roughconductor` (GGX gold, "
+             "α = 0.2) in the same variant and mode, same process (median of the renders, and shortest over "
+             "shortest). Where the time goes: [design.md](design.md#rendering-speed).", ""]
     lines += source_lines(relative, data.get("command", "python benchmarks/run.py"), data.get("machine"))
-    ratio_names = []
-    for variant in data["render"].values():
-        ratio_names += [k for k in variant["ratios"] if k not in ratio_names]
-    rows = [[f"`{variant}`"] + [f"{block['ratios'][k]:.2f}×" if k in block["ratios"] else "—" for k in ratio_names]
-            for variant, block in data["render"].items()]
-    lines += table(["variant"] + [k.replace("_vs_roughconductor", " ÷ roughconductor").replace("_", " ")
-                                  for k in ratio_names], rows)
+    load_average = data.get("load_average")
+    if load_average:
+        lines += [f"Load average (1, 5, 15 min) before the run {', '.join(f'{v:.1f}' for v in load_average['before'])}, "
+                  f"after {', '.join(f'{v:.1f}' for v in load_average['after'])}.", ""]
+    rows = []
+    for variant, block in data["render"].items():
+        for name, ratio in block["ratios"].items():
+            config = block["configs"][name]
+            rows.append([f"`{variant}`", f"`{name}`", f"`{config.get('output', 'f')}`", f"{config['median_s']:.3f}",
+                         f"{ratio['median']:.2f}×", f"{ratio['shortest']:.2f}×", f"`{ratio['baseline']}`"])
+    lines += table(["variant", "model / backend", "output", "median s", "÷ baseline (median)", "÷ baseline (shortest)",
+                    "baseline"], rows)
+    rows = [[f"`{variant}`", f"`{pair}`", num(m.get("image_delta_e2000_mean"), 3), num(m.get("image_delta_e2000_p95"), 3)]
+            for variant, block in data["render"].items() for pair, m in block.get("image_errors", {}).items()]
+    if rows:
+        lines += ["Image error of each fast path against its parent (first render, seed 0, the same paths):", ""]
+        lines += table(["variant", "fast path vs parent", "ΔE2000 mean", "ΔE2000 p95"], rows)
     backends = []
     for model in data["throughput"].values():
         backends += [b for b in model["backends"] if b not in backends]
-    rows = [[f"{name} ({model.get('note', '')})"]
+    rows = [[f"{name}" + (f" ({model['note']})" if model.get("note") else "")]
             + [f"{model['backends'][b]['queries_per_s'] / 1e6:.1f}" if b in model["backends"] else "—" for b in backends]
             for name, model in data["throughput"].items()]
     batch = f"{settings.get('batch'):,}".replace(",", " ")
-    lines += [f"Evaluation throughput at a batch of {batch} queries, M queries/s:", ""]
+    lines += [f"Evaluation throughput at a batch of {batch} queries, M queries/s (`drjit_kernel`: the fused kernel's "
+              "own run time, tracing and compilation excluded):", ""]
     lines += table(["model"] + backends, rows)
     rows = [[f"`{key}`", str(value)] + _speed_measured(data, key, str(value))
             for key, value in data.get("targets", {}).items()]
     lines += ["Targets quoted by the benchmark (not asserted):", ""]
     lines += table(["quantity", "target", "measured", ""], rows)
-    return lines
+    return lines + [""] + fast_paths_section()
 
 
 def _speed_measured(data: dict, key: str, target: str) -> list[str]:
-    """The measured value of a target of ``benchmarks/results.json`` and whether it is met."""
-    first, _, name = key.partition("/")
+    """The measured value of a target of ``benchmarks/results.json`` and whether it is met: a
+    render ratio (``VARIANT/CONFIG``, median) or the worst image error of a fast path against its
+    parent (``... image dE2000 mean``)."""
     try:
-        if first in data["render"]:
-            value = data["render"][first]["ratios"][name]
-            shown = f"{value:.2f}×"
-        else:
-            model = data["throughput"][first]
-            value = model["backends"][model["fastest"]]["queries_per_s"]
-            shown = f"{value / 1e6:.1f} M/s ({model['fastest']})"
         relation, bound = target.split()[0], float(target.split()[1])
+        if key.endswith("image dE2000 mean"):
+            pair = "spectral_mlp/drjit vs" if "rgb head" in key else "nlb_fast/drjit vs"
+            values = [m["image_delta_e2000_mean"] for block in data["render"].values()
+                      for name, m in block.get("image_errors", {}).items() if name.startswith(pair)]
+            value = max(values)
+            shown = f"{value:.2f}"
+        else:
+            variant, _, name = key.partition("/")
+            value = data["render"][variant]["ratios"][name]["median"]
+            shown = f"{value:.2f}×"
     except (KeyError, IndexError, ValueError):
         return ["—", ""]
     met = value <= bound if relation == "<=" else value >= bound
     return [shown, "met" if met else "**missed**"]
+
+
+def fast_paths_section() -> list[str]:
+    relative = "benchmarks/fast_paths.json"
+    if not (ROOT / relative).is_file():
+        return []
+    data = load(relative)
+    lines = ["### Fast paths against their parents", "",
+             f"Each fast path rendered against its parent in the preview scene ({data['resolution']} px, "
+             f"{data['spp']} spp, seed 0, matched paths: the difference is the fast path's own error): the spectral "
+             "MLPs' RGB heads against the sRGB integration, and the NLB fits' compact copies against the full NLB "
+             "(the four virtual materials and the report's five MERL materials, DS1). Mosaics: "
+             "`benchmarks/fast_paths_*.png`.", ""]
+    lines += source_lines(relative, data["command"], data.get("machine"))
+    rows = [[r["fast_path"], r["material"], f"`{r['variant']}`", num(r["image_delta_e2000_mean"], 3),
+             num(r["image_delta_e2000_p95"], 3), num(r["recorded_hemisphere_logcos_rmse"])] for r in data["results"]]
+    lines += table(["fast path", "material", "variant", "ΔE2000 mean", "ΔE2000 p95", "recorded log-cos RMSE vs f"], rows)
+    targets = data["targets_mean_delta_e2000"]
+    lines += [f"- largest mean ΔE2000, {key}: {value:.3f} (target ≤ {targets[key.rsplit(' ', 1)[0]]}; "
+              f"{'met' if value <= targets[key.rsplit(' ', 1)[0]] else '**missed**'})"
+              for key, value in data["largest_mean_delta_e2000"].items()]
+    return lines + [""]
 
 
 def lod_section() -> list[str]:
@@ -594,12 +635,39 @@ def spectral_nlb_section() -> list[str]:
               "material's truth (hemisphere log-cos RMSE; image ΔE2000 at 128 px, 64 spp, `llvm_ad_rgb` for proxies "
               "and `llvm_ad_spectral` for virtual materials, matched seeds). Settings are chosen on the validation "
               "groups (`rgl_validation`, `virtual_validation`), never on the others.", ""]
-    if not (ROOT / SPECTRAL_NLB).is_file():
-        return lines + [f"No result file is committed: `python benchmarks/spectral_nlb.py` writes `{SPECTRAL_NLB}`, "
-                        "and `python docs/make_results.py` then shows it here.", ""]
-    data = load(SPECTRAL_NLB)
-    lines += source_lines(SPECTRAL_NLB, "python benchmarks/spectral_nlb.py", data.get("machine"))
-    return lines + spectral_nlb_tables(data)
+    if (ROOT / SPECTRAL_NLB_VALIDATION).is_file():
+        lines += validation_sweep_lines(load(SPECTRAL_NLB_VALIDATION))
+    for relative, command in SPECTRAL_NLB:
+        if not (ROOT / relative).is_file():
+            lines += [f"No result file is committed: `{command}` writes `{relative}`, and `python "
+                      "docs/make_results.py` then shows it here.", ""]
+            continue
+        data = load(relative)
+        lines += source_lines(relative, command, data.get("machine"))
+        lines += spectral_nlb_tables(data)
+    return lines
+
+
+def validation_sweep_lines(data: dict) -> list[str]:
+    """The settings sweep of ``benchmarks/spectral_nlb_validation.json``: each setting's mean errors
+    of the spectral NLB per validation group."""
+    lines = ["### Settings chosen on validation materials", "", data["what"], "",
+             f"Chosen: {', '.join(f'`{k}` {v}' for k, v in data['chosen'].items())}. Each sweep is `{data['command']}`.", ""]
+    groups = list(dict.fromkeys(g for sweep in data["sweeps"].values() for g in sweep["groups"]))
+    rows = []
+    for name, sweep in data["sweeps"].items():
+        row = [f"`{name}`", f"`{' '.join(sweep['spectral_args'])}`" if sweep["spectral_args"] else "defaults"]
+        for group in groups:
+            block = sweep["groups"].get(group)
+            if block is None:
+                row.append("")
+                continue
+            logcos = block["hemisphere_logcos_rmse"]["mean"]["nlb_spectral"]
+            delta_e = (block.get("image_delta_e2000_mean") or {}).get("mean", {}).get("nlb_spectral")
+            row.append(num(logcos) + ("" if delta_e is None else f" / {delta_e:.2f}"))
+        rows.append(row)
+    lines += ["Spectral NLB mean hemisphere log-cos RMSE (/ mean image ΔE2000 where rendered):", ""]
+    return lines + table(["sweep", "settings"] + groups, rows)
 
 
 def spectral_nlb_tables(data: dict) -> list[str]:
