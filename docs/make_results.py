@@ -68,6 +68,7 @@ SPECTRAL_NLB = (("benchmarks/spectral_nlb.json", "python benchmarks/spectral_nlb
                 ("benchmarks/spectral_nlb_virtual.json", "python benchmarks/spectral_nlb.py --groups virtual "
                  "--plans DS1,DS3,DS4 --out benchmarks/spectral_nlb_virtual.json"))
 SPECTRAL_NLB_VALIDATION = "benchmarks/spectral_nlb_validation.json"
+SPECTRAL_NLB_TIMING = "benchmarks/spectral_nlb_timing.json"
 SPECTRAL_PRETRAIN = "benchmarks/nlb_spectral_pretrain.json"
 
 
@@ -637,6 +638,8 @@ def spectral_nlb_section() -> list[str]:
               "groups (`rgl_validation`, `virtual_validation`), never on the others.", ""]
     if (ROOT / SPECTRAL_NLB_VALIDATION).is_file():
         lines += validation_sweep_lines(load(SPECTRAL_NLB_VALIDATION))
+    if (ROOT / SPECTRAL_NLB_TIMING).is_file():
+        lines += spectral_timing_lines(load(SPECTRAL_NLB_TIMING))
     for relative, command in SPECTRAL_NLB:
         if not (ROOT / relative).is_file():
             lines += [f"No result file is committed: `{command}` writes `{relative}`, and `python "
@@ -646,6 +649,26 @@ def spectral_nlb_section() -> list[str]:
         lines += source_lines(relative, command, data.get("machine"))
         lines += spectral_nlb_tables(data)
     return lines
+
+
+def spectral_timing_lines(data: dict) -> list[str]:
+    """The fit times of ``benchmarks/spectral_nlb_timing.json`` against their targets."""
+    lines = ["### Fit time", "", "`fit/wall_time_s` of `neuralbrdf train fit` (the fit proper, not the Python start-up), "
+             "per material, the spectral NLB beside the RGB NLB on the same tables in the same run (virtual "
+             "materials measured on DS1 with 1 % noise, as spectra or converted to sRGB).", ""]
+    lines += source_lines(SPECTRAL_NLB_TIMING, data["command"])
+    load_average = data["machine"]
+    lines += [f"Load average (1, 5, 15 min) before {', '.join(f'{v:.1f}' for v in load_average['load_average_before'])}, "
+              f"after {', '.join(f'{v:.1f}' for v in load_average['load_average_after'])}.", ""]
+    targets = data["targets"]
+    rows = []
+    for label, row in data["fits"].items():
+        target = targets["single_s_per_material" if row["materials"] == 1 else "batched_s_per_material"]
+        value = row["nlb_spectral"]["fit_s_per_material"]
+        rows.append([label, str(row["materials"]), f"{value:.3f}", f"{row['nlb']['fit_s_per_material']:.3f}",
+                     f"{row['nlb_spectral_over_nlb']:.2f}", f"≤ {target:g}", "met" if value <= target else "**missed**"])
+    lines += table(["fit", "materials", "spectral NLB s/material", "RGB NLB s/material", "ratio", "target", ""], rows)
+    return lines + [""]
 
 
 def validation_sweep_lines(data: dict) -> list[str]:
