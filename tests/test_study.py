@@ -689,7 +689,7 @@ def test_quick_profile(tmp_path):
 def test_shipped_profiles_are_valid():
     quick = load_profile("quick")
     assert [m.name for m in quick.materials] == ["gold", "nylon"]
-    assert len(plan_cells(quick)) == 20
+    assert len(plan_cells(quick)) == 22
     prior = load_profile("latent_prior")  # the prior's code sets: 9 materials x 3 fits, no renders
     assert len(plan_cells(prior)) == 27 and not any(v.speed_accuracy for v in prior.variants)
     try:
