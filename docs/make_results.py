@@ -62,6 +62,7 @@ SWEEP_FILES = (
 )
 STUDIES = (
     ("docs/study/full/study.json", "docs/study/full/index.html"),
+    ("docs/study/spectral/study.json", "docs/study/spectral/index.html"),
     ("docs/study/study.json", "docs/study/index.html"),
 )
 SPECTRAL_NLB = (("benchmarks/spectral_nlb.json", "python benchmarks/spectral_nlb.py"),

@@ -10,7 +10,7 @@ DESCRIPTION = (
     "Mitsuba's roughconductor, and write DIR/study.json, DIR/figures/*.png and DIR/index.html (SPEC §10). "
     "Finished cells are cached under DIR/cells/ by their settings: a rerun does only what is new, a killed run "
     "resumes; cached files that are damaged or belong elsewhere are redone. One study at a time runs in DIR. "
-    "PROFILE is a shipped profile (quick, full, latent_prior: configs/study/) or your own YAML file. "
+    "PROFILE is a shipped profile (quick, full, spectral, latent_prior: configs/study/) or your own YAML file. "
     "With --report-only, DIR/figures and DIR/index.html are drawn again from DIR/study.json and no cell runs. Exit "
     "status: 0 when every cell gave a model; 1 when a cell crashed (the study is incomplete; a rerun retries it) or a "
     "fit failed (unless --allow-failures); 2 for bad input. The report and study.json's health say which cells."
@@ -18,7 +18,7 @@ DESCRIPTION = (
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--profile", help="quick, full, latent_prior or a profile YAML file (needed unless --report-only)")
+    parser.add_argument("--profile", help="quick, full, spectral, latent_prior or a profile YAML file (needed unless --report-only)")
     parser.add_argument("--out", required=True, help="output folder (cache, figures, study.json, index.html)")
     parser.add_argument("--jobs", type=int, default=1, help="cells run at once, one core each (default 1)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
