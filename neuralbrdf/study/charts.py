@@ -249,8 +249,9 @@ def _box_legend_handles() -> list:
 def box_by_condition(points: list[dict], models: list[str], conditions: list, condition_of, label_of,
                      title: str, path: Path) -> str:
     """Box plots of :data:`THRESHOLD_METRIC` per condition (x) and model (boxes side by side, one
-    colour each, named in the legend), over seeds and materials; cells without an error value are
-    left out and counted in the title."""
+    colour each — a model named after a method has that method's colour of the scatter charts —
+    named in the legend), over seeds and materials; cells without an error value are left out and
+    counted in the title."""
     fig, axes = _figure(HALF_WIDTH_PX, 420)
     ax = axes[0, 0]
     width = 0.8 / max(1, len(models))
@@ -265,7 +266,7 @@ def box_by_condition(points: list[dict], models: list[str], conditions: list, co
             if values:
                 data.append(values)
                 positions.append(j + (k - (len(models) - 1) / 2) * width)
-        colour = plt.cm.tab10(k % 10)
+        colour = METHOD_COLOURS.get(model, plt.cm.tab10(k % 10))  # a method's own colour, as in the scatters
         if data:
             parts = ax.boxplot(data, positions=positions, widths=width * 0.9, patch_artist=True, manage_ticks=False,
                                medianprops={"color": "k"})
