@@ -513,7 +513,7 @@ def check_in_browser(out_dir: Path) -> dict:
 
 
 @pytest.mark.skipif(CHROMIUM is None, reason="needs Debian's chromium (installed by .ci/run)")
-@pytest.mark.parametrize("folder", ["docs/study", "docs/study/full"])
+@pytest.mark.parametrize("folder", ["docs/study", "docs/study/spectral", "docs/study/full"])
 def test_committed_reports_read_at_100_percent(folder):
     """The reports in the repository: legible at 1400 px, short with details closed, every figure
     with alt text and at its own size, every number as in their study.json."""
@@ -522,13 +522,17 @@ def test_committed_reports_read_at_100_percent(folder):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("folder", ["docs/study", "docs/study/full"])
+@pytest.mark.parametrize("folder", ["docs/study", "docs/study/spectral", "docs/study/full"])
 def test_committed_reports_are_what_their_study_json_draws(folder, tmp_path):
-    """``neuralbrdf study --report-only`` on a copy of the committed study.json gives the committed
-    page and the same figure files (redraw them after changing the report)."""
+    """``neuralbrdf study --report-only`` on a copy of the committed study.json (and the renders the
+    study copied from its cells) gives the committed page and the same figure files (redraw them
+    after changing the report)."""
     from neuralbrdf.study.report import rebuild
 
     shutil.copy(ROOT / folder / "study.json", tmp_path / "study.json")
+    renders = ROOT / folder / "figures" / "renders"  # copies of the cells' renders: inputs, not drawn
+    if renders.is_dir():
+        shutil.copytree(renders, tmp_path / "figures" / "renders")
     rebuild(tmp_path)
     assert (tmp_path / "index.html").read_text(encoding="utf-8") == (ROOT / folder / "index.html").read_text(encoding="utf-8")
     assert (tmp_path / "study.json").read_bytes() == (ROOT / folder / "study.json").read_bytes()
