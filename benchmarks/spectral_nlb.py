@@ -52,7 +52,6 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from neuralbrdf.atomic import atomic_write  # noqa: E402
-from neuralbrdf.data.calibration import calibrate  # noqa: E402
 from neuralbrdf.data.nbrdf import REPORT_MATERIALS  # noqa: E402
 from neuralbrdf.data.table import write_table  # noqa: E402
 from neuralbrdf.data.proxy_corpus import HELD_OUT, RGL_VALIDATION  # noqa: E402
@@ -60,8 +59,8 @@ from neuralbrdf.evaluation.evaluate import RenderSettings, evaluate  # noqa: E40
 from neuralbrdf.evaluation.truth import export_truth  # noqa: E402
 from neuralbrdf.lightning.run import main as train_main  # noqa: E402
 from neuralbrdf.onnx_export import export_checkpoint  # noqa: E402
-from neuralbrdf.virtual.instrument import VirtualGoniospectrophotometer  # noqa: E402
-from neuralbrdf.virtual.materials import REFERENCE_MATERIAL, VALIDATION_MATERIALS  # noqa: E402
+from neuralbrdf.sources import virtual_measurement  # noqa: E402
+from neuralbrdf.virtual.materials import VALIDATION_MATERIALS  # noqa: E402
 
 SHARED = REPO.parent / "shared" / "data"
 #: Measured groups: NBRDF proxies (RGB) of a folder.
@@ -86,7 +85,8 @@ SCORES = ("hemisphere_logcos_rmse", "image_delta_e2000_mean", "image_delta_e2000
           "inplane_diffuse_rel_rmse")
 
 
-def _train(run_dir: Path, config: str, *overrides: str) -> dict:
+def train_run(run_dir: Path, config: str, *overrides: str) -> dict:
+    """``neuralbrdf train fit`` of ``configs/CONFIG`` into ``run_dir`` (replaced); its ``metrics.json``."""
     args = ["fit", "--config", str(REPO / "configs" / config), "--run_dir", str(run_dir), "--overwrite",
             "--trainer.enable_progress_bar", "false", *overrides]
     if train_main(args) != 0:
@@ -117,10 +117,8 @@ class Group:
         """The calibrated spectral table of a virtual measurement (seed 0; kept in the work folder)."""
         path = self.work / "tables" / f"{material}_{self.plan}_noise{noise:g}.csv"
         if not path.is_file():
-            sample = VirtualGoniospectrophotometer(noise, seed=0).measure_plan(material, self.plan)
-            reference = VirtualGoniospectrophotometer(noise, seed=1).measure_plan(REFERENCE_MATERIAL, self.plan)
             path.parent.mkdir(parents=True, exist_ok=True)
-            write_table(calibrate(sample, reference), path)
+            write_table(virtual_measurement(material, self.plan, noise, seed=0, reference_seed=1), path)
         return path
 
     def data_args(self, material: str) -> list[str]:
@@ -140,7 +138,7 @@ def _fit(group: Group, method: str, run_dir: Path, extra: list[str]) -> tuple[di
     """Checkpoints and fit times (per material) of ``method`` on every material of ``group``."""
     if method in BATCHED:
         sources = [group.sources[m] for m in group.materials]
-        metrics = _train(run_dir, CONFIGS[method], "--data.sources", json.dumps(sources), "--data.plan", group.plan,
+        metrics = train_run(run_dir, CONFIGS[method], "--data.sources", json.dumps(sources), "--data.plan", group.plan,
                          "--data.eval_plan", "null", *extra)
         per_material = metrics["fit/wall_time_s"] / len(group.materials)
         return ({m: run_dir / "checkpoints" / CHECKPOINT[method] for m in group.materials},
@@ -148,7 +146,7 @@ def _fit(group: Group, method: str, run_dir: Path, extra: list[str]) -> tuple[di
     checkpoints, times = {}, {}
     for material in group.materials:
         try:
-            metrics = _train(run_dir / material, CONFIGS[method], *group.data_args(material), *extra)
+            metrics = train_run(run_dir / material, CONFIGS[method], *group.data_args(material), *extra)
         except RuntimeError as error:
             checkpoints[material], times[material] = None, str(error)
             continue

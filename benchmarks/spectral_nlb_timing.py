@@ -32,11 +32,10 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from neuralbrdf.atomic import atomic_write  # noqa: E402
-from neuralbrdf.data.calibration import calibrate  # noqa: E402
 from neuralbrdf.data.table import read_table, write_table  # noqa: E402
-from neuralbrdf.lightning.run import main as train_main  # noqa: E402
-from neuralbrdf.virtual.instrument import VirtualGoniospectrophotometer  # noqa: E402
-from neuralbrdf.virtual.materials import REFERENCE_MATERIAL, VALIDATION_MATERIALS  # noqa: E402
+from neuralbrdf.sources import virtual_measurement  # noqa: E402
+from neuralbrdf.virtual.materials import VALIDATION_MATERIALS  # noqa: E402
+from spectral_nlb import train_run  # noqa: E402  (benchmarks/spectral_nlb.py)
 
 MATERIALS = ("gold", "gonio", "cyan", "magenta", *VALIDATION_MATERIALS)
 CONFIGS = {"nlb_spectral": "nlb_spectral.yaml", "nlb": "nlb_latent.yaml"}
@@ -48,10 +47,8 @@ def measurement(work: Path, material: str, seed: int, rgb: bool) -> Path:
     """A calibrated DS1 measurement of ``material`` (noise seed ``seed``), spectral or in sRGB."""
     spectral = work / "tables" / f"{material}_seed{seed}.csv"
     if not spectral.is_file():
-        sample = VirtualGoniospectrophotometer(NOISE, seed=2 * seed).measure_plan(material, PLAN)
-        reference = VirtualGoniospectrophotometer(NOISE, seed=2 * seed + 1).measure_plan(REFERENCE_MATERIAL, PLAN)
         spectral.parent.mkdir(parents=True, exist_ok=True)
-        write_table(calibrate(sample, reference), spectral)
+        write_table(virtual_measurement(material, PLAN, NOISE, seed=2 * seed, reference_seed=2 * seed + 1), spectral)
     if not rgb:
         return spectral
     path = spectral.with_name(f"{spectral.stem}_rgb.csv")
@@ -62,14 +59,9 @@ def measurement(work: Path, material: str, seed: int, rgb: bool) -> Path:
 
 def fit_seconds(work: Path, method: str, tables: list[Path], label: str) -> float:
     """``fit/wall_time_s`` of one latent fit of ``tables`` in one batch."""
-    run_dir = work / "runs" / method / label
     sources = [{"path": str(t), "name": t.stem} for t in tables]
-    args = ["fit", "--config", str(REPO / "configs" / CONFIGS[method]), "--run_dir", str(run_dir), "--overwrite",
-            "--trainer.enable_progress_bar", "false", "--data.sources", json.dumps(sources),
-            "--data.eval_plan", "null"]
-    if train_main(args) != 0:
-        raise RuntimeError(f"neuralbrdf train {' '.join(args)} failed")
-    return json.loads((run_dir / "metrics.json").read_text())["fit/wall_time_s"]
+    return train_run(work / "runs" / method / label, CONFIGS[method], "--data.sources", json.dumps(sources),
+                     "--data.eval_plan", "null")["fit/wall_time_s"]
 
 
 def main(argv: list[str] | None = None) -> int:

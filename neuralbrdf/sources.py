@@ -76,6 +76,18 @@ def load_fit_measurement(path, reference=None) -> BrdfTable:
     return table
 
 
+def virtual_measurement(material: str, plan: str, noise: float, seed: int, reference_seed: int) -> BrdfTable:
+    """A measurement of the virtual instrument as a user makes one: ``material`` and the Munsell
+    reference each measured on ``plan`` with relative ``noise`` (noise streams ``seed`` and
+    ``reference_seed``), calibrated against the reference (spectral, sr⁻¹)."""
+    from neuralbrdf.data.calibration import calibrate
+    from neuralbrdf.virtual.instrument import VirtualGoniospectrophotometer
+
+    sample = VirtualGoniospectrophotometer(noise, seed=seed).measure_plan(material, plan)
+    reference = VirtualGoniospectrophotometer(noise, seed=reference_seed).measure_plan(REFERENCE_MATERIAL, plan)
+    return calibrate(sample, reference)
+
+
 def sample_file(path: str | os.PathLike[str], plan: str, progress: bool = False) -> BrdfTable:
     """A MERL ``.binary`` measurement or an NBRDF proxy ``.h5`` sampled on ``plan`` (RGB, sr⁻¹);
     ``progress``: a progress bar while a network is evaluated."""

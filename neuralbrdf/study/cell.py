@@ -103,14 +103,10 @@ def write_data(spec: dict, out: Path) -> Path:
         return Path(material["table"])
     out.parent.mkdir(parents=True, exist_ok=True)
     if material["truth"].startswith("virtual:"):
-        from neuralbrdf.data.calibration import calibrate
-        from neuralbrdf.virtual.instrument import VirtualGoniospectrophotometer
-        from neuralbrdf.virtual.materials import REFERENCE_MATERIAL
+        from neuralbrdf.sources import virtual_measurement
 
-        name = material["truth"].split(":", 1)[1]
-        sample = VirtualGoniospectrophotometer(cell["noise"], seed=cell["seed"]).measure_plan(name, cell["plan"])
-        reference = VirtualGoniospectrophotometer(cell["noise"], seed=cell["seed"] + REFERENCE_SEED_OFFSET)
-        table = calibrate(sample, reference.measure_plan(REFERENCE_MATERIAL, cell["plan"]))
+        table = virtual_measurement(material["truth"].split(":", 1)[1], cell["plan"], cell["noise"], cell["seed"],
+                                    cell["seed"] + REFERENCE_SEED_OFFSET)
     else:  # an NBRDF proxy or a MERL measurement
         from neuralbrdf.sources import sample_file
 
