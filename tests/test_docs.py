@@ -4,6 +4,8 @@ README.md is a front page (at most 200 lines) with the test command .ci/run extr
 relative link and image in the user docs resolves to a file of the repository (section anchors
 included); no page cites the specification kept outside the repository or sends users to the
 folder beside the checkout, except where the reference data must be found (:data:`OUTSIDE_ALLOWED`);
+no docstring, comment, message or config of the code cites that specification, and the package
+names that folder only where it reads the reference data (:data:`CODE_OUTSIDE_ALLOWED`);
 no page tells the project's history; docs/results.md and the README's caption of the main job are
 exactly what docs/make_results.py writes from the committed result files; and the README's command
 table names every ``neuralbrdf`` subcommand.
@@ -42,6 +44,19 @@ OUTSIDE = re.compile(r"\.\./shared\b|/work/shared\b")
 OUTSIDE_ALLOWED = {
     "README.md": ("`../shared/data/{merl-nbrdf,rgl-nbrdf,abc-low2012}` beside the checkout",),
     "docs/study.md": ("those starting with `../shared/` are\n  relative to the repository root",),
+}
+#: The source files whose text users and maintainers read: the package, configs, scenes, scripts, tests.
+SOURCES = sorted(
+    path for folder in ("neuralbrdf", "configs", "export", "benchmarks", "tests", "examples") for path in
+    (ROOT / folder).rglob("*") if path.suffix in {".py", ".yaml", ".xml", ".sh"} and path.name != "test_docs.py"
+) + [ROOT / "train.py"]
+#: The package's lines that name the folder beside the checkout, each because the code reads the
+#: reference data there; docstrings and comments describe that data instead.
+CODE_OUTSIDE_ALLOWED = {
+    "neuralbrdf/study/profile.py": (
+        'elif text.startswith("../shared"):',
+        "starting with ``../shared`` are relative to the repository root, others to the profile file.",
+    ),
 }
 LINK = re.compile(r"!?\[(?P<text>[^\]]*)\]\((?P<target>[^)\s]+)(?:\s+\"[^\"]*\")?\)")
 HTML_LINK = re.compile(r"<(?:a|img)\s[^>]*(?:href|src)=\"(?P<target>[^\"]+)\"")
@@ -168,6 +183,26 @@ def test_no_page_points_outside_the_repository(page):
     found = [m.group(0) for pattern in (SPEC_CITATION, OUTSIDE) for m in pattern.finditer(text)]
     assert not found, (f"{relative} points outside the repository: {found}; cite the docs page "
                        "(docs/formats.md#conventions, …) or the paper, and describe reference data by what it is")
+
+
+def test_no_source_file_cites_the_specification():
+    found = [f"{path.relative_to(ROOT)}:{number}" for path in SOURCES
+             for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
+             if SPEC_CITATION.search(line)]
+    assert SOURCES and not found, f"cite the docs page (docs/formats.md#onnx-model-files, …) instead: {found}"
+
+
+def test_the_package_names_the_folder_beside_the_checkout_only_to_read_the_reference_data():
+    found = []
+    for path in sorted((ROOT / "neuralbrdf").rglob("*.py")):
+        relative = str(path.relative_to(ROOT))
+        lines = path.read_text(encoding="utf-8").splitlines()
+        allowed = CODE_OUTSIDE_ALLOWED.get(relative, ())
+        for line in allowed:
+            assert any(line in text for text in lines), f"{relative}: stale entry of CODE_OUTSIDE_ALLOWED: {line!r}"
+        found += [f"{relative}:{number}" for number, text in enumerate(lines, 1)
+                  if OUTSIDE.search(text) and not any(line in text for line in allowed)]
+    assert not found, f"describe the reference data by what it is (README.md), not by its folder: {found}"
 
 
 def test_the_outside_checks_find_what_they_are_for():
