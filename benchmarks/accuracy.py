@@ -1,4 +1,4 @@
-"""Accuracy where users look: fitted models against their truths (SPEC §5, §9).
+"""Accuracy where users look: fitted models against their truths (docs/evaluate.md).
 
     python benchmarks/accuracy.py [--out benchmarks/accuracy.json] [--work-dir out/accuracy] [--quick]
         [--part all|virtual|merl]

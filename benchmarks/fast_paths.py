@@ -1,4 +1,4 @@
-"""What every fast path changes in the picture: its image error against its parent (SPEC §9, §11).
+"""What every fast path changes in the picture: its image error against its parent (docs/evaluate.md, docs/select.md).
 
     python benchmarks/fast_paths.py [--work-dir out/fast_paths] [--out benchmarks/fast_paths.json]
         [--resolution 128] [--spp 64] [--quick]

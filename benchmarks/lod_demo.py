@@ -1,4 +1,4 @@
-"""The level-of-detail targets on ``export/scenes/lod_demo.xml`` (SPEC §11), one run per variant.
+"""The level-of-detail targets on ``export/scenes/lod_demo.xml`` (docs/select.md), one run per variant.
 
     python benchmarks/lod_demo.py --variant llvm_ad_spectral [--out-dir out/lod/demo_spectral]
         [--resolution 128] [--reference-spp 256] [--timing-spp 64] [--tolerance T] [--object-tolerance T]

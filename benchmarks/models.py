@@ -1,4 +1,4 @@
-"""Accuracy and fit time of the models against their targets (SPEC §4, §5, §8).
+"""Accuracy and fit time of the models against their targets (docs/models.md, docs/evaluate.md#metrics, docs/results.md).
 
     python benchmarks/models.py [--quick] [--only-nlb] [--checkpoint X.ckpt] [--out benchmarks/models.json]
 
@@ -9,7 +9,7 @@ machine, seeds from the configs:
    ``gonio`` DS1 measurements: median glossy relative RMSE (Eq. 4.3) on the Table 5.1 test split
    at the best checkpoint, and the wall time of the 30-epoch fit.
 2. **ABC on known parameters**: a noise-free DS1 table generated from fixed ABC parameters,
-   fitted by ``configs/abc.yaml``; hemisphere log-cosine RMSE (SPEC §5) on the Löw et al. set.
+   fitted by ``configs/abc.yaml``; hemisphere log-cosine RMSE (docs/evaluate.md#metrics) on the Löw et al. set.
 3. **NLB latent fit vs ABC** on the ten MERL proxies held out of pretraining
    (:data:`neuralbrdf.data.proxy_corpus.HELD_OUT`) and the report's five (``../shared/data``):
    hemisphere log-cosine RMSE against the proxy on the Löw set of (a) the latent fit

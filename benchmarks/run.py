@@ -1,5 +1,5 @@
 """Speed of the exported models and their fast paths, in one run, as ratios against Mitsuba's
-``roughconductor`` rendered in the same run (SPEC §5, §7, §8, §11).
+``roughconductor`` rendered in the same run (docs/evaluate.md#metrics, docs/mitsuba-plugin.md, docs/results.md, docs/select.md).
 
     python benchmarks/run.py [--quick] [--repeats N] [--out benchmarks/results.json]
 

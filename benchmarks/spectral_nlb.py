@@ -1,5 +1,5 @@
 """Where users look: the spectral NLB against ABC, the RGB NLB and the spectral MLP on materials
-no pretraining saw (SPEC §4.2–4.3, §5, §9).
+no pretraining saw (docs/models.md#spectral-nlb, docs/evaluate.md).
 
     python benchmarks/spectral_nlb.py [--groups rgl_validation,report,merl_held_out] [--plans DS1]
         [--noise 0.01] [--no-render] [--work DIR] [--out benchmarks/spectral_nlb.json]

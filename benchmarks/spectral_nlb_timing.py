@@ -1,5 +1,5 @@
-"""Fit time of the spectral NLB's latent fit, single and batched, beside the RGB NLB's (SPEC §4.2,
-§8).
+"""Fit time of the spectral NLB's latent fit, single and batched, beside the RGB NLB's (docs/models.md#spectral-nlb,
+docs/results.md).
 
     python benchmarks/spectral_nlb_timing.py [--batch 100] [--work runs/spectral_nlb_timing]
         [--out benchmarks/spectral_nlb_timing.json]

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The models of export/scenes/lod_demo.xml and their cost ladders (SPEC §11), in one command:
+# The models of export/scenes/lod_demo.xml and their cost ladders (docs/select.md), in one command:
 # the README's main job (spectral MLP, configs/spectral_mlp.yaml, shipped DS1 data) for each of the
 # four virtual materials, exported with its RGB head to out/lod/models/NAME.onnx, then
 # `neuralbrdf ladder` for each (out/lod/models/NAME.ladder/, where `neuralbrdf select` finds it).

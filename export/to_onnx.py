@@ -1,4 +1,4 @@
-"""Export a trained checkpoint to the self-contained ONNX file of SPEC §6.
+"""Export a trained checkpoint to the self-contained ONNX file of docs/formats.md#onnx-model-files.
 
     python export/to_onnx.py --ckpt RUN.ckpt --out MODEL.onnx [--material NAME]
 

@@ -3,8 +3,8 @@
 Implements the pipeline of S. Chitnis, *Simplifying BRDF Acquisition* (IIT Bombay): GCMS-style
 in-plane spectral measurements calibrated against a Munsell N9 white, compact models (ABC
 microfacet, NLB latent representation network, the spectral NLB, 3x10 spectral MLP) fitted to few
-samples, and their deployment to ONNX and Mitsuba 3.  Conventions are those of ``SPEC.md`` §1 and
-are documented in :mod:`neuralbrdf.geometry`.
+samples, and their deployment to ONNX and Mitsuba 3.  Conventions are those of docs/formats.md#conventions
+and are implemented in :mod:`neuralbrdf.geometry`.
 
 The Python API (:mod:`neuralbrdf.api`) is here at the top level: :func:`read`, :func:`fit`,
 :func:`export`, :func:`load`, :func:`truth`, :func:`evaluate`, :func:`render_image` (``render`` is

@@ -8,7 +8,7 @@ is a layer over the same functions, so a script and a shell command do the same 
 
     gold = nb.read("virtual:gold")                        # or a table, GCMS raw + reference, .h5, .binary
     result = nb.fit("spectral_mlp", gold, run_dir="runs/gold")
-    model = result.export("gold.onnx")                    # a validated ONNX file (SPEC §6)
+    model = result.export("gold.onnx")                    # a validated ONNX file (docs/formats.md#onnx-model-files)
     f = model(wi, wo, wavelength)                         # BRDF in sr^-1, as numpy
     truth = nb.truth(gold, "gold_truth.onnx")
     scores = nb.evaluate(model, truth, "gold_eval")       # hemisphere, in-plane and image errors
@@ -20,7 +20,7 @@ stay the single source of hyper-parameters): :data:`FIT_KINDS` names the config 
 :class:`~neuralbrdf.errors.InputError` (one line naming the file, row or key); a fit that runs
 and fails raises :class:`~neuralbrdf.errors.FitFailed`.  Units: angles in degrees, wavelengths
 in nm, BRDF values in sr⁻¹ without the cosine factor; directions are unit vectors in the local
-frame, ``z`` the normal, both pointing away from the surface (SPEC §1).
+frame, ``z`` the normal, both pointing away from the surface (docs/formats.md#conventions).
 """
 
 from __future__ import annotations
@@ -62,10 +62,10 @@ VIRTUAL_PREFIX = "virtual:"
 class Source:
     """A material read by :func:`read`: where it comes from and its samples.
 
-    ``kind`` is ``table`` (a BRDF sample table, SPEC §2.1), ``gcms`` (a GCMS raw file calibrated
-    against its Munsell N9 ``reference``, SPEC §2.2), ``nbrdf`` (an NBRDF proxy ``.h5``, SPEC §2.4),
+    ``kind`` is ``table`` (a BRDF sample table, docs/formats.md#brdf-sample-table), ``gcms`` (a GCMS raw file calibrated
+    against its Munsell N9 ``reference``, docs/formats.md#gcms-raw-measurement), ``nbrdf`` (an NBRDF proxy ``.h5``, docs/formats.md#nbrdf-proxy),
     ``merl`` (a MERL ``.binary`` measurement) or ``virtual`` (a stand-in of the virtual
-    goniospectrophotometer, SPEC §2.5: its shipped DS1 measurement).  ``samples`` is the BRDF table
+    goniospectrophotometer, docs/measure.md#the-virtual-goniospectrophotometer: its shipped DS1 measurement).  ``samples`` is the BRDF table
     a fit sees: the file, the calibrated measurement, or the proxy / MERL table sampled on ``plan``.
     """
 
@@ -249,7 +249,7 @@ def fit(kind: str, data: Source | PathLike | None = None, *, config: PathLike | 
 
 
 class Model:
-    """An exported model file (SPEC §6), evaluated with onnxruntime: ``model(wi, wo[, wavelength])``.
+    """An exported model file (docs/formats.md#onnx-model-files), evaluated with onnxruntime: ``model(wi, wo[, wavelength])``.
 
     ``wi``, ``wo``: unit directions ``[N, 3]`` (or one ``[3]``); ``wavelength``: nm, ``[N]`` or one
     number, for spectral models only.  Returns the BRDF in sr⁻¹: ``[N]`` for spectral models,
@@ -286,7 +286,7 @@ class Model:
 
 
 def load(path: PathLike) -> Model:
-    """Open an ``.onnx`` model file, checked against the contract (SPEC §6).
+    """Open an ``.onnx`` model file, checked against the contract (docs/formats.md#onnx-model-files).
 
     >>> import numpy as np, tempfile, neuralbrdf as nb
     >>> from neuralbrdf.geometry import inplane_to_vectors
@@ -361,7 +361,7 @@ def evaluate(model: Model | PathLike, truth: Model | PathLike, out_dir: PathLike
              material: str | None = None, variant: str = DEFAULT_VARIANT, spp: int = 256,
              resolution: int | None = None, seed: int = 0, backend: str = "drjit", fast: bool = False,
              images: bool = True) -> dict:
-    """Score ``model`` against ``truth`` (SPEC §5, §9): log-cosine and relative RMSE over the
+    """Score ``model`` against ``truth`` (docs/evaluate.md): log-cosine and relative RMSE over the
     hemisphere, relative RMSE in the in-plane glossy and diffuse regions, and, with ``images``, the
     image errors (ΔE2000 mean and p95, PSNR) of both rendered with the same seeds in the material
     preview or in ``scene`` (any Mitsuba scene using the ``neuralbrdf`` BSDF; ``material`` names the

@@ -1,5 +1,5 @@
 """Atomic, guarded output files: an output is written whole or not at all, and never destroys
-anything but an earlier output (SPEC §12).
+anything but an earlier output (docs/robustness.md).
 
 Every writer in neuralbrdf goes through :func:`atomic_paths` (or its one-file forms
 :func:`atomic_path` and :func:`atomic_write`):

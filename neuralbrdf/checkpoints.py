@@ -1,6 +1,6 @@
 """Reading checkpoint files with errors that name the file (shared by loaders and the exporter).
 
-Checkpoints are untrusted input (SPEC §12): they are size-checked before reading
+Checkpoints are untrusted input (docs/robustness.md): they are size-checked before reading
 (:data:`~neuralbrdf.limits.MAX_CHECKPOINT_BYTES`), loaded with ``weights_only`` (never
 unpickled), and a model described by their hyper-parameters is first built on PyTorch's meta
 device (no memory) and compared with the weights (:func:`check_weights_match`), so that a

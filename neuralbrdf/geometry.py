@@ -1,4 +1,4 @@
-"""Direction conventions and BRDF parameterisations (SPEC §1).
+"""Direction conventions and BRDF parameterisations (docs/formats.md#conventions).
 
 Local shading frame with ``z`` the surface normal; both directions point *away* from the
 surface (``wi`` toward the light, ``wo`` toward the viewer).  Three ways to name a direction
@@ -83,7 +83,7 @@ def vector_to_spherical(v):
 
 
 def inplane_to_vectors(theta_i_deg, theta_r_deg):
-    """``(wi, wo)`` for signed in-plane angles (degrees): the report's convention, SPEC §1."""
+    """``(wi, wo)`` for signed in-plane angles (degrees): the report's convention, docs/formats.md#conventions."""
     xp = array_namespace_of(theta_i_deg, theta_r_deg)
     ti = theta_i_deg * DEG
     tr = theta_r_deg * DEG
@@ -100,7 +100,8 @@ def inplane_to_spherical(theta_i_deg, theta_r_deg):
     These are the exact spherical angles of :func:`inplane_to_vectors`: ``phi_i = 0`` for
     ``theta_i >= 0`` and ``180°`` for ``theta_i < 0``; ``phi_o = 180°`` for ``theta_r > 0`` and
     ``0`` otherwise.  So ``phi_o - phi_i = 180°`` exactly when ``theta_r`` has the sign of
-    ``theta_i``, as SPEC §1 states.  SPEC §1 also rotates every pair to ``phi_i = 0``, which is
+    ``theta_i``, as docs/formats.md#conventions states.  The report also rotates every pair to
+    ``phi_i = 0`` (its §4.1.2), which is
     equivalent for isotropic BRDFs but loses the sign of ``theta_i``; we keep it, because the
     spectral MLP's train/test split (report Table 5.1) is asymmetric in ``theta_i``.
     :func:`spherical_to_inplane` reads both forms.
@@ -207,7 +208,7 @@ def inplane_half_diff_angles(theta_i_deg, theta_r_deg):
 def inplane_equivalent(wi, wo):
     """Signed in-plane pair ``(theta_i, theta_r)`` (degrees) with the same ``theta_h, theta_d``.
 
-    ``ti = theta_d + theta_h``, ``tr = theta_d - theta_h`` (SPEC §1).  For an in-plane input this
+    ``ti = theta_d + theta_h``, ``tr = theta_d - theta_h`` (docs/formats.md#conventions).  For an in-plane input this
     is the same pair up to the isotropy/reciprocity symmetries (it returns the representative
     with ``ti >= |tr|``).  Far out of plane ``ti`` can exceed 90°: the bivariate approximation
     then asks the in-plane model for a configuration beyond the horizon (models should clamp).

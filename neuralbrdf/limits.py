@@ -1,4 +1,4 @@
-"""Resource limits for files read from users (SPEC §12): sizes are checked before allocation.
+"""Resource limits for files read from users (docs/robustness.md): sizes are checked before allocation.
 
 A file from elsewhere must not be able to make the process read or allocate without bound.  Each
 reader checks the size a file *claims* (its length on disk, the shapes in its header, the

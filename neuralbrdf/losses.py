@@ -8,7 +8,7 @@
 
       L = mean(exp(-gamma |theta_i - theta_r|) · (f_mea - f_pred)²)
 
-  with the angle difference in radians by default (SPEC §4.4: in degrees, gamma = 3 gives
+  with the angle difference in radians by default (docs/models.md#spectral-mlp: in degrees, gamma = 3 gives
   weights below 1e-13 ten degrees off specular, so the diffuse region gets no gradient).
 * :func:`exp_weighted_loss` — Eq. 5.1's weighting with another residual ``r`` in place of
   ``f_mea - f_pred`` (:data:`RESIDUALS`) and an optional floor on the weight::
@@ -67,9 +67,9 @@ def _per_sample(weight, like):
 def exp_weighted_mse(pred, target, theta_i_deg, theta_r_deg, gamma: float = 3.0, angle_unit: str = "radians"):
     """Exponentially weighted MSE (report Eq. 5.1), weighting samples near the mirror direction.
 
-    ``theta_i_deg, theta_r_deg`` are signed in-plane angles in degrees (SPEC §1: the mirror
+    ``theta_i_deg, theta_r_deg`` are signed in-plane angles in degrees (docs/formats.md#conventions: the mirror
     direction is ``theta_r = theta_i``).  ``angle_unit`` is the unit in which ``|theta_i -
-    theta_r|`` enters the exponent: ``"radians"`` (default, SPEC §4.4) or ``"degrees"`` (the
+    theta_r|`` enters the exponent: ``"radians"`` (default, docs/models.md#spectral-mlp) or ``"degrees"`` (the
     report's literal form).
     """
     return exp_weighted_loss(pred, target, theta_i_deg, theta_r_deg, gamma, angle_unit, residual="linear")

@@ -1,4 +1,4 @@
-"""Error metrics of the report (S. Chitnis, *Simplifying BRDF Acquisition*; SPEC §5).
+"""Error metrics of the report (S. Chitnis, *Simplifying BRDF Acquisition*; docs/evaluate.md#metrics).
 
 **Relative RMSE (Eq. 4.3)**::
 
@@ -24,7 +24,7 @@ How this module reads it (report §4.1.3 and §5.1.2):
   channel of one incident angle) left with no entries has no RMSE: its value is NaN and it is
   left out of the channel average; if no entry at all survives, :class:`ValueError`.
 
-**Hemisphere log-cosine RMSE** (SPEC §5)::
+**Hemisphere log-cosine RMSE** (docs/evaluate.md#metrics)::
 
     sqrt(mean((ln(1 + f cos ti) - ln(1 + f̂ cos ti))²))
 

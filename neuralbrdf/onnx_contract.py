@@ -1,4 +1,4 @@
-"""The ONNX file contract between exported models and the renderers (SPEC §6).
+"""The ONNX file contract between exported models and the renderers (docs/formats.md#onnx-model-files).
 
 Every trained model (spectral MLP, NLB, ABC) exports to one self-contained ``.onnx`` file that
 :func:`neuralbrdf.kinds.load_model` validates at scene load, so that a bad file fails with one clear
@@ -7,16 +7,16 @@ Every trained model (spectral MLP, NLB, ABC) exports to one self-contained ``.on
 Graph interface
 ---------------
 * inputs ``wi`` and ``wo``: ``float32 [N, 3]``, unit vectors in the local shading frame (``z`` the
-  normal), both pointing away from the surface (SPEC §1); spectral models add ``wavelength``:
+  normal), both pointing away from the surface (docs/formats.md#conventions); spectral models add ``wavelength``:
   ``float32 [N]`` in nm.  ``N`` is dynamic (a named or unnamed dimension, never a number).
 * output ``f``: ``float32 [N, 3]`` (RGB models, linear sRGB) or ``float32 [N]`` (spectral
   models), in sr⁻¹, without the cosine factor, and 0 when either direction is below the horizon.
 * everything needed to evaluate is inside the graph (input normalisation, in-plane mapping,
   baked latent, output activation); initialisers must be finite.
 * optional **fast paths**, further outputs that stand in for ``f`` at a fraction of its cost
-  (SPEC §11), each under the same rules as ``f`` (shape, finite, >= 0, 0 below the horizon):
+  (docs/select.md), each under the same rules as ``f`` (shape, finite, >= 0, 0 below the horizon):
   ``f_rgb`` ``float32 [N, 3]`` (spectral models only; computed from ``wi`` and ``wo`` alone): the
-  model's linear sRGB as the renderer integrates it in RGB variants (SPEC §2.3), evaluated once per
+  model's linear sRGB as the renderer integrates it in RGB variants (docs/formats.md#spectral-to-linear-srgb), evaluated once per
   query; ``f_fast``: a cheaper copy of ``f`` (same inputs, same shape).  Each is described by
   metadata entries ``neuralbrdf.<output>.*`` (:data:`FAST_PATH_KEYS`, :func:`fast_path_key`):
   what it approximates, its error against ``f`` and its relative cost.  :func:`output_model`
@@ -223,7 +223,7 @@ def generic_metadata(
 
 
 def load_generic_model(path: str | os.PathLike[str]) -> OnnxModel:
-    """Load ``path`` and check it against the contract of SPEC §6 (see the module docstring).
+    """Load ``path`` and check it against the contract of docs/formats.md#onnx-model-files (see the module docstring).
 
     Raises :class:`InputError` naming the file for a missing or unreadable file, a file that is
     not ONNX or fails the ONNX checker, wrong input or output names, dtypes or ranks, a fixed
@@ -422,7 +422,7 @@ def _check_metadata(metadata: Mapping[str, str], path, is_spectral: bool):
     """Return ``(kind, wavelength_range_nm)`` or raise :class:`InputError`."""
     missing = [key for key in REQUIRED_KEYS if key not in metadata]
     if missing:
-        raise InputError(f"missing metadata keys {missing} (SPEC §6)", path=path)
+        raise InputError(f"missing metadata keys {missing} (docs/formats.md#onnx-model-files)", path=path)
     kind = metadata[KIND_KEY]
     if not kind.isidentifier():
         raise InputError(f"model kind {kind!r} is not a name (letters, digits, '_')", path=path, column=KIND_KEY)
@@ -493,7 +493,7 @@ def _check_tensor_sizes(graph: onnx.GraphProto, path) -> None:
             location = next((entry.value for entry in tensor.external_data if entry.key == "location"), "?")
             raise InputError(
                 f"weight tensor {name!r} keeps its data in an external file ({location!r}); a model must be "
-                "one self-contained file (SPEC §6)",
+                "one self-contained file (docs/formats.md#onnx-model-files)",
                 path=path,
             )
         if any(d < 0 for d in tensor.dims):
@@ -814,6 +814,6 @@ def _check_trial_evaluation(proto: onnx.ModelProto, path, wavelength_range) -> N
         )
     if np.any(f[below] != 0):
         raise InputError(
-            "output 'f' is not 0 when a direction is below the horizon (SPEC §6)", path=path
+            "output 'f' is not 0 when a direction is below the horizon (docs/formats.md#onnx-model-files)", path=path
         )
     _check_dense_probe(session, path, wavelength_range)

@@ -1,4 +1,4 @@
-"""Trace a model on directions into the self-contained ONNX file of SPEC §6, check it, write it.
+"""Trace a model on directions into the self-contained ONNX file of docs/formats.md#onnx-model-files, check it, write it.
 
 Any :class:`torch.nn.Module` that maps unit directions ``wi, wo`` ``[N, 3]`` (and, for spectral
 models, wavelengths ``[N]`` in nm) to the BRDF in sr⁻¹ — the modules of
@@ -42,7 +42,7 @@ from neuralbrdf.onnx_contract import INPUT_WAVELENGTH, INPUT_WI, INPUT_WO, OUTPU
 
 #: ONNX opset of exported graphs.
 OPSET = 17
-#: Largest accepted ``|f_ort - f_torch| / |f_torch|`` (SPEC §6) ...
+#: Largest accepted ``|f_ort - f_torch| / |f_torch|`` (docs/formats.md#onnx-model-files) ...
 RELATIVE_TOLERANCE = 1e-5
 #: ... above this absolute floor in sr⁻¹ (float32 rounding of values near 0).
 ABSOLUTE_FLOOR_SR = 1e-8
@@ -143,7 +143,7 @@ def trace(exportable: Exportable) -> onnx.ModelProto:
         )
     proto = onnx.load_from_string(buffer.getvalue())
     helper.set_model_props(proto, exportable.metadata)
-    proto.doc_string = f"neuralbrdf {exportable.kind} model of {exportable.material!r} (SPEC §6)"
+    proto.doc_string = f"neuralbrdf {exportable.kind} model of {exportable.material!r} (docs/formats.md#onnx-model-files)"
     return proto
 
 
@@ -303,7 +303,7 @@ def _prefixed(graph: onnx.GraphProto, prefix: str, output: str) -> tuple[list, l
 def with_fast_paths(proto: onnx.ModelProto, fast_paths: dict[str, onnx.ModelProto],
                     metadata: dict[str, str]) -> onnx.ModelProto:
     """``proto`` with each traced model of ``fast_paths`` (output name -> a graph of the contract,
-    e.g. from :func:`trace`) added as a further output of that name (SPEC §6 fast paths), its
+    e.g. from :func:`trace`) added as a further output of that name (fast paths, docs/export-render.md#fast-paths), its
     tensors prefixed by the output's name; ``metadata`` entries are added to the file's.  The
     graphs share the inputs ``wi``, ``wo`` (and ``wavelength``); a fast path reads only those it
     needs.  :class:`ValueError` when ``proto`` already has an output of one of those names."""

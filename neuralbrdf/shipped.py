@@ -1,4 +1,4 @@
-"""Files shipped inside the package: the pretrained NLB networks (SPEC §4.2).
+"""Files shipped inside the package: the pretrained NLB networks (docs/models.md#nlb).
 
 A pretrained network is named by a path or by the stem of a shipped file (``nlb_compact``,
 ``nlb_64x4``, ``nlb_latent32_blends``, ``nlb_spectral``, …); ``None`` is the default of the fit

@@ -1,20 +1,20 @@
-"""A material to fit, from any source a user has (SPEC §4.3: "any plan, any source").
+"""A material to fit, from any source a user has (docs/fit.md#your-measurement: any plan, any source).
 
 The one vocabulary of every data module and config (``data.*`` keys, and the entries of a
 latent fit's ``data.sources``).  One material comes from exactly one of:
 
-* ``path`` — the user's measurement: a BRDF sample table (SPEC §2.1) or a GCMS raw file with
-  its Munsell N9 ``reference`` (SPEC §2.2);
-* ``nbrdf`` — a MERL-proxy NBRDF network (SPEC §2.4) sampled on ``plan``;
+* ``path`` — the user's measurement: a BRDF sample table (docs/formats.md#brdf-sample-table) or a GCMS raw file with
+  its Munsell N9 ``reference`` (docs/formats.md#gcms-raw-measurement);
+* ``nbrdf`` — a MERL-proxy NBRDF network (docs/formats.md#nbrdf-proxy) sampled on ``plan``;
 * ``merl`` — a MERL ``.binary`` measurement (:mod:`neuralbrdf.data.merl_binary`) sampled on
   ``plan`` (nearest cell, RGB);
-* ``virtual`` — a stand-in of the virtual goniospectrophotometer (SPEC §2.5): its shipped DS1
+* ``virtual`` — a stand-in of the virtual goniospectrophotometer (docs/measure.md#the-virtual-goniospectrophotometer): its shipped DS1
   measurement, calibrated against the shipped Munsell N9 reference.
 
 with optional ``name`` (default: the file stem or the virtual material) and, for ``nbrdf`` and
 ``merl``, ``plan``.  Proxies, MERL tables and virtual materials are defined everywhere, so they
 also give a dense ``truth`` on
-``eval_plan`` (default the Löw et al. set) for the hemisphere log-cosine RMSE (SPEC §5); a
+``eval_plan`` (default the Löw et al. set) for the hemisphere log-cosine RMSE (docs/evaluate.md#metrics); a
 user's measurement has none.
 """
 

@@ -1,4 +1,4 @@
-"""Small ONNX models that follow the contract of SPEC §6, for the render tests.
+"""Small ONNX models that follow the contract of docs/formats.md#onnx-model-files, for the render tests.
 
 The renderer must not depend on the project's model and export code, so these fixtures are
 written here from scratch: tiny torch modules exported with ``torch.onnx.export`` (the
@@ -36,7 +36,7 @@ def _half_vector(wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
 
 
 class NlbLikeMlp(nn.Module):
-    """RGB MLP over ``(wi, wo, latent)`` with the latent baked in (SPEC §4.2 shape, tiny)."""
+    """RGB MLP over ``(wi, wo, latent)`` with the latent baked in (docs/models.md#nlb shape, tiny)."""
 
     def __init__(self, latent_dim: int = 4, width: int = 16, seed: int = 0) -> None:
         super().__init__()
@@ -59,7 +59,7 @@ class NlbLikeMlp(nn.Module):
 
 
 class InPlaneSpectralMlp(nn.Module):
-    """Spectral MLP on the in-plane equivalent pair (SPEC §4.4), mapping computed in-graph.
+    """Spectral MLP on the in-plane equivalent pair (docs/models.md#spectral-mlp), mapping computed in-graph.
 
     ``theta_h = atan(|h_xy| / h_z)``, ``theta_d = acos(wi·h)``, ``ti = theta_d + theta_h``,
     ``tr = theta_d - theta_h`` (radians), normalised with the wavelength, through a 3x10 MLP.
@@ -152,7 +152,7 @@ class GgxGlossy(nn.Module):
 
 
 class AbcLike(nn.Module):
-    """The ABC model of SPEC §4.1 with the Fresnel factor taken as 1 (enough for the sampler).
+    """The ABC model of docs/models.md#abc with the Fresnel factor taken as 1 (enough for the sampler).
 
     ``f = kd/pi + A G / (pi cos_i cos_o (1 + B (1 - n·h))^C)``, V-cavity ``G``.
     """

@@ -1,4 +1,4 @@
-"""ABC model (SPEC §4.1): BRDF, parameters, Löw's fits and the fit (its sampler: test_mitsuba_bsdf)."""
+"""ABC model (docs/models.md#abc): BRDF, parameters, Löw's fits and the fit (its sampler: test_mitsuba_bsdf)."""
 
 import json
 import math
@@ -43,7 +43,7 @@ def reference_fresnel(c, eta):
 
 
 def reference_abc(wi, wo, p: AbcParameters):
-    """SPEC §4.1 in plain Python for one direction pair."""
+    """docs/models.md#abc in plain Python for one direction pair."""
     ci, co = wi[2], wo[2]
     if ci <= 0 or co <= 0:
         return [0.0] * p.n_channels
@@ -94,7 +94,7 @@ def test_reciprocity_and_isotropy():
     np.testing.assert_allclose(NYLON.evaluate(wi @ rot.T, wo @ rot.T), f, rtol=1e-10)
     mirror_y = np.array([1.0, -1.0, 1.0])
     np.testing.assert_allclose(NYLON.evaluate(wi * mirror_y, wo * mirror_y), f, rtol=1e-12)
-    # in-plane form of the same symmetries (SPEC §1)
+    # in-plane form of the same symmetries (docs/formats.md#conventions)
     ti, tr = in_plane_plan("DS1")
     f_plane = NYLON.evaluate(*inplane_to_vectors(ti, tr))
     np.testing.assert_allclose(NYLON.evaluate(*inplane_to_vectors(-ti, -tr)), f_plane, rtol=1e-12)

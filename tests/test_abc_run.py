@@ -55,7 +55,7 @@ def test_fit_recovers_known_parameters_and_writes_the_run(tmp_path):
     assert status == 0
     metrics = json.loads((run_dir / "metrics.json").read_text())
     assert metrics["fit/abc/success"] is True and metrics["fit/abc/failure_reason"] is None
-    # the shared metric names (SPEC §9), on the data it was given; a table has no truth
+    # the shared metric names (docs/evaluate.md#metrics), on the data it was given; a table has no truth
     assert metrics["fit/inplane_glossy_rel_rmse"] < 0.05 and metrics["fit/inplane_diffuse_rel_rmse"] < 0.05
     assert "fit/hemisphere_logcos_rmse" not in metrics
     fitted = AbcParameters.from_dict(metrics["fit/abc/parameters"])

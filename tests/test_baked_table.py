@@ -1,4 +1,4 @@
-"""The baked-table model (SPEC §11; :mod:`neuralbrdf.models.baked_table`): its Rusinkiewicz
+"""The baked-table model (docs/select.md; :mod:`neuralbrdf.models.baked_table`): its Rusinkiewicz
 coordinates against an explicit rotation, its nodes against the coordinates, its interpolation
 against functions it must reproduce exactly, and baking (:mod:`neuralbrdf.lod.bake`) against
 analytic parents."""

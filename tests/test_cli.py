@@ -37,7 +37,7 @@ def test_plan_writes_the_pairs(tmp_path, name, count):
 
 
 def test_noiseless_simulation_calibrates_back_to_the_truth(tmp_path):
-    """Instrument response and the Munsell factor cancel exactly (SPEC §2.5)."""
+    """Instrument response and the Munsell factor cancel exactly (docs/measure.md#the-virtual-goniospectrophotometer)."""
     for material in ("gold", "munsell_n9"):
         assert run("simulate", "--material", material, "--plan", "DS2", "--out", tmp_path / f"{material}.csv") == 0
     assert run("simulate", "--material", "gold", "--plan", "DS2", "--truth", "--out", tmp_path / "truth.csv") == 0

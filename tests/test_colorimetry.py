@@ -1,4 +1,4 @@
-"""Spectral → XYZ → linear sRGB (SPEC §2.3, report Eq. 2.4), checked against colour-science."""
+"""Spectral → XYZ → linear sRGB (docs/formats.md#spectral-to-linear-srgb, report Eq. 2.4), checked against colour-science."""
 
 import colour
 import numpy as np

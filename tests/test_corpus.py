@@ -1,4 +1,4 @@
-"""NLB pretraining corpus (SPEC §4.2): analytic families, direction sampling, reproducibility.
+"""NLB pretraining corpus (docs/models.md#nlb): analytic families, direction sampling, reproducibility.
 
 Independent references: Heitz's (2014) projected-area identity for Smith masking, adaptive
 quadrature (scipy) of the ABC lobe integral, the GGX CDF in closed form, Monte Carlo albedos,

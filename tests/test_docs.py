@@ -1,14 +1,20 @@
-"""The documentation stays short, linked, current and free of project history.
+"""The documentation stays short, linked, current, self-contained and free of project history.
 
 README.md is a front page (at most 200 lines) with the test command .ci/run extracts; every
-relative link and image in the user docs resolves (section anchors included); no page tells the
-project's history; docs/results.md is exactly what docs/make_results.py writes from the committed
-result files; and the README's command table names every ``neuralbrdf`` subcommand.
+relative link and image in the user docs resolves to a file of the repository (section anchors
+included); no page cites the specification kept outside the repository or sends users to the
+folder beside the checkout, except where the reference data must be found (:data:`OUTSIDE_ALLOWED`);
+no docstring, comment, message or config of the code cites that specification, and the package
+names that folder only where it reads the reference data (:data:`CODE_OUTSIDE_ALLOWED`);
+no page tells the project's history; docs/results.md and the README's caption of the main job are
+exactly what docs/make_results.py writes from the committed result files; and the README's command
+table names every ``neuralbrdf`` subcommand.
 """
 
 from __future__ import annotations
 
 import importlib.util
+import json
 import re
 import unicodedata
 from pathlib import Path
@@ -28,6 +34,30 @@ HISTORY = (
     r"\bwas the default\b", r"\bno longer\b", r"\bused to (be|promise|need)\b", r"\bround \d+\b",
     r"\bcommit [0-9a-f]{7,40}\b", r"\bfor the first time\b", r"\bthe first time\b", r"\bas then\b",
 )
+#: A citation of the specification outside the repository: its file name, or a section sign after
+#: its name.  Users do not have that file; cite the docs page or the paper instead.
+SPEC_CITATION = re.compile(r"\bSPEC(?:\.md\b|\s*§)")
+#: The folder beside the checkout that holds the specification and the reference data.
+OUTSIDE = re.compile(r"\.\./shared\b|/work/shared\b")
+#: The only places of the user docs that name that folder, each for a reason: where the shipped
+#: configs and study profiles look for the reference data.  Each must still be there.
+OUTSIDE_ALLOWED = {
+    "README.md": ("`../shared/data/{merl-nbrdf,rgl-nbrdf,abc-low2012}` beside the checkout",),
+    "docs/study.md": ("those starting with `../shared/` are\n  relative to the repository root",),
+}
+#: The source files whose text users and maintainers read: the package, configs, scenes, scripts, tests.
+SOURCES = sorted(
+    path for folder in ("neuralbrdf", "configs", "export", "benchmarks", "tests", "examples") for path in
+    (ROOT / folder).rglob("*") if path.suffix in {".py", ".yaml", ".xml", ".sh"} and path.name != "test_docs.py"
+) + [ROOT / "train.py"]
+#: The package's lines that name the folder beside the checkout, each because the code reads the
+#: reference data there; docstrings and comments describe that data instead.
+CODE_OUTSIDE_ALLOWED = {
+    "neuralbrdf/study/profile.py": (
+        'elif text.startswith("../shared"):',
+        "starting with ``../shared`` are relative to the repository root, others to the profile file.",
+    ),
+}
 LINK = re.compile(r"!?\[(?P<text>[^\]]*)\]\((?P<target>[^)\s]+)(?:\s+\"[^\"]*\")?\)")
 HTML_LINK = re.compile(r"<(?:a|img)\s[^>]*(?:href|src)=\"(?P<target>[^\"]+)\"")
 FENCE = re.compile(r"^(```|~~~)")
@@ -142,6 +172,47 @@ def test_no_page_tells_the_project_history(page):
     assert not found, f"{page.relative_to(ROOT)} tells history: {found}; state what the product does"
 
 
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_no_page_points_outside_the_repository(page):
+    """Users have the repository, not the specification or the folder beside the checkout."""
+    relative = str(page.relative_to(ROOT))
+    text = page.read_text(encoding="utf-8")
+    for allowed in OUTSIDE_ALLOWED.get(relative, ()):
+        assert allowed in text, f"{relative}: stale entry of OUTSIDE_ALLOWED: {allowed!r}"
+        text = text.replace(allowed, "")
+    found = [m.group(0) for pattern in (SPEC_CITATION, OUTSIDE) for m in pattern.finditer(text)]
+    assert not found, (f"{relative} points outside the repository: {found}; cite the docs page "
+                       "(docs/formats.md#conventions, …) or the paper, and describe reference data by what it is")
+
+
+def test_no_source_file_cites_the_specification():
+    found = [f"{path.relative_to(ROOT)}:{number}" for path in SOURCES
+             for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
+             if SPEC_CITATION.search(line)]
+    assert SOURCES and not found, f"cite the docs page (docs/formats.md#onnx-model-files, …) instead: {found}"
+
+
+def test_the_package_names_the_folder_beside_the_checkout_only_to_read_the_reference_data():
+    found = []
+    for path in sorted((ROOT / "neuralbrdf").rglob("*.py")):
+        relative = str(path.relative_to(ROOT))
+        lines = path.read_text(encoding="utf-8").splitlines()
+        allowed = CODE_OUTSIDE_ALLOWED.get(relative, ())
+        for line in allowed:
+            assert any(line in text for text in lines), f"{relative}: stale entry of CODE_OUTSIDE_ALLOWED: {line!r}"
+        found += [f"{relative}:{number}" for number, text in enumerate(lines, 1)
+                  if OUTSIDE.search(text) and not any(line in text for line in allowed)]
+    assert not found, f"describe the reference data by what it is (README.md), not by its folder: {found}"
+
+
+def test_the_outside_checks_find_what_they_are_for():
+    for sample in ("(SPEC §6)", "SPEC §4.2–4.3", "``SPEC.md`` §1", "`../shared/SPEC.md`", "read ../shared/data",
+                   "/work/shared/data/merl-nbrdf"):
+        assert SPEC_CITATION.search(sample) or OUTSIDE.search(sample), sample
+    for sample in ("SPECTRAL_NLB", 'raw[:4] != b"SPEC"', "the shared code", "docs/formats.md#conventions"):
+        assert not (SPEC_CITATION.search(sample) or OUTSIDE.search(sample)), sample
+
+
 def test_the_history_check_finds_history():
     """The patterns above catch the phrasing they are for (a check that cannot fail is no check)."""
     samples = ["Since stop 14 the default", "the issue's targets", "previously 0.02", "in this session",
@@ -154,6 +225,17 @@ def test_results_page_is_generated_from_the_committed_result_files():
     expected = _make_results().build()
     actual = (ROOT / "docs" / "results.md").read_text(encoding="utf-8")
     assert actual == expected, "docs/results.md is out of date: run python docs/make_results.py"
+
+
+def test_the_readme_caption_is_written_from_the_main_job_scores():
+    """The numbers under the README's picture are those of the committed evaluation.json."""
+    make_results = _make_results()
+    text = README.read_text(encoding="utf-8")
+    assert make_results.readme_with_caption(text) == text, (
+        "README.md's caption of the main job is out of date: run python docs/make_results.py")
+    scores = json.loads((ROOT / make_results.MAIN_JOB).read_text(encoding="utf-8"))
+    stale = text.replace(f"p95 {scores['image_delta_e2000_p95']:.2f}", "p95 9.99")
+    assert stale != text and make_results.readme_with_caption(stale) == text
 
 
 def test_the_readme_command_table_names_every_subcommand():

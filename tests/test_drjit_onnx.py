@@ -1,5 +1,5 @@
-"""The Dr.Jit interpretation of ONNX graphs agrees with onnxruntime (SPEC §7: "same file, same
-results") and refuses, at construction, what it cannot map onto per-sample columns."""
+"""The Dr.Jit interpretation of ONNX graphs agrees with onnxruntime (docs/mitsuba-plugin.md: same file,
+same results) and refuses, at construction, what it cannot map onto per-sample columns."""
 
 import numpy as np
 import onnx

@@ -1,4 +1,4 @@
-"""Ground truth and evaluation (SPEC §9): truths equal the library's own evaluation, the metrics
+"""Ground truth and evaluation (docs/evaluate.md): truths equal the library's own evaluation, the metrics
 of a truth against itself are 0, a truth scaled by a known factor gives the known errors, the
 CIEDE2000 pipeline matches colour-science's own sRGB path, and the commands fail cleanly."""
 
@@ -142,7 +142,7 @@ def test_rgb_model_against_spectral_truth_compares_in_linear_srgb(tmp_path):
     grey = TorchEvaluator(_ConstantRgb((0.79 / math.pi,) * 3), is_spectral=False)
     scores = direction_scores(grey, TorchEvaluator(truth.module, True), strata=QUICK_STRATA)
     assert scores.comparison == "linear sRGB" and scores.per_wavelength is None
-    # a flat spectrum c maps to about (c, c, c) (SPEC §2.3): within the 1 % of the colour pipeline
+    # a flat spectrum c maps to about (c, c, c) (docs/formats.md#spectral-to-linear-srgb): within the 1 % of the colour pipeline
     assert scores.metrics["hemisphere_rel_rmse"] < 0.01
 
 

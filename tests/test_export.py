@@ -1,4 +1,4 @@
-"""Export to the ONNX contract (SPEC §6): the direction-space models of
+"""Export to the ONNX contract (docs/formats.md#onnx-model-files): the direction-space models of
 ``neuralbrdf.models.directional`` against independent computations, and ``neuralbrdf export`` (``export/to_onnx.py``) —
 PyTorch = onnxruntime = Dr.Jit on every kind's file, ``load_model`` accepts it, a graph that does
 not reproduce PyTorch is never written, bad checkpoints exit 2 with one line."""
@@ -172,7 +172,7 @@ def test_half_diff_angles_match_the_rotation_construction():
 
 
 def test_spectral_mlp_in_plane_query_is_the_mlp_at_the_canonical_pair():
-    """In plane, (ti, tr) maps to (θd + θh, θd − θh) with the closed forms of SPEC §1."""
+    """In plane, (ti, tr) maps to (θd + θh, θd − θh) with the closed forms of docs/formats.md#conventions."""
     mlp = structured_mlp().network
     model = SpectralMlpOnDirections(mlp)
     rng = np.random.default_rng(0)

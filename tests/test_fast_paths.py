@@ -1,4 +1,4 @@
-"""Fast paths inside a model file (SPEC §6, §11): the contract's extra outputs, the plugin's choice
+"""Fast paths inside a model file (docs/formats.md#onnx-model-files, docs/select.md): the contract's extra outputs, the plugin's choice
 of output, ``neuralbrdf export`` distilling them, ``render --fast``, ``evaluate``, the ladder and
 the selector.
 
@@ -298,7 +298,7 @@ def test_distill_student_fits_an_rgb_teacher():
 
 
 def test_rgb_teacher_is_the_plugins_exact_integral(lambert_files):
-    """The RGB head's teacher is SPEC §2.3 on all 31 wavelengths: the same numbers as the
+    """The RGB head's teacher is docs/formats.md#spectral-to-linear-srgb on all 31 wavelengths: the same numbers as the
     project's own spectral → sRGB conversion of the model's spectrum."""
     from neuralbrdf.data.colorimetry import spectral_to_linear_srgb
 

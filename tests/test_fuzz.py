@@ -1,4 +1,4 @@
-"""Property-based tests of the readers of untrusted files (SPEC §12).
+"""Property-based tests of the readers of untrusted files (docs/robustness.md).
 
 For any byte string, and for any mutation of a valid file, the CSV reader, the BRDF table and
 GCMS readers (and :func:`~neuralbrdf.data.loading.load_measurement`), the ONNX contract check

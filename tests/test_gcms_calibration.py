@@ -1,4 +1,4 @@
-"""GCMS raw files, Munsell calibration (SPEC §2.2, report Eq. 2.3) and load_measurement."""
+"""GCMS raw files, Munsell calibration (docs/formats.md#gcms-raw-measurement, report Eq. 2.3) and load_measurement."""
 
 import math
 import warnings

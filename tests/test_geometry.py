@@ -1,4 +1,4 @@
-"""Conventions of SPEC §1 checked against independent constructions."""
+"""Conventions of docs/formats.md#conventions checked against independent constructions."""
 
 import math
 
@@ -55,7 +55,7 @@ def test_inplane_to_spherical_gives_the_vectors_back():
 def test_inplane_azimuths_are_those_of_the_vectors(ti, tr, phi_i, phi_o):
     sph = g.inplane_to_spherical(np.array([ti * 1.0]), np.array([tr * 1.0]))
     assert (sph[1][0], sph[3][0]) == (phi_i, phi_o)
-    # phi_o - phi_i = 180 exactly when theta_r has the sign of theta_i (SPEC §1)
+    # phi_o - phi_i = 180 exactly when theta_r has the sign of theta_i (docs/formats.md#conventions)
     assert (abs(phi_o - phi_i) == 180) == (tr * (1 if ti >= 0 else -1) > 0)
 
 
@@ -68,7 +68,7 @@ def test_spherical_to_inplane_inverts_inplane_to_spherical_with_signs():
 
 
 def test_spherical_to_inplane_reads_the_rotated_spec_form_and_out_of_plane_pairs():
-    # SPEC §1's phi_i = 0 form of (-30, -20) is (30, 20): the mirror image, same BRDF value
+    # the report's phi_i = 0 form (docs/formats.md#conventions) of (-30, -20) is (30, 20): the mirror image, same BRDF value
     back = g.spherical_to_inplane(np.array([30.0]), np.array([0.0]), np.array([20.0]), np.array([180.0]))
     assert np.allclose(back, [[30.0], [20.0]])
     theta_i, phi_i = random_hemisphere(100)

@@ -1,4 +1,4 @@
-"""Cost ladders and the per-scene model selector (SPEC §11), and rendering a user's scene file.
+"""Cost ladders and the per-scene model selector (docs/select.md), and rendering a user's scene file.
 
 The parent is the virtual gold's ground truth (``export-truth virtual:gold``: spectral, glossy);
 its ladder is built once per module with small settings (few distillation steps, one student,

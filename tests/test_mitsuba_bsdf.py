@@ -1,4 +1,4 @@
-"""The ``neuralbrdf`` Mitsuba BSDF (SPEC §7): values against onnxruntime, sampling against its pdf
+"""The ``neuralbrdf`` Mitsuba BSDF (docs/mitsuba-plugin.md): values against onnxruntime, sampling against its pdf
 (``mitsuba.chi2``), colour handling in RGB and spectral variants, one onnxruntime run per
 wavefront call, and small renders against each other and against Mitsuba's ``diffuse``."""
 

@@ -1,4 +1,4 @@
-"""NBRDF reader and evaluator (SPEC §2.4; Sztrajman et al. 2021) on the MERL proxies.
+"""NBRDF reader and evaluator (docs/formats.md#nbrdf-proxy; Sztrajman et al. 2021) on the MERL proxies.
 
 The references here are independent of the module: a per-sample pure-Python evaluation with
 explicit rotation matrices and weights read straight from h5py, a Monte Carlo albedo, and
@@ -30,7 +30,7 @@ from neuralbrdf.geometry import inplane_to_vectors
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "merl-nbrdf"
 pytestmark = pytest.mark.skipif(
-    not DATA.is_dir(), reason=f"NBRDF reference data not found at {DATA} (SPEC §2.4)"
+    not DATA.is_dir(), reason=f"NBRDF reference data not found at {DATA} (docs/formats.md#nbrdf-proxy)"
 )
 
 GLOSSY = ("tungsten-carbide", "brass", "blue-acrylic", "specular-black-phenolic")

@@ -1,4 +1,4 @@
-"""NLB representation network, pretraining and latent-only fitting (SPEC §4.2, §4.3, §5).
+"""NLB representation network, pretraining and latent-only fitting (docs/models.md, docs/evaluate.md#metrics).
 
 Tiny networks and checkpoints are made here so that nothing needs the shipped checkpoint;
 tests that use the MERL proxies skip when ``../shared/data`` is absent.
@@ -41,7 +41,7 @@ CONFIGS = ROOT / "configs"
 DATA = ROOT.parent / "shared" / "data"
 NBRDF = DATA / "merl-nbrdf"
 LOW2012 = DATA / "abc-low2012" / "low2012_abc_merl.csv"
-needs_merl = pytest.mark.skipif(not NBRDF.is_dir(), reason=f"MERL NBRDF proxies not found at {NBRDF} (SPEC §2.4)")
+needs_merl = pytest.mark.skipif(not NBRDF.is_dir(), reason=f"MERL NBRDF proxies not found at {NBRDF} (docs/formats.md#nbrdf-proxy)")
 
 
 def hemisphere_directions(n_theta=91, n_phi=24, upper=True):
@@ -699,7 +699,7 @@ def test_latent_config_evaluates_nbrdf_sources_on_the_low_plan(pretrained_run, t
         assert 0 < metrics[f"fit/abc_low2012/hemisphere_logcos_rmse/{material}"] < 0.1
     assert metrics["fit/hemisphere_logcos_rmse/mean"] == pytest.approx(
         (metrics["fit/hemisphere_logcos_rmse/brass"] + metrics["fit/hemisphere_logcos_rmse/nylon"]) / 2)
-    # the shared names of SPEC §9: per material, and their mean under the bare names
+    # the shared names of docs/evaluate.md#metrics: per material, and their mean under the bare names
     for material in ("brass", "nylon"):
         logged = metrics[f"fit/hemisphere_logcos_rmse/{material}"]
         assert metrics[f"fit/materials/{material}/hemisphere_logcos_rmse"] == pytest.approx(logged, rel=1e-5)

@@ -1,4 +1,4 @@
-"""Spectral NLB (SPEC §4.2–4.3, §6): the channel-agnostic network, its pretraining, its latent
+"""Spectral NLB (docs/models.md#spectral-nlb, docs/formats.md#onnx-model-files): the channel-agnostic network, its pretraining, its latent
 fit to RGB and spectral measurements, and its export.
 
 Independent references: the network's own forward with explicit codes (the exported graph bakes

@@ -1,4 +1,4 @@
-"""The ONNX contract (SPEC §6): valid files load, every kind of broken file fails at load time
+"""The ONNX contract (docs/formats.md#onnx-model-files): valid files load, every kind of broken file fails at load time
 with an InputError that names the file and the problem."""
 
 import math

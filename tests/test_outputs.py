@@ -1,4 +1,4 @@
-"""Outputs never destroy anything (SPEC §12): :mod:`neuralbrdf.atomic`.
+"""Outputs never destroy anything (docs/robustness.md): :mod:`neuralbrdf.atomic`.
 
 An output that is an input of the same command (same path, hard link, symbolic link), or an
 existing directory, device or FIFO, is refused with one line and exit status 2; a symbolic link

@@ -1,4 +1,4 @@
-"""Sampling plans of SPEC §3 (report Tables 4.1, 5.1, 6.1, 6.2)."""
+"""Sampling plans of docs/measure.md#sampling-plans (report Tables 4.1, 5.1, 6.1, 6.2)."""
 
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""Spectral MLP (report §5.1; SPEC §4.4): network, in-plane sample data, Table 5.1 split, metrics."""
+"""Spectral MLP (report §5.1; docs/models.md#spectral-mlp): network, in-plane sample data, Table 5.1 split, metrics."""
 
 from typing import get_args
 

@@ -1,5 +1,5 @@
 """The reduced spectrum → sRGB rule (render.spectral_quadrature) reproduces the full 31-wavelength
-integral of SPEC §2.3: exactly for spectra in a small span, within its stated tolerance for a
+integral of docs/formats.md#spectral-to-linear-srgb: exactly for spectra in a small span, within its stated tolerance for a
 model rendered through the plugin, and falls back to the full rule when spectra do not compress."""
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""The study command (SPEC §10): profile validation, cell keys, aggregation, and end to end on a tiny
+"""The study command (docs/study.md): profile validation, cell keys, aggregation, and end to end on a tiny
 profile with the report opened in headless Chromium."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The study's cache, lock and exit status under bad input and damage (SPEC §10, §12): a changed
+"""The study's cache, lock and exit status under bad input and damage (docs/study.md, docs/robustness.md): a changed
 truth, damaged or foreign cached results, a cut-off run log, two studies on one folder, a worker
 outliving its study, crashed and failed cells, bad profiles, and seeds that change something.
 

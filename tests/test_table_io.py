@@ -1,4 +1,4 @@
-"""BRDF sample table (SPEC §2.1): the dataclass, its CSV reader/writer and every rejection."""
+"""BRDF sample table (docs/formats.md#brdf-sample-table): the dataclass, its CSV reader/writer and every rejection."""
 
 import re
 import warnings

@@ -81,7 +81,7 @@ def test_fit_writes_config_checkpoints_csv_log_and_metrics(fitted_run, gcms_sess
     assert metrics["fit/epochs"] == 1
     assert metrics["fit/best_model_path"] == "checkpoints/best.ckpt"
     assert metrics["fit/best_model_score"] == pytest.approx(metrics["fit/val/loss"])
-    # the shared names of SPEC §9 on the data it was given; a user's file has no truth
+    # the shared names of docs/evaluate.md#metrics on the data it was given; a user's file has no truth
     assert 0 < metrics["fit/inplane_glossy_rel_rmse"] < float("inf")
     assert 0 < metrics["fit/inplane_diffuse_rel_rmse"] < float("inf")
     assert "fit/hemisphere_logcos_rmse" not in metrics

@@ -1,4 +1,4 @@
-"""The virtual goniospectrophotometer and its stand-in materials (SPEC §2.5): symmetries, energy,
+"""The virtual goniospectrophotometer and its stand-in materials (docs/measure.md#the-virtual-goniospectrophotometer): symmetries, energy,
 goniochromatism (CIE chromaticities from colour-science), the instrument response that
 calibration must cancel, seeded noise and the shipped-data writer."""
 

@@ -1,4 +1,4 @@
-"""``neuralbrdf export`` (and ``export/to_onnx.py``): a checkpoint to the ONNX file of SPEC §6, with
+"""``neuralbrdf export`` (and ``export/to_onnx.py``): a checkpoint to the ONNX file of docs/formats.md#onnx-model-files, with
 its fast paths.
 
     neuralbrdf export --ckpt RUN.ckpt --out MODEL.onnx [--material NAME] [--fast] [--no-rgb-head]
@@ -46,7 +46,7 @@ def build_parser(prog: str = "neuralbrdf export") -> argparse.ArgumentParser:
         prog=prog,
         description="Export a trained checkpoint (spectral MLP, ABC fit, or a latent fit of the NLB or the spectral "
         "NLB) to one self-contained "
-        "ONNX file (SPEC §6), validated against PyTorch with onnxruntime before it is written, with fast paths "
+        "ONNX file (docs/formats.md#onnx-model-files), validated against PyTorch with onnxruntime before it is written, with fast paths "
         "distilled from it (a spectral model's RGB head by default; --fast: a compact copy). Exit status: 0 "
         "written, 2 bad input, 1 the graph failed validation or a fast path its error bound (nothing written).",
         epilog=_kinds_help(),

@@ -1,6 +1,6 @@
 """The ``neuralbrdf`` command line: measure, calibrate, train, export, evaluate and study BRDF models.
 
-Conventions (SPEC §1): angles in degrees; in-plane files use *signed* angles ``theta_i,
+Conventions (docs/formats.md#conventions): angles in degrees; in-plane files use *signed* angles ``theta_i,
 theta_r`` in [-90, 90] with the mirror direction at ``theta_r = theta_i``; BRDF sample tables
 use spherical ``theta_i, phi_i, theta_o, phi_o``; BRDF values in sr⁻¹ without cosine factor;
 wavelengths in nm.  Every output is written atomically; bad input exits with status 2 and a
@@ -74,7 +74,7 @@ def build_parser() -> argparse.ArgumentParser:
         "simulate",
         commands.simulate,
         "measure a virtual material with the virtual goniospectrophotometer",
-        "Run the virtual GCMS instrument (SPEC §2.5) on a stand-in material. Writes a GCMS raw file (radiance "
+        "Run the virtual GCMS instrument (docs/measure.md#the-virtual-goniospectrophotometer) on a stand-in material. Writes a GCMS raw file (radiance "
         "factor beta, 390-730 nm, including the instrument's lamp/detector response, which calibration against "
         "the munsell_n9 reference cancels), or with --truth the noiseless ground-truth spectral BRDF table "
         "(1/sr, 400-700 nm).",
@@ -152,7 +152,7 @@ def build_parser() -> argparse.ArgumentParser:
         "export-truth",
         commands.export_truth,
         "export a ground-truth material to an ONNX model file (kind 'reference')",
-        "Write the ground truth of a material as one .onnx file under the model contract (SPEC §6, §9), so it "
+        "Write the ground truth of a material as one .onnx file under the model contract (docs/formats.md#onnx-model-files, docs/evaluate.md), so it "
         "renders through the same plugin, sampler and seeds as a fitted model. SOURCE is virtual:NAME (gold, gonio, "
         "cyan, magenta, munsell_n9: spectral, 400-700 nm, 1/sr), an NBRDF proxy NAME.h5 (linear sRGB, 1/sr) or a "
         "MERL measurement NAME.binary (linear sRGB, 1/sr; MERL's nearest cell, unmeasured cells 0).",
@@ -164,7 +164,7 @@ def build_parser() -> argparse.ArgumentParser:
         "evaluate",
         commands.evaluate,
         "score a model file against a truth file (hemisphere, in-plane, rendered image)",
-        "Score MODEL.onnx against TRUTH.onnx (SPEC §5, §9): log-cosine and relative RMSE over 102 400 stratified "
+        "Score MODEL.onnx against TRUTH.onnx (docs/evaluate.md): log-cosine and relative RMSE over 102 400 stratified "
         "hemisphere pairs (theta <= 80 deg), relative RMSE over the in-plane glossy (|ti - tr| <= 10 deg) and diffuse "
         "regions (1 deg grid within +-60 deg), and image metrics (relative MSE, PSNR, CIEDE2000 mean and p95) of both "
         "rendered in the material-preview scene (or your own, --scene) with the same seeds; the truth rendered again "
@@ -195,7 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
         "ladder",
         commands.ladder,
         "make cheaper stand-ins of a model file (ABC fit, baked tables, distilled networks) with their error and cost",
-        "Make the cost ladder of MODEL.onnx (SPEC §11): an ABC fit to the model's own dense samples, the model baked "
+        "Make the cost ladder of MODEL.onnx (docs/select.md): an ABC fit to the model's own dense samples, the model baked "
         "into tables over Rusinkiewicz angles (and wavelength) and, for spectral "
         "models, smaller spectral MLPs distilled from it, each a model file under the same contract recording its "
         "hemisphere log-cos RMSE against the parent and its measured Dr.Jit cost per query. Writes DIR/RUNG.onnx and "

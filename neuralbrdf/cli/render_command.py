@@ -1,5 +1,5 @@
-"""``neuralbrdf render`` (and ``export/render.py``): an exported model (SPEC §6) in the shipped
-material-preview scene, or any Mitsuba 3 scene that uses the ``neuralbrdf`` BSDF (SPEC §7).
+"""``neuralbrdf render`` (and ``export/render.py``): an exported model (docs/formats.md#onnx-model-files) in the shipped
+material-preview scene, or any Mitsuba 3 scene that uses the ``neuralbrdf`` BSDF (docs/mitsuba-plugin.md).
 
     neuralbrdf render --model MODEL.onnx --out IMAGE.png [--exr] [--variant llvm_ad_spectral]
         [--backend drjit|onnxruntime] [--spp 64] [--resolution 256] [--seed 0] [--rgb-tolerance 1e-3] [--fast]
@@ -77,7 +77,7 @@ def build_parser(prog: str = "neuralbrdf render") -> argparse.ArgumentParser:
         "scene shipped in neuralbrdf/render/scenes/material_preview.xml.",
     )
     source = parser.add_mutually_exclusive_group(required=True)
-    source.add_argument("--model", help="exported model file (.onnx, SPEC §6)")
+    source.add_argument("--model", help="exported model file (.onnx, docs/formats.md#onnx-model-files)")
     source.add_argument("--reference-bsdf", choices=sorted(REFERENCE_BSDFS), help="render a built-in BSDF instead")
     source.add_argument(
         "--scene", help="render this Mitsuba scene file instead of the preview scene (its neuralbrdf BSDFs name their "

@@ -1,4 +1,4 @@
-"""GCMS radiance factors → absolute spectral BRDF (SPEC §2.2; report §2.1.1, Eq. 2.3).
+"""GCMS radiance factors → absolute spectral BRDF (docs/formats.md#gcms-raw-measurement; report §2.1.1, Eq. 2.3).
 
 The instrument reports a radiance factor ``beta`` relative to its own lamp and detector.  A
 Munsell N9 white sheet, taken to reflect 79 % of a perfect reflecting diffuser (BRDF ``1/π``),

@@ -1,4 +1,4 @@
-"""Spectral BRDF → CIE XYZ → linear sRGB (SPEC §2.3; report §2.2, Eq. 2.4).
+"""Spectral BRDF → CIE XYZ → linear sRGB (docs/formats.md#spectral-to-linear-srgb; report §2.2, Eq. 2.4).
 
 ``X = k Σ f(λ) E(λ) x̄(λ)`` (likewise ``Y``, ``Z``) with ``k = 1 / Σ E(λ) ȳ(λ)`` over the
 wavelengths of the data, ``E`` the CIE D65 illuminant and ``x̄, ȳ, z̄`` the CIE 1931 2°

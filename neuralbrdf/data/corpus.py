@@ -1,4 +1,4 @@
-"""Pretraining corpus of the NLB representation network: random analytic materials (SPEC §4.2).
+"""Pretraining corpus of the NLB representation network: random analytic materials (docs/models.md#nlb).
 
 Fan et al. (2022, "Neural Layered BRDFs") pretrain their representation network on many
 materials; this project generates its own from physically based analytic families with
@@ -19,7 +19,7 @@ A material is a diffuse base plus up to :data:`MAX_LOBES` specular lobes, all RG
     shadowing (:func:`neuralbrdf.physics.microfacet.microfacet_brdf`);
   - ``beckmann``: the same with the Beckmann distribution (Walter et al. Eq. 25) and its exact
     Smith masking (:func:`neuralbrdf.physics.microfacet.beckmann_smith_g1`, Walter et al. Eq. 24 / Heitz 2014 Eq. 72);
-  - ``abc``: the ABC model's specular term (Löw et al. 2012, SPEC §4.1) with a dielectric
+  - ``abc``: the ABC model's specular term (Löw et al. 2012, docs/models.md#abc) with a dielectric
     Fresnel term, its ``A`` set from a target albedo through the lobe integral
     (:func:`abc_lobe_integral`).
 
@@ -129,7 +129,7 @@ def abc_lobe_integral(b, c, points: int = 2048):
 
 
 def abc_specular(wi, wo, a_rgb, b, c, eta):
-    """ABC specular term (SPEC §4.1 without the ``kd/π`` part), RGB ``[N, 3]``, sr⁻¹::
+    """ABC specular term (docs/models.md#abc without the ``kd/π`` part), RGB ``[N, 3]``, sr⁻¹::
 
         A · F(η, wi·h) · G / (π cos θi cos θo (1 + B (1 - n·h))^C)
 

@@ -1,4 +1,4 @@
-"""Strict CSV reading and writing shared by the project's file formats (SPEC §2.1, §2.2).
+"""Strict CSV reading and writing shared by the project's file formats (docs/formats.md).
 
 Every defect is an :class:`~neuralbrdf.errors.InputError` naming the file, the line (the header
 is line 1) and the column.  Blank lines are skipped; no data row is ever dropped.  Writers go

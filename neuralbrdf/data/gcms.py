@@ -1,7 +1,7 @@
-"""GCMS raw measurements (SPEC §2.2; report §2.1.1 and §3.2).
+"""GCMS raw measurements (docs/formats.md#gcms-raw-measurement; report §2.1.1 and §3.2).
 
 What a Murakami GCMS-3B style goniospectrophotometer exports: CSV with signed in-plane
-``theta_i, theta_r`` (degrees, SPEC §1) and one column per wavelength 390–730 nm at 10 nm
+``theta_i, theta_r`` (degrees, docs/formats.md#conventions) and one column per wavelength 390–730 nm at 10 nm
 (35 bands) holding the radiance factor beta (unitless).  The header is exactly
 ``theta_i,theta_r,390,400,...,730``.
 
@@ -139,7 +139,7 @@ class GcmsMeasurement:
 
 
 def read_gcms(path: str | os.PathLike[str]) -> GcmsMeasurement:
-    """Read a GCMS raw file (SPEC §2.2), rejecting any defect with file, line and column."""
+    """Read a GCMS raw file (docs/formats.md#gcms-raw-measurement), rejecting any defect with file, line and column."""
     return gcms_from_csv(read_numeric_csv(path))
 
 

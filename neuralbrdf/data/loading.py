@@ -1,7 +1,7 @@
-"""One entry point for measured data, used by the command line and training configs (SPEC §2).
+"""One entry point for measured data, used by the command line and training configs (docs/formats.md).
 
-:func:`load_measurement` accepts either a BRDF sample table (SPEC §2.1; header
-``theta_i, phi_i, ...``) or a GCMS raw file (SPEC §2.2; header ``theta_i, theta_r, 390, ...``),
+:func:`load_measurement` accepts either a BRDF sample table (docs/formats.md#brdf-sample-table; header
+``theta_i, phi_i, ...``) or a GCMS raw file (docs/formats.md#gcms-raw-measurement; header ``theta_i, theta_r, 390, ...``),
 told apart by the header.  A GCMS raw file needs its Munsell N9 reference file and is calibrated
 (report Eq. 2.3); a table is already a BRDF and must not be given one.
 """

@@ -1,8 +1,8 @@
-"""Löw et al.'s (2012) published ABC fits of the MERL materials (``../shared/data/abc-low2012``).
+"""Löw et al.'s (2012) published ABC fits of the MERL materials (docs/formats.md#löw-et-als-abc-fits).
 
 J. Löw, J. Kronander, A. Ynnerman, J. Unger, "BRDF models for accurate and efficient rendering
 of glossy surfaces", ACM TOG 31(1), 2012: RGB parameters of the ABC model
-(:class:`~neuralbrdf.physics.abc.AbcParameters`, SPEC §2.4, §4.1) fitted to all MERL samples.
+(:class:`~neuralbrdf.physics.abc.AbcParameters`, docs/models.md#abc) fitted to all MERL samples.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from neuralbrdf.data.csvio import read_csv_rows
 from neuralbrdf.errors import InputError
 from neuralbrdf.physics.abc import AbcParameters
 
-#: Column order of Löw et al.'s published fits (``../shared/data/abc-low2012``).
+#: Column order of Löw et al.'s published fits (docs/formats.md#löw-et-als-abc-fits).
 LOW2012_COLUMNS = ("material", "kd_r", "kd_g", "kd_b", "A_r", "A_g", "A_b", "B", "C", "eta")
 
 

@@ -99,7 +99,7 @@ class MerlBrdf:
 
 
 def sample_merl(brdf: MerlBrdf, plan_name: str) -> BrdfTable:
-    """RGB :class:`BrdfTable` of a MERL measurement on a sampling plan of SPEC §3."""
+    """RGB :class:`BrdfTable` of a MERL measurement on a sampling plan of docs/measure.md#sampling-plans."""
     angles = plan_spherical(plan_name)
     values = brdf.evaluate(*spherical_pair_to_vectors(*angles))
     return BrdfTable(*angles, values=values, source=f"merl:{brdf.name}:{plan_name}")

@@ -1,4 +1,4 @@
-"""MERL proxies: the Neural BRDF networks of Sztrajman et al. (2021) as materials (SPEC §2.4).
+"""MERL proxies: the Neural BRDF networks of Sztrajman et al. (2021) as materials (docs/formats.md#nbrdf-proxy).
 
 A. Sztrajman, G. Rainer, T. Ritschel, T. Weyrich, "Neural BRDF representation and importance
 sampling", Computer Graphics Forum 40(6), 2021 (code and weights: github.com/asztr/Neural-BRDF,
@@ -182,7 +182,7 @@ def sample_directions(
 
 
 def sample_plan(network: NbrdfNetwork, plan_name: str, progress: bool = False) -> BrdfTable:
-    """RGB :class:`BrdfTable` of ``network`` on a sampling plan of SPEC §3 (e.g. ``"DS1"``)."""
+    """RGB :class:`BrdfTable` of ``network`` on a sampling plan of docs/measure.md#sampling-plans (e.g. ``"DS1"``)."""
     return sample_directions(
         network,
         *plan_spherical(plan_name),

@@ -1,4 +1,4 @@
-"""Sampling plans: which direction pairs an operator measures (SPEC §3).
+"""Sampling plans: which direction pairs an operator measures (docs/measure.md#sampling-plans).
 
 In-plane plans follow the report's Tables 4.1, 6.1 and 6.2 (S. Chitnis, *Simplifying BRDF
 Acquisition*): signed in-plane angles (:mod:`neuralbrdf.geometry`) with ``theta_i`` and

@@ -1,11 +1,11 @@
-"""Measured NBRDF proxies as NLB pretraining materials, with fixed held-out subsets (SPEC §2.4, §4.2).
+"""Measured NBRDF proxies as NLB pretraining materials, with fixed held-out subsets (docs/formats.md#nbrdf-proxy, docs/models.md#nlb).
 
 Fan et al. (2022) pretrain their representation network on measured materials; the analytic
 corpus (:mod:`neuralbrdf.data.corpus`) alone leaves the network's prior far from real
 materials.  This module adds NBRDF proxies (Sztrajman et al. 2021) of two labs to the
-pretraining batches: the MERL measurements of ``../shared/data/merl-nbrdf`` (Matusik et al.
-2003; MERL data CC BY-SA 4.0) and the RGL measurements of ``../shared/data/rgl-nbrdf`` (Dupuy &
-Jakob 2018, another lab and instrument) — all of them except
+pretraining batches: the MERL measurements (Matusik et al.
+2003; MERL data CC BY-SA 4.0) and the RGL measurements (Dupuy &
+Jakob 2018, another lab and instrument) of the reference data (README.md) — all of them except
 
 * the report's five materials (:data:`~neuralbrdf.data.nbrdf.REPORT_MATERIALS`), the project's
   latent-fitting test materials,
@@ -18,8 +18,8 @@ Jakob 2018, another lab and instrument) — all of them except
 
 No group is ever sampled here (:func:`pretraining_proxy_names` refuses them).  Each lab's
 materials are named ``<lab>:<name>`` (``merl:brass``, ``rgl:satin_white_rgb``), the lab being
-the data folder's name without ``-nbrdf``.  Samples are drawn on the fly, never stored; the data
-stays in ``../shared``.
+the data folder's name without ``-nbrdf``.  Samples are drawn on the fly, never stored; the proxy
+files are read where they lie.
 
 Direction pairs (:func:`sample_proxy_directions`): a ``uniform_fraction`` has ``wi`` and ``wo``
 uniform in solid angle on the hemisphere (a third of them beyond 70° from the normal: grazing

@@ -1,6 +1,6 @@
-"""The BRDF sample table, the project's one interchange format (SPEC §2.1).
+"""The BRDF sample table, the project's one interchange format (docs/formats.md#brdf-sample-table).
 
-CSV with a header: ``theta_i, phi_i, theta_o, phi_o`` (degrees, spherical, SPEC §1), then
+CSV with a header: ``theta_i, phi_i, theta_o, phi_o`` (degrees, spherical, docs/formats.md#conventions), then
 either ``R, G, B`` (linear sRGB, sr⁻¹) or one column per wavelength named by its value in nm
 (a regular, increasing grid), and an optional ``weight`` column.  One row per direction pair.
 Columns are found by name; :func:`write_table` writes them in that canonical order.
@@ -251,7 +251,7 @@ class BrdfTable:
         return [format_wavelength(w) for w in self.wavelengths.tolist()]
 
     def vectors(self) -> tuple[np.ndarray, np.ndarray]:
-        """Unit direction vectors ``(wi, wo)``, each ``[N, 3]``, in the local frame (SPEC §1)."""
+        """Unit direction vectors ``(wi, wo)``, each ``[N, 3]``, in the local frame (docs/formats.md#conventions)."""
         return spherical_pair_to_vectors(self.theta_i, self.phi_i, self.theta_o, self.phi_o)
 
     def inplane_angles(self) -> tuple[np.ndarray, np.ndarray]:
@@ -268,7 +268,7 @@ class BrdfTable:
         return in_plane_of_incidence(*self.vectors())
 
     def to_rgb(self) -> BrdfTable:
-        """Linear-sRGB version of a spectral table (SPEC §2.3); an RGB table is returned as is.
+        """Linear-sRGB version of a spectral table (docs/formats.md#spectral-to-linear-srgb); an RGB table is returned as is.
 
         Spectra outside the sRGB gamut give negative channels; they are clipped to 0 (the table
         holds BRDF values) with a warning giving their count.
@@ -335,7 +335,7 @@ def _value_columns(csv_file: NumericCsv) -> tuple[list[str], np.ndarray | None]:
 
 
 def read_table(path: str | os.PathLike[str]) -> BrdfTable:
-    """Read a BRDF sample table (SPEC §2.1), rejecting any defect with file, line and column."""
+    """Read a BRDF sample table (docs/formats.md#brdf-sample-table), rejecting any defect with file, line and column."""
     return table_from_csv(read_numeric_csv(path))
 
 

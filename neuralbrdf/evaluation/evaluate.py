@@ -1,4 +1,4 @@
-"""``neuralbrdf evaluate``: a model file scored against a truth file where users look (SPEC §9).
+"""``neuralbrdf evaluate``: a model file scored against a truth file where users look (docs/evaluate.md).
 
 Direction metrics (:mod:`neuralbrdf.evaluation.scores`: whole hemisphere, in-plane glossy and
 diffuse regions) and image metrics (:mod:`neuralbrdf.evaluation.images`) from rendering model
@@ -30,7 +30,7 @@ Outputs in ``DIR`` (all written together, or none: :func:`neuralbrdf.atomic.atom
 render, a positive sample count, a non-negative seed, a Mitsuba variant that starts — and that
 every output can be written.  ``evaluation.json`` records what was compared: both files' kinds,
 materials, wavelength ranges and SHA-256, and ``notes`` for what a reader must know (a truth that
-is not a ground truth, kind ``reference``, SPEC §9: then the scores measure a difference between
+is not a ground truth, kind ``reference``, docs/evaluate.md#ground-truths: then the scores measure a difference between
 two models).
 
 **Your own scene** (:class:`SceneTarget`, ``neuralbrdf evaluate --scene SCENE.xml [--material
@@ -76,7 +76,7 @@ MIN_RESOLUTION = 16
 #: Widest evaluation image: the image metrics hold about twenty float64 copies of an image
 #: (~0.5 KB per pixel), ~2 GB at 2048 x 2048.
 MAX_RESOLUTION = 2048
-#: The kind of a ground truth (SPEC §9).
+#: The kind of a ground truth (docs/evaluate.md#ground-truths).
 REFERENCE_KIND = "reference"
 
 
@@ -118,7 +118,7 @@ def check_settings(settings: RenderSettings, model_path: Path, render_images: bo
 
 @dataclass(frozen=True)
 class SceneTarget:
-    """A user's Mitsuba scene to render in instead of the preview (SPEC §7): its ``neuralbrdf``
+    """A user's Mitsuba scene to render in instead of the preview (docs/mitsuba-plugin.md): its ``neuralbrdf``
     material named ``material`` (``None``: the scene's only one) carries the model, then the truth;
     ``resolution`` sets the film's width and height (``None``: the scene's own)."""
 

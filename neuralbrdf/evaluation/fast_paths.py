@@ -1,4 +1,4 @@
-"""What ``neuralbrdf evaluate`` says about a model file's fast paths (SPEC §6, §11).
+"""What ``neuralbrdf evaluate`` says about a model file's fast paths (docs/formats.md#onnx-model-files, docs/select.md).
 
 For every fast path of the file (``f_rgb``, ``f_fast``; :mod:`neuralbrdf.lod.fast_paths`):
 what its metadata records (what it approximates, its error against ``f``, its relative cost)
@@ -47,7 +47,7 @@ def fast_path_scores(path: str | Path, strata: tuple[int, int] = HEMISPHERE_STRA
 
 
 def image_against_f(fast_image: np.ndarray, f_image: np.ndarray) -> dict[str, float]:
-    """Image metrics (SPEC §9 names) of a render through a fast path against the render of ``f``."""
+    """Image metrics (the names of docs/evaluate.md#metrics) of a render through a fast path against the render of ``f``."""
     metrics, _ = image_scores(fast_image, f_image)
     return metrics
 

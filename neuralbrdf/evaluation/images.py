@@ -1,4 +1,4 @@
-"""Image metrics of a render against the render of the truth (SPEC §5, §9).
+"""Image metrics of a render against the render of the truth (docs/evaluate.md).
 
 Both images are linear sRGB ``[H, W, 3]`` rendered with the same scene, seeds and passes.
 

@@ -1,9 +1,9 @@
-"""A model scored against its truth over the whole hemisphere and the in-plane grid (SPEC §5, §9).
+"""A model scored against its truth over the whole hemisphere and the in-plane grid (docs/evaluate.md).
 
 Metric names are fixed (:data:`DIRECTION_METRICS`) and shared by ``neuralbrdf evaluate``,
 training runs' ``metrics.json`` and the study:
 
-* ``hemisphere_logcos_rmse`` — ``sqrt(mean((ln(1 + f cos θi) − ln(1 + f̂ cos θi))²))`` (SPEC §5) and
+* ``hemisphere_logcos_rmse`` — ``sqrt(mean((ln(1 + f cos θi) − ln(1 + f̂ cos θi))²))`` (docs/evaluate.md#metrics) and
   ``hemisphere_rel_rmse`` — relative RMSE (report Eq. 4.3, channel mean, truth values below
   :data:`~neuralbrdf.metrics.DEFAULT_FLOOR` excluded) — over :func:`hemisphere_pairs`:
   :data:`HEMISPHERE_STRATA` jittered strata of ``(cos θ, φ)`` per direction, every incident
@@ -15,7 +15,7 @@ training runs' ``metrics.json`` and the study:
 **What is compared.** Two spectral models compare their spectra at the 31 wavelengths 400, 410,
 …, 700 nm (every wavelength a channel; the in-plane errors are also given per wavelength).
 Otherwise both sides compare in linear sRGB: a spectral side is converted through
-:mod:`neuralbrdf.data.colorimetry` (CIE 1931 2°, D65, SPEC §2.3).
+:mod:`neuralbrdf.data.colorimetry` (CIE 1931 2°, D65, docs/formats.md#spectral-to-linear-srgb).
 
 Models are :class:`Evaluator` objects: an ``.onnx`` file through onnxruntime
 (:class:`OnnxEvaluator`) or a torch module on directions (:class:`TorchEvaluator`);
@@ -40,7 +40,7 @@ from neuralbrdf.errors import InputError
 from neuralbrdf.geometry import inplane_to_vectors, spherical_to_vector
 from neuralbrdf.metrics import DEFAULT_FLOOR, hemisphere_logcos_rmse, masked_relative_rmse
 
-#: Wavelengths (nm) at which spectra are compared: the measurement grid (SPEC §2.2).
+#: Wavelengths (nm) at which spectra are compared: the measurement grid (docs/formats.md#gcms-raw-measurement).
 COMPARISON_WAVELENGTHS_NM = np.arange(400.0, 701.0, 10.0)
 #: Largest polar angle (degrees) of the hemisphere pairs.
 HEMISPHERE_MAX_THETA_DEG = 80.0
@@ -72,10 +72,10 @@ class Evaluator(Protocol):
 
 
 class OnnxEvaluator:
-    """An ``.onnx`` model file (SPEC §6) evaluated with onnxruntime: its ``f``, or one of its fast
+    """An ``.onnx`` model file (docs/formats.md#onnx-model-files) evaluated with onnxruntime: its ``f``, or one of its fast
     paths (``output``; ``model`` is then the file cut to that output, ``f_rgb`` an RGB model, and
     ``file`` the whole file); a spectral model at wavelengths clamped to its declared range, as the
-    renderer evaluates it (SPEC §7), so the scores measure what renders."""
+    renderer evaluates it (docs/mitsuba-plugin.md), so the scores measure what renders."""
 
     def __init__(self, path: str | Path, output: str = "f") -> None:
         import onnxruntime
@@ -285,13 +285,13 @@ def direction_scores(
 
 def fit_scores(pred_fit, fit_values, theta_i, theta_r, pred_truth=None, truth_values=None,
                truth_theta_i=None) -> dict[str, float | None]:
-    """The metrics every training run writes to ``metrics.json`` under these names (SPEC §9).
+    """The metrics every training run writes to ``metrics.json`` under these names (docs/evaluate.md#metrics).
 
     ``inplane_glossy_rel_rmse`` and ``inplane_diffuse_rel_rmse`` of ``pred_fit`` against the
     values ``[N, C]`` the model was given, at signed in-plane angles ``theta_i, theta_r`` (rows off
     the plane of incidence count by their in-plane equivalent, ``|θi − θr| = 2 θh``); a region
     without a sample above the floor gives ``None``.  With a truth (values on the dense Low set of
-    a virtual material or NBRDF proxy, SPEC §5, the model's values there and the incident polar
+    a virtual material or NBRDF proxy, docs/evaluate.md#metrics, the model's values there and the incident polar
     angles), ``hemisphere_logcos_rmse``.
     """
     glossy = is_glossy(theta_i, theta_r)

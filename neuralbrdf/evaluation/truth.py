@@ -1,8 +1,8 @@
-"""Ground-truth materials as models on directions, exportable to the ONNX contract (SPEC §9, §6).
+"""Ground-truth materials as models on directions, exportable to the ONNX contract (docs/evaluate.md, docs/formats.md#onnx-model-files).
 
 Every material the project ships or reads has a truth: the analytic BRDF of a virtual material
-(:mod:`neuralbrdf.virtual.materials`, SPEC §2.5) or the network of an NBRDF proxy of a MERL
-material (:mod:`neuralbrdf.data.nbrdf`, Sztrajman et al. 2021, SPEC §2.4).  Here each becomes an
+(:mod:`neuralbrdf.virtual.materials`, docs/measure.md#the-virtual-goniospectrophotometer) or the network of an NBRDF proxy of a MERL
+material (:mod:`neuralbrdf.data.nbrdf`, Sztrajman et al. 2021, docs/formats.md#nbrdf-proxy).  Here each becomes an
 ``nn.Module`` with the interface of :mod:`neuralbrdf.models.directional`, so that it exports to
 one ``.onnx`` file of kind ``reference`` and renders through the same plugin, sampler and seeds
 as a fitted model: image differences then measure the model, not the renderer.
@@ -13,7 +13,7 @@ as a fitted model: image differences then measure the model, not the renderer.
   library's own (``brdf_from_spectra``), evaluated in the graph.  On the grid the truth equals
   the library's evaluation to float32 rounding; between nodes the interpolation differs from
   colour-science's Sprague interpolation of the ColorChecker spectra by well under 1 %.  The
-  range is that of the project's colour pipeline (SPEC §2.3, 400–700 nm) and of every fitted
+  range is that of the project's colour pipeline (docs/formats.md#spectral-to-linear-srgb, 400–700 nm) and of every fitted
   spectral model; wavelengths outside are clamped to it, as the contract says.
 * :class:`NbrdfTruth` — RGB, ``f(wi, wo) [N, 3]``: the NBRDF network (6→21→21→3, ReLU, ``exp(x) −
   1``) on the Rusinkiewicz half/difference vectors, clamped at 0 and 0 below the horizon.
@@ -43,12 +43,12 @@ from neuralbrdf.onnx_export import Exportable, ExportReport, write_model
 from neuralbrdf.kinds import contract_metadata
 from neuralbrdf.virtual.materials import MATERIALS, get_material
 
-#: Wavelength range (nm) of the virtual truths: the project's colour pipeline (SPEC §2.3).
+#: Wavelength range (nm) of the virtual truths: the project's colour pipeline (docs/formats.md#spectral-to-linear-srgb).
 TRUTH_RANGE_NM = (400.0, 700.0)
 #: Spacing (nm) of the wavelength tables a virtual truth interpolates.
 TRUTH_STEP_NM = 5.0
 VIRTUAL_PREFIX = "virtual:"
-#: The kind written to ``neuralbrdf.kind`` (SPEC §6).
+#: The kind written to ``neuralbrdf.kind`` (docs/formats.md#onnx-model-files).
 REFERENCE_KIND = "reference"
 
 
@@ -193,5 +193,5 @@ def load_truth(source: str) -> Truth:
 
 
 def export_truth(source: str, out: str | Path) -> ExportReport:
-    """Write the truth named by ``source`` to ``out`` as a ``reference`` model (SPEC §6, §9)."""
+    """Write the truth named by ``source`` to ``out`` as a ``reference`` model (docs/formats.md#onnx-model-files, docs/evaluate.md)."""
     return write_model(load_truth(source).exportable(), out)

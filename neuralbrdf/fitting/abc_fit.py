@@ -1,4 +1,4 @@
-"""Fitting the ABC model to a BRDF sample table (report §4.1.1, SPEC §4.1).
+"""Fitting the ABC model to a BRDF sample table (report §4.1.1, docs/models.md#abc).
 
 Following the report (after Löw et al. 2012):
 

@@ -1,8 +1,8 @@
-"""Model kinds: one module per kind, found by the registry here (SPEC §4, §6).
+"""Model kinds: one module per kind, found by the registry here (docs/models.md, docs/formats.md#onnx-model-files).
 
 A *kind* is what a model file or checkpoint is: ``spectral_mlp`` (the report's §5 network),
-``nlb`` (a latent fit of the NLB network, SPEC §4.2–4.3), ``abc`` (Löw et al. 2012, SPEC
-§4.1), ``reference`` (a ground-truth material, SPEC §9).  Each lives in one module of this
+``nlb`` (a latent fit of the NLB network, docs/models.md#nlb), ``abc`` (Löw et al. 2012,
+docs/models.md#abc), ``reference`` (a ground-truth material, docs/evaluate.md#ground-truths).  Each lives in one module of this
 package that defines ``KIND``, a :class:`Kind` saying
 
 * its name (the ``neuralbrdf.kind`` entry of an ``.onnx`` file and the ``neuralbrdf_kind``

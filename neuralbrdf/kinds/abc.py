@@ -1,4 +1,4 @@
-"""Kind ``abc``: the ABC microfacet model (Löw et al. 2012, SPEC §4.1) with fitted parameters.
+"""Kind ``abc``: the ABC microfacet model (Löw et al. 2012, docs/models.md#abc) with fitted parameters.
 
 The graph is :class:`~neuralbrdf.models.directional.AbcOnDirections` (RGB, or spectral with a
 ``wavelength`` input when the parameters have wavelengths).  Beside the graph the file stores
@@ -43,7 +43,7 @@ KEYS = (KD_KEY, A_KEY, B_KEY, C_KEY, ETA_KEY)
 
 @dataclass(frozen=True)
 class AbcMetadata:
-    """ABC parameters stored beside an ABC graph (SPEC §4.1), used by its analytic sampler."""
+    """ABC parameters stored beside an ABC graph (docs/models.md#abc), used by its analytic sampler."""
 
     kd: tuple[float, ...]
     A: tuple[float, ...]
@@ -110,7 +110,7 @@ def from_checkpoint(checkpoint: dict, path: Path, material: str | None):
 
 KIND = Kind(
     name=NAME,
-    summary="the ABC microfacet model with fitted parameters, sampled analytically (SPEC §4.1)",
+    summary="the ABC microfacet model with fitted parameters, sampled analytically (docs/models.md#abc)",
     read_metadata=read_metadata,
     proposal="abc_lobe",
     from_checkpoint=from_checkpoint,

@@ -1,4 +1,4 @@
-"""Kind ``nlb``: a latent fit of the NLB representation network (Fan et al. 2022; SPEC §4.2–4.3).
+"""Kind ``nlb``: a latent fit of the NLB representation network (Fan et al. 2022; docs/models.md#nlb).
 
 Checkpoints come from :class:`~neuralbrdf.lightning.latent_fit_module.LatentFitModule`: the
 frozen network, one latent per fitted material and the materials' names (:func:`load_fitted`).
@@ -79,7 +79,7 @@ def _recognises(checkpoint: dict) -> bool:
 
 KIND = Kind(
     name="nlb",
-    summary="a latent fit of the NLB representation network, one file per material (SPEC §4.2)",
+    summary="a latent fit of the NLB representation network, one file per material (docs/models.md#nlb)",
     from_checkpoint=from_checkpoint,
     recognises=_recognises,
 )

@@ -1,4 +1,4 @@
-"""Kind ``nlb_spectral``: a latent fit of the spectral NLB network (SPEC §4.2–4.3).
+"""Kind ``nlb_spectral``: a latent fit of the spectral NLB network (docs/models.md#spectral-nlb).
 
 Checkpoints come from :class:`~neuralbrdf.lightning.nlb_spectral_fit.SpectralLatentFitModule`:
 the frozen channel-agnostic network (:mod:`neuralbrdf.models.nlb_spectral`), per material a
@@ -96,7 +96,7 @@ def _recognises(checkpoint: dict) -> bool:
 KIND = Kind(
     name="nlb_spectral",
     summary="a latent fit of the spectral NLB network, spectral for spectral measurements and RGB for "
-            "RGB ones, one file per material (SPEC §4.2)",
+            "RGB ones, one file per material (docs/models.md#spectral-nlb)",
     from_checkpoint=from_checkpoint,
     recognises=_recognises,
 )

@@ -4,7 +4,7 @@ Checkpoints come from :class:`~neuralbrdf.lightning.spectral_mlp_module.Spectral
 (``train.py fit --config configs/spectral_mlp.yaml``); the network is rebuilt from the
 checkpoint's hyper-parameters as a plain :class:`~neuralbrdf.models.spectral_mlp.SpectralMLP`
 and exported as :class:`~neuralbrdf.models.directional.SpectralMlpOnDirections` (inputs ``wi, wo,
-wavelength``, output ``f [N]``; the in-plane mapping of SPEC §4.4 inside the graph).  Sampling:
+wavelength``, output ``f [N]``; the in-plane mapping of docs/models.md#spectral-mlp inside the graph).  Sampling:
 a GGX mixture fitted to the model.
 """
 
@@ -55,7 +55,7 @@ def _recognises(checkpoint: dict) -> bool:
 
 KIND = Kind(
     name="spectral_mlp",
-    summary="the report's 3x10 spectral MLP on in-plane angles and wavelength (SPEC §4.4)",
+    summary="the report's 3x10 spectral MLP on in-plane angles and wavelength (docs/models.md#spectral-mlp)",
     spectral_only=True,
     from_checkpoint=from_checkpoint,
     recognises=_recognises,

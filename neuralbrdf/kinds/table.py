@@ -1,5 +1,5 @@
 """Kind ``table``: a model baked into a table over Rusinkiewicz angles (and wavelength), read by
-multilinear interpolation (:class:`~neuralbrdf.models.baked_table.BakedTable`; SPEC §11).
+multilinear interpolation (:class:`~neuralbrdf.models.baked_table.BakedTable`; docs/select.md).
 
 Made by ``neuralbrdf ladder`` from another model file (:func:`neuralbrdf.lod.distill.bake_table`),
 never trained, so no checkpoint.  Its own metadata entry ``neuralbrdf.table.nodes`` gives the
@@ -41,6 +41,6 @@ def read_nodes(metadata: Mapping[str, str], path, is_spectral: bool) -> tuple[in
 
 KIND = Kind(
     name=NAME,
-    summary="a model baked into a table over Rusinkiewicz angles, interpolated multilinearly (SPEC §11)",
+    summary="a model baked into a table over Rusinkiewicz angles, interpolated multilinearly (docs/select.md)",
     read_metadata=read_nodes,
 )

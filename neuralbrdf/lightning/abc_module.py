@@ -1,4 +1,4 @@
-"""The ABC fit run (SPEC §4.1; report §4.1.1) as a Lightning module for ``train.py``.
+"""The ABC fit run (docs/models.md#abc; report §4.1.1) as a Lightning module for ``train.py``.
 
 The fit itself is :func:`neuralbrdf.fitting.abc_fit.fit_abc` (bounded multi-start
 minimisation of ``L_cus``, Eq. 4.2); this module runs it once on the material of

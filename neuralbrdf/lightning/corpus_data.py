@@ -1,4 +1,4 @@
-"""The NLB pretraining corpus as a Lightning data module (SPEC §4.2; :mod:`neuralbrdf.data.corpus`).
+"""The NLB pretraining corpus as a Lightning data module (docs/models.md#nlb; :mod:`neuralbrdf.data.corpus`).
 
 The corpus materials are fixed by ``(n_analytic, seed)``; their samples are generated on the
 fly, one whole batch per dataset item, never stored.  Batch ``i`` of epoch ``e`` is drawn from
@@ -121,7 +121,7 @@ class CorpusDataModule(pl.LightningDataModule):
         DataLoader worker processes generating batches while the model trains (0: generate
         in the training process).
     proxy_dir:
-        Folder of NBRDF proxies to mix in (``../shared/data/merl-nbrdf``), or a list of folders,
+        Folder of NBRDF proxies to mix in (the MERL ones of the reference data, README.md), or a list of folders,
         one per lab (``[…/merl-nbrdf, …/rgl-nbrdf]``); ``None``: the analytic corpus alone.
     proxy_fraction:
         Share of each batch drawn from the proxies (when ``proxy_dir`` is set).

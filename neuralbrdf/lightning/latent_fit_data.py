@@ -3,19 +3,19 @@
 ``sources`` lists one material per entry in the vocabulary of every data module
 (:mod:`neuralbrdf.sources`):
 
-* ``{path: FILE}`` — a BRDF sample table (SPEC §2.1), RGB or spectral (converted to linear
-  sRGB, SPEC §2.3), or with ``reference: MUNSELL`` a GCMS raw file and its Munsell N9
-  reference (SPEC §2.2);
+* ``{path: FILE}`` — a BRDF sample table (docs/formats.md#brdf-sample-table), RGB or spectral (converted to linear
+  sRGB, docs/formats.md#spectral-to-linear-srgb), or with ``reference: MUNSELL`` a GCMS raw file and its Munsell N9
+  reference (docs/formats.md#gcms-raw-measurement);
 * ``{virtual: NAME}`` — a shipped virtual-instrument measurement (``cyan``, ``magenta``,
   ``gold``, ``gonio``) with the shipped reference;
-* ``{nbrdf: FILE.h5}`` — an NBRDF proxy (SPEC §2.4) sampled on ``plan`` (the entry's own
+* ``{nbrdf: FILE.h5}`` — an NBRDF proxy (docs/formats.md#nbrdf-proxy) sampled on ``plan`` (the entry's own
   ``plan`` key, else the data module's);
 * ``{merl: FILE.binary}`` — a MERL measurement, sampled on ``plan`` likewise.
 
 Each may carry ``name`` (default: the file stem or virtual material).  ``--data.path FILE``
 (with ``--data.reference``) drops a single measurement into any latent-fit config.
 
-Values are linear sRGB (spectral tables converted, SPEC §2.3) unless ``spectral`` is set (or
+Values are linear sRGB (spectral tables converted, docs/formats.md#spectral-to-linear-srgb) unless ``spectral`` is set (or
 automatic and every source has a spectrum): then every source must be spectral on one wavelength
 grid (:attr:`LatentFitData.wavelengths_nm`), which the spectral NLB fits band by band
 (:mod:`neuralbrdf.lightning.nlb_spectral_fit`).
@@ -118,7 +118,7 @@ class LatentFitData(pl.LightningDataModule):
         A single measurement to fit instead of ``sources`` (``--data.path FILE`` drops a user's
         BRDF table, or GCMS raw file with its Munsell N9 ``reference``, into any config).
     plan:
-        Sampling plan (SPEC §3) of NBRDF and MERL sources without their own ``plan``.
+        Sampling plan (docs/measure.md#sampling-plans) of NBRDF and MERL sources without their own ``plan``.
     eval_plan:
         Plan on which NBRDF, MERL and virtual sources (which have a truth) are compared with the
         fit; ``None``: no such evaluation.

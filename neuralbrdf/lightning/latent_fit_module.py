@@ -1,4 +1,4 @@
-"""Latent-only fitting of new materials on a frozen NLB network (SPEC §4.3; report §4.2).
+"""Latent-only fitting of new materials on a frozen NLB network (docs/models.md#latent-fit-rgb-nlb; report §4.2).
 
 As in Fan et al. (2022) and the report: load the pretrained network
 (:func:`~neuralbrdf.lightning.nlb_module.load_pretrained`), freeze every weight, and optimise
@@ -47,12 +47,12 @@ describe the latents the fit ends with.
 **Metrics** (logged at every validation, so ``metrics.json`` holds the final values under
 ``fit/``):
 
-* ``fit_logcos_rmse/<name>`` — the hemisphere log-cosine RMSE (SPEC §5) of the fit on the
+* ``fit_logcos_rmse/<name>`` — the hemisphere log-cosine RMSE (docs/evaluate.md#metrics) of the fit on the
   material's own fitting samples;
 * for NBRDF sources, ``hemisphere_logcos_rmse/<name>`` — the same metric against the proxy on
-  ``eval_plan`` (default the Löw et al. set, SPEC §3): how well the fit generalises;
+  ``eval_plan`` (default the Löw et al. set, docs/measure.md#sampling-plans): how well the fit generalises;
 * and, when ``low2012_abc`` lists the proxy's material, ``abc_low2012/hemisphere_logcos_rmse/<name>``
-  — Löw et al.'s published full-data ABC fit (SPEC §2.4) on the same plan, the reference to beat;
+  — Löw et al.'s published full-data ABC fit (docs/formats.md#löw-et-als-abc-fits) on the same plan, the reference to beat;
 * ``hemisphere_logcos_rmse/mean`` over the NBRDF sources.
 
 The frozen weights are checked bit for bit against the checkpoint at the end of every fit

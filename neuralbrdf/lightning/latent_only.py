@@ -1,4 +1,4 @@
-"""What every latent-only fit on a frozen pretrained network shares (SPEC §4.3; report §4.2).
+"""What every latent-only fit on a frozen pretrained network shares (docs/models.md#latent-fit-rgb-nlb; report §4.2).
 
 A latent-only fit (Fan et al. 2022) freezes a pretrained auto-decoder and optimises only the
 codes of new materials, all in one batch.  :class:`LatentOnlyFit` holds the parts that do not
@@ -19,7 +19,7 @@ code and channel codes (:class:`~neuralbrdf.lightning.nlb_spectral_fit.SpectralL
   by a relative ``early_stop_tolerance`` for that many steps;
 * **the fit's last step is always evaluated** (:class:`ValidateFinalStep`), and the metrics of
   the last validation are the fitted model's: per material the fit's log-cosine RMSE on its
-  fitting samples, against a truth where there is one, and the shared metric names of SPEC §9;
+  fitting samples, against a truth where there is one, and the shared metric names of docs/evaluate.md#metrics;
 * the frozen weights are checked bit for bit at the end of the fit.
 
 A subclass provides the codes (:meth:`LatentOnlyFit.code_parameters`, built by
@@ -221,7 +221,7 @@ class LatentOnlyFit(pl.LightningModule):
         self._scores: dict[str, dict[str, float | None]] = {}
 
     def _record_scores(self, item: EvalSet, fit_pred: torch.Tensor, truth_pred: torch.Tensor | None) -> None:
-        """The shared metric names (SPEC §9) of one material, kept for :meth:`metrics_json_extras`."""
+        """The shared metric names (docs/evaluate.md#metrics) of one material, kept for :meth:`metrics_json_extras`."""
         from neuralbrdf.evaluation.scores import fit_scores
         from neuralbrdf.geometry import inplane_equivalent
 

@@ -1,4 +1,4 @@
-"""One material from any source as a Lightning data module: the ABC fit's data (SPEC §4.1, §4.3)."""
+"""One material from any source as a Lightning data module: the ABC fit's data (docs/models.md)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
-"""Measured in-plane spectral BRDF samples for training (report §5.1, Table 5.1; SPEC §3, §4.4).
+"""Measured in-plane spectral BRDF samples for training (report §5.1, Table 5.1; docs/measure.md#sampling-plans, docs/models.md#spectral-mlp).
 
-A measurement — a spectral BRDF table (SPEC §2.1) or a GCMS raw file with its Munsell N9
-reference (SPEC §2.2) — becomes one sample per direction pair and wavelength: the triplets
+A measurement — a spectral BRDF table (docs/formats.md#brdf-sample-table) or a GCMS raw file with its Munsell N9
+reference (docs/formats.md#gcms-raw-measurement) — becomes one sample per direction pair and wavelength: the triplets
 ``(theta_i, theta_r, lambda)`` of the report's MLP with the measured BRDF ``f`` (sr⁻¹).
 
 **Signed angles.** Table 5.1 splits by the *signed* incident angle (test ``theta_i`` in {-50,

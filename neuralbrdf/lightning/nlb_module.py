@@ -1,4 +1,4 @@
-"""Auto-decoder pretraining of the NLB representation network (SPEC §4.2; Fan et al. 2022).
+"""Auto-decoder pretraining of the NLB representation network (docs/models.md#nlb; Fan et al. 2022).
 
 The network weights (:class:`~neuralbrdf.models.nlb.NlbNetwork`) and one latent per corpus
 material (:class:`~neuralbrdf.models.nlb.LatentTable`, all initialised to ``latent_init``) are
@@ -7,14 +7,14 @@ loss, Adam, learning rate ×0.9 per epoch (the optimiser and the scheduler come 
 
 **Loss domain** (``loss_domain``).  Fan et al. take the L1 distance of raw BRDF values
 (``"linear"``).  The default, ``"log_cosine"``, is the L1 distance of ``ln(1 + f cos θi)``:
-the quantity of the hemisphere log-cosine RMSE (SPEC §5) and of Löw et al.'s fitting loss
+the quantity of the hemisphere log-cosine RMSE (docs/evaluate.md#metrics) and of Löw et al.'s fitting loss
 (report Eq. 4.2), so training and evaluation agree.  Over this corpus, whose values span
 10⁻⁴ to 10⁷ sr⁻¹ (sharp peaks, grazing ABC tails), the raw L1 does not train: its per-sample
 gradient through the output scales with the predicted value, so the few bright samples drive
 every update; the comparison that decided it is in ``benchmarks/README.md`` (design
 measurements).  Both L1s are
 logged on the validation batches (``val/l1_logcos``, ``val/l1_linear``) whichever is trained,
-with ``val/logcos_rmse`` (the SPEC §5 metric over the validation samples; under DDP the
+with ``val/logcos_rmse`` (the metric of docs/evaluate.md#metrics over the validation samples; under DDP the
 per-process mean squares are averaged, weighted by count).
 
 :func:`load_pretrained` reads a checkpoint of this module back as a plain network and latent

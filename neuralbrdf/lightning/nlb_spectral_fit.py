@@ -1,4 +1,4 @@
-"""Latent-only fit of the spectral NLB to RGB or spectral measurements (SPEC §4.3; Fan et al. 2022).
+"""Latent-only fit of the spectral NLB to RGB or spectral measurements (docs/models.md#spectral-latent-fit; Fan et al. 2022).
 
 The pretrained spectral NLB (:mod:`neuralbrdf.lightning.nlb_spectral_module`) is frozen; each new
 material gets a **shared code** and **channel codes**, fitted latent-only from its samples, all

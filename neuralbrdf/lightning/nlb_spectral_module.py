@@ -1,4 +1,4 @@
-"""Auto-decoder pretraining of the spectral NLB network (SPEC §4.2; :mod:`neuralbrdf.models.nlb_spectral`).
+"""Auto-decoder pretraining of the spectral NLB network (docs/models.md#spectral-nlb; :mod:`neuralbrdf.models.nlb_spectral`).
 
 The channel-agnostic decoder and the codes of every corpus material — one shared code and one
 channel code per colour channel — are optimised jointly on the batches of

@@ -1,9 +1,9 @@
-"""Training of the spectral MLP (report §5.1.1–5.1.2; SPEC §4.4, §5).
+"""Training of the spectral MLP (report §5.1.1–5.1.2; docs/models.md#spectral-mlp, docs/evaluate.md#metrics).
 
 * **Loss** — report Eq. 5.1's weighting, :func:`neuralbrdf.losses.exp_weighted_loss`:
   ``mean(max(exp(-gamma |theta_i - theta_r|), weight_floor) · r²)`` with ``gamma``, the unit of
   the angle difference (default 3 per radian; the report's per-degree form leaves the diffuse
-  region without gradient, SPEC §4.4), the residual ``r`` and the floor from the config.  The
+  region without gradient, docs/models.md#spectral-mlp), the residual ``r`` and the floor from the config.  The
   module's defaults (``residual="linear"``, ``weight_floor=0``) are Eq. 5.1 exactly
   (``configs/spectral_mlp_paper.yaml``); ``configs/spectral_mlp.yaml`` chooses the residual
   that fits the whole in-plane range (docs/design.md, "Spectral MLP loss").
@@ -26,7 +26,7 @@
 
   ``<split>`` is ``val`` (checkpoint selection; the report's test split, see
   :mod:`neuralbrdf.lightning.measurement_data`) or ``test``.
-* ``metrics.json`` also gets the shared names of SPEC §9 for the best checkpoint
+* ``metrics.json`` also gets the shared names of docs/evaluate.md#metrics for the best checkpoint
   (:meth:`SpectralMlpModule.metrics_json_extras`): ``fit/inplane_glossy_rel_rmse``,
   ``fit/inplane_diffuse_rel_rmse`` and, for the shipped virtual measurements,
   ``fit/hemisphere_logcos_rmse``.
@@ -180,7 +180,7 @@ class SpectralMlpModule(WritesKind, pl.LightningModule):
         self._evaluation_epoch_end("test")
 
     def metrics_json_extras(self) -> dict:
-        """The shared metric names (SPEC §9) of the checkpoint that export uses (``best``).
+        """The shared metric names (docs/evaluate.md#metrics) of the checkpoint that export uses (``best``).
 
         ``inplane_glossy_rel_rmse`` and ``inplane_diffuse_rel_rmse`` on the whole measurement it
         was given (both splits); for the shipped virtual measurements, ``hemisphere_logcos_rmse``

@@ -1,1 +1,1 @@
-"""Level of detail for materials (SPEC §11): cost ladders of stand-ins and the per-scene selector."""
+"""Level of detail for materials (docs/select.md): cost ladders of stand-ins and the per-scene selector."""

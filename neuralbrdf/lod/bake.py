@@ -1,4 +1,4 @@
-"""Bake a model file into a table (SPEC §11): the ``table_*`` rungs of a cost ladder.
+"""Bake a model file into a table (docs/select.md): the ``table_*`` rungs of a cost ladder.
 
 :func:`bake_table` evaluates the parent (onnxruntime) at every node of a
 :class:`~neuralbrdf.models.baked_table.BakedTable` — the Rusinkiewicz angle grid of

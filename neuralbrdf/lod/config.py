@@ -1,4 +1,4 @@
-"""The level-of-detail settings (SPEC §11) from one YAML file, by default the shipped ``configs/lod/default.yaml``.
+"""The level-of-detail settings (docs/select.md) from one YAML file, by default the shipped ``configs/lod/default.yaml``.
 
 Three sections: ``ladder`` (:class:`~neuralbrdf.lod.ladder.LadderSettings`, with the students'
 training in ``ladder.distill``: :class:`~neuralbrdf.lod.distill.DistillSettings`), ``select``

@@ -1,4 +1,4 @@
-"""Stand-ins trained on a model's own samples (SPEC §11): the parent is the teacher.
+"""Stand-ins trained on a model's own samples (docs/select.md): the parent is the teacher.
 
 * :func:`teacher_samples` — the parent evaluated (onnxruntime) where a renderer queries it: half
   the direction pairs cosine-distributed over the hemisphere, half near the mirror direction
@@ -197,7 +197,7 @@ def distill_student(samples: TeacherSamples, hidden: int, hidden_layers: int, ac
 
 def rgb_teacher(evaluator):
     """The linear sRGB a spectral ``evaluator`` (an :class:`~neuralbrdf.evaluation.scores.OnnxEvaluator`)
-    renders as in RGB variants: the plugin's rule of SPEC §2.3 on all 31 wavelengths, exactly
+    renders as in RGB variants: the plugin's rule of docs/formats.md#spectral-to-linear-srgb on all 31 wavelengths, exactly
     (:func:`~neuralbrdf.render.spectral_quadrature.full_rule`), negatives clipped; an RGB
     evaluator as it is."""
     from neuralbrdf.render.spectral_quadrature import RuleRgbEvaluator, full_rule

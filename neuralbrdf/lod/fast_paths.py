@@ -1,11 +1,11 @@
-"""Fast paths inside an exported model file (SPEC §6, §11): ``neuralbrdf export`` adds them.
+"""Fast paths inside an exported model file (docs/formats.md#onnx-model-files, docs/select.md): ``neuralbrdf export`` adds them.
 
 A fast path is a further output of the model's own ``.onnx`` file that stands in for ``f`` at a
 fraction of its cost, so that a user does not pay for the full network where a picture does not
 need it (the Mitsuba plugin picks the output; :mod:`neuralbrdf.render.fast_paths`):
 
 * ``f_rgb`` — **the RGB head** of a spectral model: its linear sRGB as the plugin integrates it
-  in RGB variants (SPEC §2.3: CIE 1931 2°, D65, 31 wavelengths, negatives clipped), evaluated
+  in RGB variants (docs/formats.md#spectral-to-linear-srgb: CIE 1931 2°, D65, 31 wavelengths, negatives clipped), evaluated
   once per query instead of once per wavelength of the sRGB rule.  Any spectral file of the
   contract gets one, whatever its kind: it is distilled from the file itself.  The plugin uses
   it in RGB variants unless told not to.
@@ -16,9 +16,9 @@ need it (the Mitsuba plugin picks the output; :mod:`neuralbrdf.render.fast_paths
 Both are :class:`~neuralbrdf.models.student.DirectionalStudent` networks distilled from the
 model (:func:`~neuralbrdf.lod.distill.distill_student`; the teacher's samples of
 :func:`~neuralbrdf.lod.distill.teacher_samples`, for ``f_rgb`` the exact 31-wavelength integral
-:func:`~neuralbrdf.lod.distill.rgb_teacher`).  Each records in the file's metadata (SPEC §6 keys
-``neuralbrdf.<output>.*``) what it approximates, its error against its teacher —
-``hemisphere_logcos_rmse`` (SPEC §5) on the hemisphere pairs of
+:func:`~neuralbrdf.lod.distill.rgb_teacher`).  Each records in the file's metadata (keys
+``neuralbrdf.<output>.*`` of docs/formats.md#onnx-model-files) what it approximates, its error against its teacher —
+``hemisphere_logcos_rmse`` (docs/evaluate.md#metrics) on the hemisphere pairs of
 :func:`~neuralbrdf.evaluation.scores.hemisphere_scores`, the student in float64 — and its
 relative cost: the student's Dr.Jit nanoseconds per query over the model's
 (:func:`~neuralbrdf.lod.ladder.drjit_costs`, one process, interleaved), for ``f_rgb`` over the
@@ -69,7 +69,7 @@ class FastPathSettings:
     max_hemisphere_logcos_rmse: float
     cost_batches: tuple[int, int]
     cost_rounds: int
-    #: ``(cos θ, φ)`` strata of the hemisphere pairs of the recorded error (SPEC §9 by default).
+    #: ``(cos θ, φ)`` strata of the hemisphere pairs of the recorded error (docs/evaluate.md#metrics by default).
     error_strata: tuple[int, int] = HEMISPHERE_STRATA
 
 
@@ -83,7 +83,7 @@ def _student(parent: OnnxEvaluator, output: str, settings: FastPathSettings) -> 
     module = distill_student(samples, shape.hidden, shape.hidden_layers, shape.activation, settings.distill, range_nm)
     error = float(hemisphere_scores(TorchEvaluator(module, teacher.is_spectral), teacher, strata=settings.error_strata)
                   ["hemisphere_logcos_rmse"])
-    what = "linear sRGB (31-wavelength integral, SPEC §2.3)" if output == OUTPUT_RGB else "f"
+    what = "linear sRGB (31-wavelength integral, docs/formats.md#spectral-to-linear-srgb)" if output == OUTPUT_RGB else "f"
     describes = f"{module.describe()} distilled from {settings.distill.n_pairs} samples of {model.path.name}'s {what}"
     if not error <= settings.max_hemisphere_logcos_rmse:
         raise FastPathError(f"the {output} student's error against the model, hemisphere log-cos RMSE {error:.3g}, "

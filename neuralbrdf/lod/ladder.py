@@ -1,10 +1,10 @@
-"""A cost ladder of cheaper stand-ins for an exported model (SPEC §11): ``neuralbrdf ladder``.
+"""A cost ladder of cheaper stand-ins for an exported model (docs/select.md): ``neuralbrdf ladder``.
 
-Every rung is a model file under the same ONNX contract (SPEC §6), so both plugin backends, both
+Every rung is a model file under the same ONNX contract (docs/formats.md#onnx-model-files), so both plugin backends, both
 colour variants and the sampler render it unchanged:
 
 * ``full`` — the parent file itself (error 0, the reference cost);
-* ``abc`` — the ABC model (Löw et al. 2012, SPEC §4.1) fitted with
+* ``abc`` — the ABC model (Löw et al. 2012, docs/models.md#abc) fitted with
   :func:`~neuralbrdf.fitting.abc_fit.fit_abc` to the parent's own dense samples
   (:func:`~neuralbrdf.lod.distill.abc_table`); kind ``abc``, so it keeps its analytic sampler;
 * ``mlp_LxH`` — spectral parents only: smaller spectral MLPs (``L`` hidden layers of ``H`` units)
@@ -32,7 +32,7 @@ colour variants and the sampler render it unchanged:
 
 Each rung records in its ``metadata_props`` (keys :data:`RUNG_KEY` …) what it approximates (the
 parent's file name and SHA-256), its error against the parent — ``hemisphere_logcos_rmse``
-(SPEC §5, :func:`~neuralbrdf.evaluation.scores.hemisphere_scores`: 102 400 stratified pairs,
+(docs/evaluate.md#metrics, :func:`~neuralbrdf.evaluation.scores.hemisphere_scores`: 102 400 stratified pairs,
 spectra compared at 31 wavelengths) — and its measured evaluation cost: Dr.Jit nanoseconds per
 query (:class:`~neuralbrdf.render.drjit_onnx.DrJitGraph` on 2^20 and 2^22 random upper-hemisphere
 pairs, one wavelength per query for spectral models, the kernel's own run time from Dr.Jit's
@@ -102,7 +102,7 @@ class LadderSettings:
     rgb_tolerances: tuple[float, ...]
     seed: int
     #: ``(cos θ, φ)`` strata of the hemisphere pairs the errors are measured on: the metric's own
-    #: definition (SPEC §9), fewer for quick checks only.
+    #: definition (docs/evaluate.md), fewer for quick checks only.
     error_strata: tuple[int, int] = HEMISPHERE_STRATA
 
 
@@ -134,7 +134,7 @@ def _student_rung(samples, layers: int, hidden: int, parent: OnnxEvaluator, sett
 def _candidates(parent: OnnxEvaluator, settings: LadderSettings):
     """``(name, describes, build)`` of every stand-in rung this parent gets."""
     name = parent.model.path.name
-    out = [("abc", f"ABC fit (SPEC §4.1) to {settings.abc_pairs} x "
+    out = [("abc", f"ABC fit (docs/models.md#abc) to {settings.abc_pairs} x "
                    f"{len(ABC_WAVELENGTHS_NM) if parent.is_spectral else 3} samples of {name}",
             lambda provenance: _abc_rung(parent, settings, provenance))]
     for nodes in settings.tables:
@@ -271,7 +271,7 @@ def build_ladder(model_path: str | Path, out_dir: str | Path, settings: LadderSe
         "format": LADDER_FORMAT,
         "parent": {"file": str(model_path), "sha256": sha, "kind": parent.model.kind,
                    "material": parent.model.material, "spectral": parent.is_spectral},
-        "error_metric": f"hemisphere_logcos_rmse against the parent (SPEC §5; {math.prod(settings.error_strata) ** 2} "
+        "error_metric": f"hemisphere_logcos_rmse against the parent (docs/evaluate.md#metrics; {math.prod(settings.error_strata) ** 2} "
                         "stratified pairs, theta <= 80 deg; spectra at 400-700 nm every 10 nm, else linear sRGB)",
         "cost_metric": "Dr.Jit ns per query inside a kernel (slope of the shortest kernel run times of batches of "
                        f"{settings.cost_batches[0]} and {settings.cost_batches[1]} random pairs, one wavelength per "

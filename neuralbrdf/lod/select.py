@@ -1,4 +1,4 @@
-"""Pick, per object, the cheapest model a scene can use (SPEC §11): ``neuralbrdf select``.
+"""Pick, per object, the cheapest model a scene can use (docs/select.md): ``neuralbrdf select``.
 
 For a Mitsuba scene whose ``neuralbrdf`` BSDFs have cost ladders (:mod:`neuralbrdf.lod.ladder`),
 at a low resolution (``resolution`` wide) and matched seeds.  The settings are

@@ -1,6 +1,6 @@
 """A model baked into a table over Rusinkiewicz angles, evaluated by multilinear interpolation.
 
-The cheap rung of a model's cost ladder (SPEC §11): any isotropic BRDF tabulated over the
+The cheap rung of a model's cost ladder (docs/select.md): any isotropic BRDF tabulated over the
 half/difference parametrisation of Rusinkiewicz (1998, *A New Change of Variables for Efficient
 BRDF Representation*) — the parametrisation MERL's measured tables use (Matusik et al. 2003) —
 and, for spectral models, over wavelength.  A query costs a few dozen arithmetic operations and

@@ -1,7 +1,7 @@
-"""Models as functions of directions: the interface of the ONNX contract (SPEC §6).
+"""Models as functions of directions: the interface of the ONNX contract (docs/formats.md#onnx-model-files).
 
 Every trained model becomes an ``nn.Module`` that maps unit directions ``wi, wo`` ``[N, 3]``
-(local frame, ``z`` the normal, both pointing away from the surface; SPEC §1) — and, for
+(local frame, ``z`` the normal, both pointing away from the surface; docs/formats.md#conventions) — and, for
 spectral models, wavelengths ``[N]`` in nm — to the BRDF ``f`` in sr⁻¹ (no cosine factor),
 with everything needed for evaluation baked in.  These modules are what ``export/to_onnx.py``
 traces into ``.onnx`` files, and what Python-side evaluation (hemisphere metrics, plots) calls,
@@ -9,11 +9,11 @@ so that both see the same function.
 
 * :class:`SpectralMlpOnDirections` — the in-plane spectral MLP of the report (§5.1) queried out of
   plane through the Rusinkiewicz (1998) half/difference angles: any pair maps to its *in-plane
-  equivalent* ``ti = θd + θh``, ``tr = θd − θh`` (SPEC §1, §4.4; the bivariate approximation of
+  equivalent* ``ti = θd + θh``, ``tr = θd − θh`` (docs/formats.md#conventions, docs/models.md#spectral-mlp; the bivariate approximation of
   isotropic BRDFs, Romeiro et al. 2008).
 * :class:`NlbWithLatent` — the NLB representation network (Fan et al. 2022) with one fitted
-  material latent baked in as a constant (SPEC §4.2, §4.3).
-* :class:`AbcOnDirections` — the ABC model (Löw et al. 2012, SPEC §4.1) with fixed parameters;
+  material latent baked in as a constant (docs/models.md).
+* :class:`AbcOnDirections` — the ABC model (Löw et al. 2012, docs/models.md#abc) with fixed parameters;
   per-wavelength parameters are interpolated linearly in wavelength.
 * :class:`SpectralNlbWithCodes` — a fitted material of the spectral NLB
   (:mod:`neuralbrdf.models.nlb_spectral`), RGB or spectral, its codes baked in.
@@ -37,7 +37,7 @@ from neuralbrdf.models.nlb_spectral import SpectralNlbNetwork
 from neuralbrdf.models.spectral_mlp import SpectralMLP
 
 #: Range (degrees) the in-plane equivalent angles are clamped to before the spectral MLP sees
-#: them: the in-plane domain of SPEC §1.  Far out of plane ``θd + θh`` can exceed 90°.
+#: them: the in-plane domain of docs/formats.md#conventions.  Far out of plane ``θd + θh`` can exceed 90°.
 INPLANE_LIMIT_DEG = 90.0
 
 #: Floor on the denominators of the half-angle formulas; only reached at or below the horizon.
@@ -68,12 +68,12 @@ def rusinkiewicz_theta_h_d(wi: torch.Tensor, wo: torch.Tensor) -> tuple[torch.Te
 
 
 class SpectralMlpOnDirections(nn.Module):
-    """``f(wi, wo, λ)`` ``[N]`` of an in-plane :class:`SpectralMLP` (SPEC §4.4, §6).
+    """``f(wi, wo, λ)`` ``[N]`` of an in-plane :class:`SpectralMLP` (docs/models.md#spectral-mlp, docs/formats.md#onnx-model-files).
 
     The pair is replaced by its in-plane equivalent ``(ti, tr) = (θd + θh, θd − θh)`` in degrees
     (:func:`rusinkiewicz_theta_h_d`), the representative with ``ti >= |tr|`` — for an in-plane
     pair this is the pair itself or its image under the isotropy/reciprocity symmetries of
-    SPEC §1.  Both angles are clamped to ±:data:`INPLANE_LIMIT_DEG`, wavelengths to the model's
+    docs/formats.md#conventions.  Both angles are clamped to ±:data:`INPLANE_LIMIT_DEG`, wavelengths to the model's
     range (:attr:`SpectralMLP.wavelength_range_nm`), and ``f = 0`` below the horizon.
     """
 
@@ -153,7 +153,7 @@ class LinearInWavelength(nn.Module):
 
 
 class AbcOnDirections(nn.Module):
-    """The ABC BRDF (SPEC §4.1) with fixed parameters, as a function of directions.
+    """The ABC BRDF (docs/models.md#abc) with fixed parameters, as a function of directions.
 
     RGB parameters (``wavelengths is None``): ``forward(wi, wo) -> [N, 3]``.  Spectral
     parameters: ``forward(wi, wo, wavelength) -> [N]``, with ``kd`` and ``A`` interpolated

@@ -1,4 +1,4 @@
-"""A Gaussian prior on NLB latent codes, for latent-only fits from few measurements (SPEC §4.3).
+"""A Gaussian prior on NLB latent codes, for latent-only fits from few measurements (docs/models.md#latent-fit-rgb-nlb).
 
 An auto-decoder's latent fit finds the code ``z`` that best explains a new material's samples.
 From a few in-plane samples many codes explain them equally well, and the fit can wander out of

@@ -1,15 +1,15 @@
-"""NLB representation network: a BRDF decoded from a material latent (SPEC §4.2).
+"""NLB representation network: a BRDF decoded from a material latent (docs/models.md#nlb).
 
 After J. Fan, B. Wang, M. Hašan, J. Yang, L.-Q. Yan, "Neural Layered BRDFs", SIGGRAPH 2022
 Conference Proceedings (report §2.2.2, Eq. 2.9)::
 
     g1(wi, wo, V) = f(wi, wo)
 
-an MLP over the Cartesian directions ``wi, wo`` (6 values, local frame of SPEC §1) concatenated
+an MLP over the Cartesian directions ``wi, wo`` (6 values, local frame of docs/formats.md#conventions) concatenated
 with a material latent ``V``, trained as an auto-decoder: the network weights and one latent per
 training material are optimised jointly (:class:`LatentTable` holds the latents, initialised to a
 constant as in Fan et al.).  A new material is then represented by optimising its latent alone
-(SPEC §4.3).
+(docs/models.md#latent-fit-rgb-nlb).
 
 Choices of this implementation:
 
@@ -29,7 +29,7 @@ Choices of this implementation:
   initialisation learning rate 1e-2 froze at the all-black solution (``val/logcos_rmse``
   1.27) and 3e-3 lost its first 200 steps; with it, 1e-2 reaches 0.065.  A unit gradient beyond
   the floor instead (a stronger pull back) made training diverge.
-* **Horizon.** ``f = 0`` exactly when ``wi_z <= 0`` or ``wo_z <= 0`` (SPEC §6).
+* **Horizon.** ``f = 0`` exactly when ``wi_z <= 0`` or ``wo_z <= 0`` (docs/formats.md#onnx-model-files).
 * **Optional half-vector features** (``half_vector=True``): the unit half vector
   ``h = normalize(wi + wo)`` appended to the 6 direction values.  It is a function of ``wi, wo``
   computed inside the model (and so inside any exported graph); a compact network otherwise
@@ -97,7 +97,7 @@ class NlbConfig:
         return 9 if self.half_vector else 6
 
 
-#: Default for CPU rendering (SPEC §4.2: the paper size is far too slow on CPU): 48 wide, 3
+#: Default for CPU rendering (docs/models.md#nlb: the paper size is far too slow on CPU): 48 wide, 3
 #: layers, ~6 k weights; 5184 multiply-adds per query with the latent folded into the input bias
 #: (:meth:`NlbNetwork.split_input_layer`).  Chosen by held-out error against evaluation cost
 #: among 32×4, 32×5, 48×3 and 64×4 (docs/design.md, "NLB network size").
@@ -196,7 +196,7 @@ class NlbNetwork(nn.Module):
     def forward(self, wi: torch.Tensor, wo: torch.Tensor, latent: torch.Tensor) -> torch.Tensor:
         """RGB BRDF ``[..., 3]`` in sr⁻¹ (no cosine), 0 where either direction is below the horizon.
 
-        ``wi, wo`` are unit vectors ``[..., 3]`` in the local frame (SPEC §1); ``latent`` is
+        ``wi, wo`` are unit vectors ``[..., 3]`` in the local frame (docs/formats.md#conventions); ``latent`` is
         ``[..., latent_dim]`` (one latent per row) or ``[latent_dim]`` (shared by every row).
         """
         if wi.shape != wo.shape or wi.shape[-1] != 3:

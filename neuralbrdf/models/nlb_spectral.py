@@ -1,4 +1,4 @@
-"""Spectral NLB: a channel-agnostic NLB decoder with a shared and a per-channel latent (SPEC §4.2).
+"""Spectral NLB: a channel-agnostic NLB decoder with a shared and a per-channel latent (docs/models.md#spectral-nlb).
 
 The NLB representation network of Fan et al. (2022, "Neural Layered BRDFs"; report §2.2.2,
 Eq. 2.9) decodes ``g1(wi, wo, V) = f`` with RGB output.  Its released network already holds a
@@ -33,7 +33,7 @@ scale, a shift and one dot product, so an RGB evaluation costs what the RGB NLB 
 ``G`` starts at zero (a pure shift) and the output layer at zero weights and the bias of
 :data:`~neuralbrdf.models.nlb.INITIAL_PRE_ACTIVATION`, as in :mod:`neuralbrdf.models.nlb`.
 
-Outputs are exactly 0 when either direction is at or below the horizon (SPEC §6).
+Outputs are exactly 0 when either direction is at or below the horizon (docs/formats.md#onnx-model-files).
 """
 
 from __future__ import annotations
@@ -146,7 +146,7 @@ class SpectralNlbNetwork(nn.Module):
     def forward(self, wi: torch.Tensor, wo: torch.Tensor, shared: torch.Tensor, channel: torch.Tensor) -> torch.Tensor:
         """BRDF ``[N, C]`` in sr⁻¹ (no cosine) of ``C`` channels, 0 below the horizon.
 
-        ``wi, wo`` ``[N, 3]`` unit vectors (local frame, SPEC §1); ``shared`` ``[N, shared_dim]``
+        ``wi, wo`` ``[N, 3]`` unit vectors (local frame, docs/formats.md#conventions); ``shared`` ``[N, shared_dim]``
         or ``[shared_dim]``; ``channel`` ``[N, C, channel_dim]`` or ``[C, channel_dim]``.
         """
         if wi.shape != wo.shape or wi.ndim != 2 or wi.shape[-1] != 3:

@@ -1,11 +1,11 @@
 """The spectral BRDF MLP of the report, §5.1 (S. Chitnis, *Simplifying BRDF Acquisition*).
 
-``f(theta_i, theta_r, lambda)``: signed in-plane angles in degrees (SPEC §1: ``wi = (sin ti, 0,
+``f(theta_i, theta_r, lambda)``: signed in-plane angles in degrees (docs/formats.md#conventions: ``wi = (sin ti, 0,
 cos ti)``, ``wo = (-sin tr, 0, cos tr)``, mirror at ``tr = ti``) and a wavelength in nm in, one
 BRDF value in sr⁻¹ out.  Report Fig. 5.1: the three inputs are normalised, pass three hidden
 layers of 10 units and give one output.
 
-Choices the report leaves open (SPEC §4.4), each a constructor argument:
+Choices the report leaves open (docs/models.md#spectral-mlp), each a constructor argument:
 
 * **Normalisation** maps each input linearly onto [-1, 1] over a stated range — by default the
   whole in-plane domain [-90°, 90°] and 400–700 nm, the calibrated GCMS band

@@ -1,4 +1,4 @@
-"""A small network on Rusinkiewicz coordinates that stands in for a costlier model (SPEC §11).
+"""A small network on Rusinkiewicz coordinates that stands in for a costlier model (docs/select.md).
 
 What a *fast path* evaluates instead of its parent inside the render kernel: the parent's linear
 sRGB for a spectral model in an RGB variant (one evaluation per query instead of one per

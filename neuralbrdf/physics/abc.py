@@ -2,7 +2,7 @@
 
 J. Löw, J. Kronander, A. Ynnerman, J. Unger, "BRDF models for accurate and efficient rendering
 of glossy surfaces", ACM TOG 31(1), 2012 — in the form of the report (S. Chitnis, *Simplifying
-BRDF Acquisition*, Eqs. 2.5–2.8, 4.1) as fixed by SPEC §4.1::
+BRDF Acquisition*, Eqs. 2.5–2.8, 4.1) as docs/models.md#abc states it::
 
     f(wi, wo) = kd/π + A · F(η, wi·h) · G / (π · cos ti · cos to · (1 + B (1 - n·h))^C)
 
@@ -71,7 +71,7 @@ def _channel_vector(xp, values, like):
 
 
 def abc_brdf(wi, wo, kd, A, B, C, eta):
-    """ABC BRDF in sr⁻¹ (SPEC §4.1), shape ``[..., n_channels]``.
+    """ABC BRDF in sr⁻¹ (docs/models.md#abc), shape ``[..., n_channels]``.
 
     Parameters
     ----------
@@ -143,7 +143,7 @@ def _abc(wi, wo, kd, A, eta, distribution):
 
 @dataclass(frozen=True, eq=False)
 class AbcParameters:
-    """The ABC model's parameters (SPEC §4.1), validated on construction.
+    """The ABC model's parameters (docs/models.md#abc), validated on construction.
 
     Attributes
     ----------

@@ -2,7 +2,7 @@
 
 * Dielectric: the exact form used by Cook & Torrance (1982) and by the ABC model (report
   Eq. 2.6, Löw et al. 2012) with ``c = cos theta`` and ``g = sqrt(eta² - 1 + c²)`` (the report
-  drops the square root; SPEC §4.1 restores it)::
+  drops the square root; docs/models.md#abc restores it)::
 
       F = (g - c)² / (2 (g + c)²) · (1 + ((c (g + c) - 1) / (c (g - c) + 1))²)
 

@@ -1,4 +1,4 @@
-"""Rendering of exported models in Mitsuba 3 (SPEC §7); the file contract is :mod:`neuralbrdf.onnx_contract`.
+"""Rendering of exported models in Mitsuba 3 (docs/mitsuba-plugin.md); the file contract is :mod:`neuralbrdf.onnx_contract`.
 
 * :mod:`~neuralbrdf.render.drjit_onnx` — the graph evaluated as Dr.Jit arithmetic (``drjit``
   backend);

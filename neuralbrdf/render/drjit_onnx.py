@@ -1,6 +1,6 @@
 """Evaluate an ONNX BRDF graph as Dr.Jit arithmetic, so that it fuses into the render kernel.
 
-This is the ``drjit`` backend of the Mitsuba plugin (SPEC §7): the weights are read out of the
+This is the ``drjit`` backend of the Mitsuba plugin (docs/mitsuba-plugin.md): the weights are read out of the
 same ``.onnx`` file that onnxruntime runs and the graph is *interpreted* node by node in
 topological order, each operation issuing Dr.Jit operations.  Dr.Jit records them into its trace,
 so the network becomes part of the one kernel that traces rays, in Mitsuba's default symbolic
@@ -949,7 +949,7 @@ class DrJitGraph:
     Parameters
     ----------
     proto:
-        The model; the contract of SPEC §6 is assumed
+        The model; the contract of docs/formats.md#onnx-model-files is assumed
         (:func:`~neuralbrdf.onnx_contract.load_generic_model` checks it).
     source:
         File name used in error messages.

@@ -1,6 +1,6 @@
 """Which output of a model file the ``neuralbrdf`` BSDF evaluates: ``f`` or one of its fast paths.
 
-A model file may carry fast paths beside ``f`` (SPEC §6; ``neuralbrdf export`` adds them,
+A model file may carry fast paths beside ``f`` (docs/formats.md#onnx-model-files; ``neuralbrdf export`` adds them,
 :mod:`neuralbrdf.lod.fast_paths`): ``f_rgb``, a spectral model's linear sRGB evaluated once per
 query, and ``f_fast``, a compact copy of ``f``.  Two plugin properties choose
 (:func:`chosen_output`):

@@ -1,4 +1,4 @@
-"""The ``neuralbrdf`` Mitsuba 3 BSDF: render any model file of the ONNX contract (SPEC §6, §7).
+"""The ``neuralbrdf`` Mitsuba 3 BSDF: render any model file of the ONNX contract (docs/formats.md#onnx-model-files, docs/mitsuba-plugin.md).
 
 Usage from a user's own script::
 
@@ -60,7 +60,7 @@ spectral, spectral         the model at the ray's own wavelengths (``si.waveleng
 RGB model, spectral        upsampled per sample like Mitsuba's unbounded RGB textures:
                            ``s = 2 max(rgb)``, coefficients of ``rgb / s`` from Mitsuba's
                            ``data/srgb.coeff`` (Jakob & Hanika 2019), value ``× s``
-spectral model, RGB        integrated to linear sRGB as SPEC §2.3 does for measurements:
+spectral model, RGB        integrated to linear sRGB like measurements (docs/formats.md#spectral-to-linear-srgb):
                            CIE 1931 2° observer × D65 on 400–700 nm at 10 nm (model clamped
                            to its range), IEC 61966-2-1 matrix, negatives clipped to 0 —
                            through a reduced rule with this model's few wavelengths

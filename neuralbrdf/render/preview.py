@@ -1,4 +1,4 @@
-"""Render a model file (SPEC §6) in the shipped material-preview scene with Mitsuba 3 (SPEC §7).
+"""Render a model file (docs/formats.md#onnx-model-files) in the shipped material-preview scene with Mitsuba 3 (docs/mitsuba-plugin.md).
 
 The scene is ``scenes/material_preview.xml`` beside this module (a sphere on a checkerboard
 floor, constant sky plus two area lights, all procedural); the material comes from

@@ -1,4 +1,4 @@
-"""Importance sampling for the ``neuralbrdf`` Mitsuba BSDF (SPEC §4.1, §7).
+"""Importance sampling for the ``neuralbrdf`` Mitsuba BSDF (docs/models.md#abc, docs/mitsuba-plugin.md).
 
 The proposal is a one-sample mixture (Veach 1997, §9.2.1) of cosine-weighted hemisphere sampling
 and a glossy lobe around the mirror direction::
@@ -12,7 +12,7 @@ lobes reflect a half vector ``h`` about ``wi`` (``wo = 2 (wi·h) h - wi``, Jacob
 
 * :class:`GgxLobe` — GGX visible-normal sampling (Heitz 2018) through Mitsuba's
   ``MicrofacetDistribution``; the lobe for neural models, with a fitted roughness.
-* :class:`AbcLobe` — the ABC normal distribution of Löw et al. (2012), SPEC §4.1, sampled
+* :class:`AbcLobe` — the ABC normal distribution of Löw et al. (2012), docs/models.md#abc, sampled
   exactly by its closed-form inverse CDF.  With ``x = 1 - cos θh`` (``dω_h = dx dφ``)::
 
       p_h(h) = (1 + B x)^(-C) / Z,  Z = 2π ((1 + B)^(1-C) - 1) / (B (1 - C))   (C ≠ 1)

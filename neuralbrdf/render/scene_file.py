@@ -1,4 +1,4 @@
-"""Any Mitsuba 3 scene file that uses the ``neuralbrdf`` BSDF (SPEC §7, §11): read, edit, render.
+"""Any Mitsuba 3 scene file that uses the ``neuralbrdf`` BSDF (docs/mitsuba-plugin.md, docs/select.md): read, edit, render.
 
 A user's scene names the plugin like any Mitsuba BSDF (see ``export/README.md``)::
 
@@ -11,7 +11,7 @@ A user's scene names the plugin like any Mitsuba BSDF (see ``export/README.md``)
 point a ``neuralbrdf`` BSDF at another model file (the selector's rungs), set plugin properties
 (``backend``, ``rgb_tolerance``), the film resolution or the integrator's ``max_depth``.
 :func:`material_coverage` says which pixels each material covers (the level-of-detail
-selector's per-object error, SPEC §11).
+selector's per-object error, docs/select.md).
 :meth:`SceneFile.load` loads the edited text with the scene's folder first on Mitsuba's file
 resolver (as ``mi.load_file`` does), so relative paths in it — meshes, textures, included files,
 model files — resolve as they would from the file itself.  It loads in file order, like the

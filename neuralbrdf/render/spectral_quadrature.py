@@ -1,7 +1,7 @@
-"""Fewer wavelengths for rendering a spectral model in an RGB variant (SPEC §2.3, §7).
+"""Fewer wavelengths for rendering a spectral model in an RGB variant (docs/formats.md#spectral-to-linear-srgb, docs/mitsuba-plugin.md).
 
 In RGB variants the ``neuralbrdf`` BSDF returns a spectral model's linear sRGB value, the
-integral of SPEC §2.3 (CIE 1931 2° × D65, IEC 61966-2-1 matrix) on the 31-wavelength grid
+integral of docs/formats.md#spectral-to-linear-srgb (CIE 1931 2° × D65, IEC 61966-2-1 matrix) on the 31-wavelength grid
 400–700 nm at 10 nm::
 
     rgb_c(wi, wo) = Σ_{k=1..31} W[k, c] f(wi, wo, λ_k)
@@ -39,7 +39,7 @@ import numpy as np
 
 from neuralbrdf.data.colorimetry import XYZ_TO_LINEAR_SRGB, xyz_weights
 
-#: Wavelengths (nm) at which a spectral model is integrated to sRGB in RGB variants (SPEC §2.3).
+#: Wavelengths (nm) at which a spectral model is integrated to sRGB in RGB variants (docs/formats.md#spectral-to-linear-srgb).
 SRGB_GRID_NM = np.arange(400.0, 701.0, 10.0)
 
 #: Default held-out root-mean-square relative error the reduced rule must meet.
@@ -158,12 +158,12 @@ def fit_reduced_quadrature(
 
 
 def srgb_weights() -> np.ndarray:
-    """``[W, 3]`` weights from values on :data:`SRGB_GRID_NM` to linear sRGB (SPEC §2.3)."""
+    """``[W, 3]`` weights from values on :data:`SRGB_GRID_NM` to linear sRGB (docs/formats.md#spectral-to-linear-srgb)."""
     return xyz_weights(SRGB_GRID_NM) @ XYZ_TO_LINEAR_SRGB.T
 
 
 def full_rule(wavelength_range_nm: tuple[float, float]) -> ReducedQuadrature:
-    """The whole integral of SPEC §2.3 as a rule: all 31 grid wavelengths (clamped to a model's
+    """The whole integral of docs/formats.md#spectral-to-linear-srgb as a rule: all 31 grid wavelengths (clamped to a model's
     range, as the plugin clamps its queries) with their weights; error 0 by definition."""
     grid = np.clip(SRGB_GRID_NM, *wavelength_range_nm)
     return ReducedQuadrature(tuple(float(w) for w in grid), srgb_weights(), 0.0, 0.0, len(grid))

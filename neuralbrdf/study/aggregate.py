@@ -1,4 +1,4 @@
-"""From cell results to the study's evidence: points, Pareto fronts, failures, budgets (SPEC §10).
+"""From cell results to the study's evidence: points, Pareto fronts, failures, budgets (docs/study.md).
 
 * **Points** — one per cell: ``material, model, method, plan, noise, seed``, ``cost`` (the render
   ratio against ``roughconductor``, M queries/s of the fastest backend and the parameter count

@@ -1,4 +1,4 @@
-"""What a study folder keeps between runs, checked before it is reused (SPEC §10, §12).
+"""What a study folder keeps between runs, checked before it is reused (docs/study.md, docs/robustness.md).
 
 * **Truths** — ``truths/NAME-HASH.onnx``: a material's truth exported once, named by what it is
   made from (``HASH`` covers the truth's source — ``virtual:NAME`` or the contents of the NBRDF

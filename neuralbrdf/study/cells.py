@@ -1,4 +1,4 @@
-"""The cells of a study and their cache keys (SPEC §10).
+"""The cells of a study and their cache keys (docs/study.md).
 
 A cell is one fit and its evaluation: ``(material, variant, plan, noise, seed)``.  Its key hashes
 everything that changes its result — the material's truth and table (file contents), the

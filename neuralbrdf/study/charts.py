@@ -1,4 +1,4 @@
-"""The study's figures as PNG files (matplotlib, SPEC §8, §10), drawn to be read at their own size.
+"""The study's figures as PNG files (matplotlib, docs/results.md, docs/study.md), drawn to be read at their own size.
 
 Every figure is drawn at :data:`DPI` to an exact size in pixels that the report shows unscaled:
 :data:`FULL_WIDTH_PX` wide across the page, :data:`HALF_WIDTH_PX` for one of two side by side.

@@ -7,7 +7,7 @@ HELP = "run the speed/accuracy/stability study and write DIR/index.html"
 DESCRIPTION = (
     "Fit every model variant of a study profile to every material (and, for the stability variants, every "
     "sampling plan, relative noise level and seed), score each fit against the material's truth, time it against "
-    "Mitsuba's roughconductor, and write DIR/study.json, DIR/figures/*.png and DIR/index.html (SPEC §10). "
+    "Mitsuba's roughconductor, and write DIR/study.json, DIR/figures/*.png and DIR/index.html (docs/study.md). "
     "Finished cells are cached under DIR/cells/ by their settings: a rerun does only what is new, a killed run "
     "resumes; cached files that are damaged or belong elsewhere are redone. One study at a time runs in DIR. "
     "PROFILE is a shipped profile (quick, full, spectral, latent_prior: configs/study/) or your own YAML file. "

@@ -1,4 +1,4 @@
-"""What a model costs, measured as ratios in one process (SPEC §5 "Speed", §8; shared by the study
+"""What a model costs, measured as ratios in one process (docs/evaluate.md#metrics, Speed; shared by the study
 and ``benchmarks/run.py``).
 
 * :func:`render_ratio` — median render time of the model in the material-preview scene

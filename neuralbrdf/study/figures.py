@@ -1,4 +1,4 @@
-"""The study's figures, drawn from ``study.json`` alone (SPEC §10).
+"""The study's figures, drawn from ``study.json`` alone (docs/study.md).
 
 :func:`write_figures` needs only the study's content, so a report can be drawn again without the
 cell folders (``neuralbrdf study --report-only``).  The renders are images, not data: each

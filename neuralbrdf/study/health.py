@@ -1,6 +1,6 @@
 """Whether a study run produced what it claims (``study.json``'s ``health``; the exit status).
 
-A study's failure map (SPEC §10) is evidence: a fit that breaks on a sparse plan or under noise
+A study's failure map (docs/study.md) is evidence: a fit that breaks on a sparse plan or under noise
 is a result.  What is not evidence:
 
 * a **crashed** cell (``cell_crashed``): its process died or raised without writing a result — a

@@ -1,4 +1,4 @@
-"""Study profiles: which materials, model variants and conditions ``neuralbrdf study`` runs (SPEC §10).
+"""Study profiles: which materials, model variants and conditions ``neuralbrdf study`` runs (docs/study.md).
 
 A profile is a YAML file (``configs/study/quick.yaml``, ``full.yaml``, or a user's own)::
 
@@ -8,7 +8,7 @@ A profile is a YAML file (``configs/study/quick.yaml``, ``full.yaml``, or a user
     cost: {spp: 4, resolution: 32, repeats: 2, batch: 65536}   # render-ratio and queries/s timing
     materials:
       - {name: gold, truth: virtual:gold}      # virtual instrument: any plan, any noise
-      - {name: nylon, truth: ../shared/data/merl-nbrdf/nylon.h5}   # NBRDF proxy sampled on the plan
+      - {name: nylon, truth: merl-nbrdf/nylon.h5}                  # NBRDF proxy sampled on the plan
       - {name: alum, truth: merl/alum-bronze.binary}                # MERL measurement sampled on the plan
       - {name: mine, table: my_measurement.csv, truth: mine_truth.onnx}   # a user's measured table
     variants:                                  # every model variant: a config file + CLI overrides

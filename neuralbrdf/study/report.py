@@ -1,4 +1,4 @@
-"""``DIR/index.html``: the study as one static page a person reads top down (SPEC §8, §10).
+"""``DIR/index.html``: the study as one static page a person reads top down (docs/results.md, docs/study.md).
 
 The page leads with what to use: whether every cell gave a result, then per material the model
 to use under each ΔE2000 budget (budgets that choose the same model share one row), then the

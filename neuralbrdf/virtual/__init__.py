@@ -1,4 +1,4 @@
-"""A virtual goniospectrophotometer and physically based stand-in materials (SPEC §2.5)."""
+"""A virtual goniospectrophotometer and physically based stand-in materials (docs/measure.md#the-virtual-goniospectrophotometer)."""
 
 from neuralbrdf.virtual.instrument import (
     DEFAULT_NOISE_ABS,

@@ -1,4 +1,4 @@
-"""A virtual goniospectrophotometer producing GCMS raw measurements (SPEC §2.2 and §2.5).
+"""A virtual goniospectrophotometer producing GCMS raw measurements (docs/formats.md#gcms-raw-measurement, docs/measure.md#the-virtual-goniospectrophotometer).
 
 It stands in for the Murakami GCMS-3B of the report (§2.1.1, §3.2).  For a material with BRDF
 ``f`` (:mod:`neuralbrdf.virtual.materials`) and a signed in-plane geometry it reports, at the 35
@@ -47,7 +47,7 @@ DEFAULT_NOISE_REL = 0.01
 DEFAULT_NOISE_ABS = 1e-4
 #: Seed of the shipped data.
 DEFAULT_SEED = 2026
-#: Plan of the shipped data (SPEC §3).
+#: Plan of the shipped data (docs/measure.md#sampling-plans).
 DEFAULT_PLAN = "DS1"
 #: Folder of the shipped GCMS raw files.
 DEFAULT_DATA_DIR = Path(__file__).resolve().parents[1] / "data" / "default"
@@ -55,7 +55,7 @@ DEFAULT_DATA_DIR = Path(__file__).resolve().parents[1] / "data" / "default"
 DEFAULT_DATA_DECIMALS = 6
 
 #: Wavelengths (nm) of :meth:`VirtualGoniospectrophotometer.ground_truth`, those of a
-#: calibrated table (SPEC §2.2).
+#: calibrated table (docs/formats.md#gcms-raw-measurement).
 GROUND_TRUTH_WAVELENGTHS_NM = np.arange(400.0, 701.0, 10.0)
 
 #: Colour temperature (K) of the tungsten-halogen lamp (CIE illuminant A).
@@ -162,7 +162,7 @@ class VirtualGoniospectrophotometer:
         return GcmsMeasurement(theta_i, theta_r, beta, source=source)
 
     def measure_plan(self, material_name: str, plan_name: str) -> GcmsMeasurement:
-        """Raw GCMS measurement of a material on an in-plane plan (DS1–DS4, SPEC §3)."""
+        """Raw GCMS measurement of a material on an in-plane plan (DS1–DS4, docs/measure.md#sampling-plans)."""
         return self.measure(material_name, *in_plane_plan(plan_name))
 
     @staticmethod

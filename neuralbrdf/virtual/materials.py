@@ -1,4 +1,4 @@
-"""Physically based stand-ins for the report's packaging materials (SPEC §2.5; report §3.2).
+"""Physically based stand-ins for the report's packaging materials (docs/measure.md#the-virtual-goniospectrophotometer; report §3.2).
 
 The Gold, Gonio, Cyan and Magenta prints measured by Sole et al. (2021, *The Visual Computer*
 37(8)) are not public.  Each stand-in here is an analytic spectral BRDF with the character the
