@@ -132,9 +132,9 @@ def test_a_bounded_c_fails_naming_the_parameter_and_the_flag_that_lets_it_fit(tm
     with pytest.warns(UserWarning, match="ABC fit of orange_DS1 FAILED"):
         status = main(["fit", "--config", str(CONFIG), "--run_dir", str(tmp_path / "bounded"), "--data.path",
                        str(path), "--model.bounds.C", "[0.001, 10]"])
-    error = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+    error = [line for line in capsys.readouterr().err.splitlines() if line.startswith("neuralbrdf train: error:")]
     assert status == 1 and len(error) == 1
-    assert error[0].startswith("error: fit failed: ABC fit of orange_DS1: C ran to its upper bound (C = 10, B = ")
+    assert error[0].startswith("neuralbrdf train: error: fit failed: ABC fit of orange_DS1: C ran to its upper bound (C = 10, B = ")
     assert "--model.bounds.C '[0.001, .inf]'" in error[0]
     assert not (tmp_path / "bounded" / "checkpoints" / "best.ckpt").exists()
 

@@ -16,7 +16,7 @@ there:
 * ``checkpoints/`` — from the config's ``ModelCheckpoint`` (best and last), each written
   whole or not at all (:class:`AtomicCheckpointIO`);
 * ``metrics.csv`` and ``hparams.yaml`` — the :class:`~pytorch_lightning.loggers.CSVLogger`
-  (unless the config names another logger);
+  (unless the config names another logger), written at every logged step;
 * ``metrics.json`` — :class:`MetricsJson`.
 
 ``validate`` and ``test`` write their ``config.yaml``/``metrics.csv`` under ``<run>/validate/``
@@ -386,6 +386,7 @@ class NeuralBrdfCLI(LightningCLI):
         self._created_folder: Path | None = None  # the outermost folder made for the run directory
         self._staging: Path | None = None
         self._earlier_log: Path | None = None
+        self._empty_at_start = False  # a fit into a folder that held no run
         self._run_dir_lock = contextlib.ExitStack()
         with self._run_dir_lock:  # held from before_instantiate_classes to the end of the command
             try:
@@ -428,8 +429,8 @@ class NeuralBrdfCLI(LightningCLI):
             return
         if self._created_folder is not None:
             shutil.rmtree(self._created_folder, ignore_errors=True)
-        elif self.subcommand == "fit" and not self.config[self.subcommand].get("resume"):
-            for entry in RUN_ENTRIES:  # the folder held no run when this start began
+        elif self._empty_at_start:  # what this start wrote into a folder that held no run
+            for entry in RUN_ENTRIES:
                 path = self.run_dir / entry
                 shutil.rmtree(path, ignore_errors=True) if path.is_dir() and not path.is_symlink() else \
                     path.unlink(missing_ok=True)
@@ -447,7 +448,8 @@ class NeuralBrdfCLI(LightningCLI):
             config.ckpt_path = str(ckpt)
             self._earlier_log = set_aside_log(run_dir)  # this session's log starts afresh, then both join
             return
-        if run_dir.exists() and holds_run(run_dir):
+        self._empty_at_start = not holds_run(run_dir)
+        if not self._empty_at_start:
             if not config.get("overwrite"):
                 raise InputError(f"{_held_run(run_dir)}; pass --resume to continue it from checkpoints/last.ckpt or "
                                  "--overwrite to replace it", path=run_dir)
@@ -529,7 +531,8 @@ class NeuralBrdfCLI(LightningCLI):
         kwargs["default_root_dir"] = str(self._fit_dir)
         if self._get(self.config_init, "trainer", {}).get("logger") in (None, True):
             version = "" if self.subcommand == "fit" else self.subcommand
-            kwargs["logger"] = CSVLogger(self._fit_dir, name="", version=version)
+            # every logged step reaches the file: a killed run keeps its log up to its last step
+            kwargs["logger"] = CSVLogger(self._fit_dir, name="", version=version, flush_logs_every_n_steps=1)
         if not self._get(self.config_init, "trainer", default={}).get("plugins"):
             moved = None if self._fit_dir == self.run_dir else (self._fit_dir, self.run_dir)
             kwargs["plugins"] = [AtomicCheckpointIO(moved)]

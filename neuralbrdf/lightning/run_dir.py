@@ -106,11 +106,11 @@ def swap_in(run_dir: Path, staging: Path) -> None:
 
 
 def _put_back(run_dir: Path, replaced: Path) -> None:
-    """An older version's ``replaced-run``: the old run back, the half-written new one removed."""
+    """An older version's ``replaced-run``: the old run back, the half-written new one (every run
+    entry of ``run_dir``: the old ones were all set aside) removed."""
     for entry in RUN_ENTRIES:
-        if (replaced / entry).exists() or (replaced / entry).is_symlink():
-            _remove(run_dir / entry)
-    _move_entries(replaced, run_dir, replace=True)
+        _remove(run_dir / entry)
+    _move_entries(replaced, run_dir)
     shutil.rmtree(replaced)
 
 
@@ -166,10 +166,12 @@ def recover(run_dir: Path) -> list[str]:
     if not run_dir.is_dir():
         return []
     notes = []
-    found = sorted((int(match.group(1)), match.group(2), path) for path in run_dir.iterdir()
+    # a finished run first: completing its swap decides what its old-run and discard folders hold
+    order = (FINISHED_RUN, NEW_RUN, REPLACED_RUN, EARLIER_LOG, OLD_RUN, DISCARD)
+    found = sorted(((int(match.group(1)), order.index(match.group(2)) if match.group(2) in order else len(order)),
+                    match.group(2), path) for path in run_dir.iterdir()
                    if (match := _LEFTOVER.fullmatch(path.name)) and int(match.group(1)) != os.getpid())
-    roles = {(pid, role) for pid, role, _ in found}
-    for pid, role, path in found:
+    for (pid, _), role, path in found:
         if not (path.exists() or path.is_symlink()):
             continue  # handled with another leftover of the same process
         if role == NEW_RUN:
@@ -179,7 +181,7 @@ def recover(run_dir: Path) -> list[str]:
         elif role == FINISHED_RUN:
             swap_in(run_dir, path)
             notes.append(f"put in place the finished run of process {pid}, which ended while replacing the run")
-        elif role == DISCARD or (role == OLD_RUN and (pid, FINISHED_RUN) not in roles):
+        elif role in (OLD_RUN, DISCARD):  # no finished run of its process is left to swap in: it is out
             shutil.rmtree(path)
         elif role == REPLACED_RUN:
             _put_back(run_dir, path)
