@@ -74,3 +74,19 @@ def is_alive(pid: int) -> bool:
     except (FileNotFoundError, ProcessLookupError, IndexError):
         return False
     return state not in ("Z", "X")
+
+
+class FailAtEpoch(pl.Callback):
+    """Ends the fit with an error at the start of epoch ``epoch``: a guard that turns a fit that
+    should have been refused and would never end into a failing test, not a hanging one."""
+
+    def __init__(self, epoch: int = 2) -> None:
+        self.epoch = epoch
+
+    def on_train_epoch_start(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
+        if trainer.current_epoch >= self.epoch:
+            raise RuntimeError(f"the fit reached epoch {trainer.current_epoch}: it should have been refused")
+
+
+#: ``overrides`` of ``nb.fit`` (and, as ``--KEY VALUE``, arguments of ``train fit``) adding :class:`FailAtEpoch`.
+GUARD = {"trainer.callbacks+": json.dumps({"class_path": f"{__name__}.FailAtEpoch"})}

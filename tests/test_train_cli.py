@@ -378,22 +378,6 @@ def test_a_failed_fit_exits_1_with_its_cause_and_no_best_checkpoint(tmp_path, gc
     _assert_failed_run(run_dir, cause, capsys)
 
 
-def test_all_zero_data_fails_the_fit(tmp_path, capsys):
-    from neuralbrdf.data.table import read_table, write_table
-
-    source = tmp_path / "truth.csv"
-    from neuralbrdf.cli.main import main as cli
-
-    assert cli(["simulate", "--material", "gold", "--plan", "DS1", "--truth", "--out", str(source)]) == 0
-    table = read_table(source)
-    table.values[:] = 0.0
-    write_table(table, tmp_path / "zeros.csv")
-    run_dir = tmp_path / "run"
-    args = ["fit", "--config", str(CONFIG), "--data.path", str(tmp_path / "zeros.csv"), *quick("--run_dir", str(run_dir))]
-    assert main(args) == 1
-    _assert_failed_run(run_dir, "with a measured value >= floor", capsys)
-
-
 @pytest.mark.parametrize("name, value", [("gamma", "-1"), ("gamma", "-1e-12"), ("rel_rmse_floor", "-1e-4")])
 def test_parameters_outside_their_domain_fail_before_a_run_exists(tmp_path, gcms_session, capsys, name, value):
     run_dir = tmp_path / "run"
