@@ -403,16 +403,17 @@ def test_metrics_json_writes_non_finite_numbers_as_null(tmp_path):
 
 def test_checkpoints_are_written_whole_or_not_at_all(tmp_path, monkeypatch):
     """A save that dies half-way leaves the previous checkpoint, never a truncated one."""
+    from neuralbrdf import checkpoints
     from neuralbrdf.lightning import run
 
     path = tmp_path / "checkpoints" / "last.ckpt"
     run.AtomicCheckpointIO().save_checkpoint({"epoch": 1}, path)
 
-    def dying_save(obj, target):
-        Path(target).write_bytes(b"PK\x03\x04 half")
+    def dying_save(obj, handle):
+        handle.write(b"PK\x03\x04 half")
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(run.torch, "save", dying_save)
+    monkeypatch.setattr(checkpoints.torch, "save", dying_save)
     with pytest.raises(KeyboardInterrupt):
         run.AtomicCheckpointIO().save_checkpoint({"epoch": 2}, path)
     assert torch.load(path, weights_only=True) == {"epoch": 1}
