@@ -66,7 +66,8 @@ def _path(value, name: str, expected: str = "a file path (str or os.PathLike)") 
 def _text(name: str, value, optional: bool = True) -> None:
     """:class:`InputError` naming the argument ``name`` unless ``value`` is a string (or ``None``)."""
     if not (isinstance(value, str) or (optional and value is None)):
-        raise InputError(f"{name}: expected a string{' or None' if optional else ''}, got {type(value).__name__} {value!r}")
+        expected = "a string or None" if optional else "a string"
+        raise InputError(f"{name}: expected {expected}, got {type(value).__name__} {value!r}")
 
 
 # --------------------------------------------------------------------------- materials
@@ -394,9 +395,17 @@ def _model_path(model: Model | PathLike, name: str) -> Path:
     return model.path if isinstance(model, Model) else _path(model, name, "a Model or a model file (.onnx) path")
 
 
-def _positive(**values) -> None:
+def _integers(**values) -> None:
+    """:class:`InputError` naming the first of ``values`` that is neither an integer nor ``None``."""
     for name, value in values.items():
-        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int)):
+            raise InputError(f"{name} must be an integer, got {type(value).__name__} {value!r}")
+
+
+def _positive(**values) -> None:
+    _integers(**values)
+    for name, value in values.items():
+        if value is not None and value < 1:
             raise InputError(f"{name} must be a positive integer, got {value!r}")
 
 
@@ -423,7 +432,7 @@ def evaluate(model: Model | PathLike, truth: Model | PathLike, out_dir: PathLike
     from neuralbrdf.evaluation.evaluate import DEFAULT_RESOLUTION, RenderSettings, SceneTarget
     from neuralbrdf.evaluation.evaluate import evaluate as run_evaluation
 
-    _positive(spp=spp, resolution=resolution)
+    _integers(spp=spp, resolution=resolution, seed=seed)  # their values: checked by the evaluation
     _text("variant", variant, optional=False)
     _text("material", material)
     settings = RenderSettings(variant, spp, DEFAULT_RESOLUTION if resolution is None else resolution, seed, backend,
@@ -432,8 +441,8 @@ def evaluate(model: Model | PathLike, truth: Model | PathLike, out_dir: PathLike
                                                     resolution)
     if target is None and material is not None:
         raise InputError("material names a material of a scene: give the scene too")
-    result = run_evaluation(_model_path(model, "model"), _model_path(truth, "truth"), _path(out_dir, "out_dir", "a folder path"),
-                            settings, render_images=images, scene=target)
+    result = run_evaluation(_model_path(model, "model"), _model_path(truth, "truth"),
+                            _path(out_dir, "out_dir", "a folder path"), settings, render_images=images, scene=target)
     for note in result["notes"]:  # a truth that is no ground truth, a model scored against itself
         warnings.warn(note, stacklevel=2)
     return result

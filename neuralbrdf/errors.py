@@ -96,6 +96,16 @@ class EnvironmentFailure(RuntimeError):
         return cls(f"{what}: {reason[:1].lower()}{reason[1:]}", path=path, errno=error.errno)
 
 
+class Interrupted(KeyboardInterrupt):
+    """A command stopped by a signal before it finished: Ctrl-C (``SIGINT``) or ``SIGTERM`` (what
+    ``timeout`` and job schedulers send).  Its exit status is ``128 + signal_number``, the shell's
+    own for a command a signal ended."""
+
+    def __init__(self, signal_number: int, message: str) -> None:
+        self.signal_number = signal_number
+        super().__init__(message)
+
+
 class FitFailed(RuntimeError):
     """A fit that ran but produced no usable model (a non-finite loss, a dead network, a failed
     ABC optimisation); the message is the one-line cause."""
@@ -114,6 +124,8 @@ def exit_status(error: BaseException) -> int:
         return EXIT_BAD_INPUT
     if isinstance(error, EnvironmentFailure):
         return EXIT_ENVIRONMENT
+    if isinstance(error, Interrupted):
+        return 128 + error.signal_number
     return EXIT_FAILED
 
 

@@ -23,7 +23,8 @@ MARKER_DEADLINE_S = 300.0
 
 
 class PauseAtEpochEnd(pl.Callback):
-    """At the end of training epoch ``epoch``: write ``marker`` (this process's id), then sleep."""
+    """At the end of training epoch ``epoch``: write ``marker`` (this process's id), then sleep
+    until killed, or until a SIGTERM reaches Lightning (which then stops the fit its own way)."""
 
     def __init__(self, marker: str, epoch: int = 0) -> None:
         self.marker, self.epoch = marker, epoch
@@ -31,8 +32,8 @@ class PauseAtEpochEnd(pl.Callback):
     def on_train_epoch_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
         if trainer.current_epoch == self.epoch:
             Path(self.marker).write_text(str(os.getpid()))
-            while True:
-                time.sleep(1.0)
+            while not trainer.received_sigterm:
+                time.sleep(0.05)
 
 
 def pause_arguments(marker: Path, epoch: int) -> list[str]:
@@ -59,7 +60,8 @@ def wait_for_marker(marker: Path, process: subprocess.Popen, log: Path) -> int:
     deadline = time.monotonic() + MARKER_DEADLINE_S
     while not (marker.is_file() and marker.read_text().strip()):
         if process.poll() is not None:
-            raise AssertionError(f"the process ended (status {process.returncode}) before its pause:\n{log.read_text()}")
+            raise AssertionError(f"the process ended (status {process.returncode}) before its pause:\n"
+                                 f"{log.read_text()}")
         if time.monotonic() > deadline:
             process.kill()
             raise AssertionError(f"no pause within {MARKER_DEADLINE_S:.0f} s:\n{log.read_text()}")

@@ -23,12 +23,6 @@ TINY_PRETRAINING = ("--data.batches_per_epoch", "1", "--data.val_batches", "1", 
                     "--data.proxy_dir", "null")
 
 
-@pytest.fixture(autouse=True)
-def keep_torch_threads():
-    threads = torch.get_num_threads()
-    yield
-    torch.set_num_threads(threads)
-
 
 @pytest.fixture
 def cut_short(tmp_path) -> Path:
@@ -66,8 +60,8 @@ def test_ckpt_path_of_another_model_is_one_line(tmp_path, capsys):
     other = PRETRAINED_DIR / "nlb_compact.ckpt"
     status = train(["validate", "--config", "abc", "--run_dir", str(tmp_path / "run"), "--ckpt_path", str(other)])
     line = _one_error_line(capsys)
-    assert status == 2 and line == (f"neuralbrdf train: error: {other}: checkpoint to evaluate holds a NlbPretrainModule model but the "
-                                    "config's model is AbcFitModule; give the config it was trained with")
+    assert status == 2 and line == (f"neuralbrdf train: error: {other}: checkpoint to evaluate holds a NlbPretrainModule "
+                                    "model but the config's model is AbcFitModule; give the config it was trained with")
     assert not (tmp_path / "run").exists()
 
 

@@ -26,7 +26,8 @@ def run_fails(args, tmp_path, capsys) -> str:
 
 def test_a_misspelt_model_option_on_the_command_line(tmp_path, capsys):
     line = run_fails(["fit", "--config", "abc", "--model.n_start", "4"], tmp_path, capsys)
-    assert line.startswith("neuralbrdf train: error: --model.n_start: AbcFitModule has no option 'n_start'; did you mean n_starts?")
+    assert line.startswith("neuralbrdf train: error: --model.n_start: AbcFitModule has no option 'n_start'; "
+                           "did you mean n_starts?")
     assert "(valid: bounds, max_evaluations, n_starts, seed)" in line
 
 
@@ -34,14 +35,16 @@ def test_a_misspelt_key_in_a_config_file_names_the_file(tmp_path, capsys):
     overlay = tmp_path / "mine.yaml"
     overlay.write_text("model:\n  init_args:\n    n_start: 4\n")
     line = run_fails(["fit", "--config", "abc", "--config", str(overlay)], tmp_path, capsys)
-    assert line.startswith(f"neuralbrdf train: error: {overlay}: model.n_start: AbcFitModule has no option 'n_start'; did you mean n_starts?")
+    assert line.startswith(f"neuralbrdf train: error: {overlay}: model.n_start: AbcFitModule has no option 'n_start'; "
+                           "did you mean n_starts?")
 
 
 def test_a_misspelt_trainer_key_in_a_file_suggests_the_nearest_names(tmp_path, capsys):
     overlay = tmp_path / "mine.yaml"
     overlay.write_text("trainer:\n  max_epoch: 3\n")
     line = run_fails(["fit", "--config", "spectral_mlp", "--config", str(overlay)], tmp_path, capsys)
-    assert line.startswith(f"neuralbrdf train: error: {overlay}: trainer.max_epoch: Trainer has no option 'max_epoch'; did you mean max_epochs")
+    assert line.startswith(f"neuralbrdf train: error: {overlay}: trainer.max_epoch: Trainer has no option 'max_epoch'; "
+                           "did you mean max_epochs")
 
 
 @pytest.mark.parametrize("flag, valid", [("--data.pth", "did you mean path?"),

@@ -23,14 +23,9 @@ from neuralbrdf.lightning.run import main as train
 pytestmark = pytest.mark.filterwarnings("ignore:LightningCLI's args parameter is intended")
 
 NO_SPACE = "cannot write: no space left on device"
-QUICK_FIT = ["--trainer.max_epochs", "2", "--trainer.limit_train_batches", "2", "--trainer.enable_progress_bar", "false"]
+QUICK_FIT = ["--trainer.max_epochs", "2", "--trainer.limit_train_batches", "2",
+             "--trainer.enable_progress_bar", "false"]
 
-
-@pytest.fixture(autouse=True)
-def keep_torch_threads():
-    threads = torch.get_num_threads()
-    yield
-    torch.set_num_threads(threads)
 
 
 def mount_disk(folder: Path, size_kib: int) -> None:

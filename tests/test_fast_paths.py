@@ -578,5 +578,6 @@ def test_a_spectral_model_outside_the_visible_range_gets_no_rgb_head(tmp_path, c
     capsys.readouterr()
     out = tmp_path / "abc.onnx"
     with pytest.warns(UserWarning, match="covers 800-900 nm.*it gets no RGB head"):
-        assert export_command.main(["--ckpt", str(tmp_path / "run" / "checkpoints" / "best.ckpt"), "--out", str(out)]) == 0
+        status = export_command.main(["--ckpt", str(tmp_path / "run" / "checkpoints" / "best.ckpt"), "--out", str(out)])
+    assert status == 0
     assert load_model(out).wavelength_range_nm == (800.0, 900.0) and load_model(out).fast_paths == {}

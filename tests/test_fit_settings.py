@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 import yaml
 
 import neuralbrdf as nb
@@ -23,12 +22,6 @@ GUARDED = [argument for key, value in GUARD.items() for argument in (f"--{key}",
 
 pytestmark = pytest.mark.filterwarnings("ignore:LightningCLI's args parameter is intended")
 
-
-@pytest.fixture(autouse=True)
-def keep_torch_threads():
-    threads = torch.get_num_threads()
-    yield
-    torch.set_num_threads(threads)
 
 
 def refused(args: list[str], tmp_path: Path, capsys) -> str:
@@ -160,7 +153,8 @@ def test_a_lambertian_table_is_refused_by_abc_and_fitted_by_the_others(gold, tmp
     """ABC fits a lobe: on a constant table it ran its lobe to a bound and failed with 31 lines of
     causes; the other models fit a Lambertian surface as it is."""
     values = read_table(gold).values
-    flat = _changed(gold, "lambertian", values=np.broadcast_to(np.linspace(0.1, 0.3, values.shape[1]), values.shape).copy())
+    spectrum = np.linspace(0.1, 0.3, values.shape[1])  # the same at every geometry
+    flat = _changed(gold, "lambertian", values=np.broadcast_to(spectrum, values.shape).copy())
     line = refused(["fit", "--config", "abc", "--data.path", str(flat), *KINDS["abc"]], tmp_path, capsys)
     assert line.startswith(f"{flat}: every channel holds the same value at all 185 geometries (a Lambertian surface): "
                            "there is no specular lobe for the ABC model to fit"), line

@@ -9,7 +9,6 @@ import signal
 from pathlib import Path
 
 import pytest
-import torch
 
 from neuralbrdf.cli.main import main as cli
 from neuralbrdf.lightning.run import main as train
@@ -20,12 +19,6 @@ pytestmark = [pytest.mark.filterwarnings("ignore:LightningCLI's args parameter i
 
 SHORT = ["--trainer.limit_train_batches", "2", "--trainer.enable_progress_bar", "false"]
 
-
-@pytest.fixture(autouse=True)
-def keep_torch_threads():
-    threads = torch.get_num_threads()
-    yield
-    torch.set_num_threads(threads)
 
 
 @pytest.fixture(scope="module")
@@ -60,16 +53,20 @@ def held(run: Path) -> str:
     return ", ".join(f"{e}/" if (run / e).is_dir() else e for e in entries if (run / e).exists())
 
 
-def kill_paused(args: list[str], tmp_path: Path, epoch: int) -> int:
-    """Run ``neuralbrdf train ARGS`` in a child process, SIGKILL it at the end of ``epoch``; its pid."""
+def kill_paused(args: list[str], tmp_path: Path, epoch: int, signal_number: int = signal.SIGKILL) -> tuple[int, int]:
+    """Run ``neuralbrdf train ARGS`` in a child process and send it ``signal_number`` at the end of
+    ``epoch``; its process id and exit status."""
     marker, log = tmp_path / f"paused-{epoch}", tmp_path / f"log-{epoch}.txt"
     process = start(["train", *args, *pause_arguments(marker, epoch)], log)
     try:
         pid = wait_for_marker(marker, process, log)
+        process.send_signal(signal_number)
+        status = process.wait(timeout=120)
     finally:
-        process.send_signal(signal.SIGKILL)
-        process.wait()
-    return pid
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    return pid, status
 
 
 def test_a_killed_overwrite_leaves_the_old_run_and_the_next_command_clears_up(table, tmp_path, capsys):
@@ -78,13 +75,27 @@ def test_a_killed_overwrite_leaves_the_old_run_and_the_next_command_clears_up(ta
     run = tmp_path / "run"
     assert train(fit_args(table, run, 1)) == 0
     before = run_files(run)
-    pid = kill_paused(fit_args(table, run, 50, "--overwrite", "--seed_everything", "1"), tmp_path, epoch=1)
+    pid, _ = kill_paused(fit_args(table, run, 50, "--overwrite", "--seed_everything", "1"), tmp_path, epoch=1)
     assert run_files(run) == before  # the old run, untouched; the new one was written beside it
     capsys.readouterr()
     assert train(fit_args(table, run, 1)) == 2  # a plain fit: refused, and the leftover is gone
     err = capsys.readouterr().err
     assert f"removed the unfinished run of process {pid}" in err and "already holds a run (" in err, err
     assert leftovers(run) == [] and run_files(run) == before
+
+
+@pytest.mark.slow
+def test_a_terminated_overwrite_exits_143_and_leaves_the_old_run(table, tmp_path, capsys):
+    """SIGTERM (``timeout``, a job scheduler): Lightning turned it into SystemExit, the command
+    exited 0, and the old run, set aside, was deleted."""
+    run = tmp_path / "run"
+    assert train(fit_args(table, run, 1)) == 0
+    before = run_files(run)
+    _, status = kill_paused(fit_args(table, run, 50, "--overwrite"), tmp_path, epoch=1, signal_number=signal.SIGTERM)
+    assert status == 128 + signal.SIGTERM
+    log = (tmp_path / "log-1.txt").read_text()
+    assert f"neuralbrdf train: error: interrupted by SIGTERM; {run} keeps what the run saved" in log, log
+    assert run_files(run) == before and leftovers(run) == []
 
 
 @pytest.mark.slow

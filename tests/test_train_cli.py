@@ -26,13 +26,6 @@ REPO = Path(__file__).resolve().parents[1]
 CONFIG = REPO / "configs" / "spectral_mlp.yaml"
 
 
-@pytest.fixture(autouse=True)
-def keep_torch_threads():
-    """The config sets torch's thread count for the process; give other tests theirs back."""
-    threads = torch.get_num_threads()
-    yield
-    torch.set_num_threads(threads)
-
 
 @pytest.fixture(scope="module")
 def gcms_session(tmp_path_factory):
@@ -272,8 +265,8 @@ def test_a_single_wavelength_table_is_refused_before_a_fit(tmp_path, capsys, con
     capsys.readouterr()
     run_dir = tmp_path / "run"
     assert main(["fit", "--config", config, "--data.path", str(table), "--run_dir", str(run_dir)]) == 2
-    assert capsys.readouterr().err == (f"neuralbrdf train: error: {table}: holds one wavelength (550 nm); a spectral fit needs samples "
-                                       "at two or more wavelengths, whose range the fitted model covers\n")
+    assert capsys.readouterr().err == (f"neuralbrdf train: error: {table}: holds one wavelength (550 nm); a spectral fit "
+                                       "needs samples at two or more wavelengths, whose range the fitted model covers\n")
     assert not run_dir.exists()
 
 

@@ -54,12 +54,12 @@ configuration file that is not YAML, an invalid hyper-parameter raised as
 from __future__ import annotations
 
 import contextlib
-import csv
 import json
 import logging
 import math
 import os
 import shutil
+import signal
 import sys
 import time
 import warnings
@@ -74,10 +74,11 @@ from pytorch_lightning.callbacks import ModelCheckpoint
 from pytorch_lightning.cli import LightningCLI
 from pytorch_lightning.loggers import CSVLogger
 from pytorch_lightning.plugins.io import TorchCheckpointIO
+from pytorch_lightning.utilities.exceptions import SIGTERMException
 
 from neuralbrdf.atomic import atomic_write, command_inputs, environment_oserror
 from neuralbrdf.errors import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, EnvironmentFailure, FitFailed, InputError,
-                               error_line, exit_status, one_line)
+                               Interrupted, error_line, exit_status, one_line)
 from neuralbrdf.checkpoints import read_checkpoint, write_checkpoint
 from neuralbrdf.configs_dir import config_not_found, overlay_base, resolve_config
 from neuralbrdf.console import clean_warnings, on_terminal
@@ -95,7 +96,7 @@ PROG = "neuralbrdf train"
 METRICS_FILE = "metrics.json"
 RUNS_ROOT = Path("runs")
 SUBCOMMANDS = ("fit", "validate", "test")
-STATUS_OK, STATUS_FAILED, STATUS_RUNNING = "ok", "failed", "running"
+STATUS_OK, STATUS_FAILED, STATUS_RUNNING, STATUS_INTERRUPTED = "ok", "failed", "running", "interrupted"
 #: ``--ckpt_path`` values Lightning resolves itself rather than as files.
 LIGHTNING_CKPT_NAMES = ("best", "last", "hpc", "registry")
 
@@ -290,6 +291,13 @@ class FitHealth(pl.Callback):
 
     def on_exception(self, trainer: pl.Trainer, pl_module: pl.LightningModule, exception: BaseException) -> None:
         if trainer.state.fn != "fit" or _input_error(exception) is not None or not trainer.is_global_zero:
+            return
+        signal_number = _interruption(exception)
+        if signal_number is not None:  # not a failure: the checkpoints stay, to --resume from
+            with contextlib.suppress(EnvironmentFailure):
+                write_metrics(Path(trainer.default_root_dir) / self.filename,
+                              {"status": STATUS_INTERRUPTED, "cause": f"interrupted by {_signal_name(signal_number)}",
+                               "fit/epochs": trainer.current_epoch}, merge=True)
             return
         cause = str(exception) if isinstance(exception, FitFailed) else one_line(exception)
         if isinstance(exception, Exception):
@@ -546,6 +554,24 @@ class NeuralBrdfCLI(LightningCLI):
         return super().instantiate_trainer(**kwargs)
 
 
+def _interruption(exc: BaseException) -> int | None:
+    """The signal that stopped a command, if ``exc`` is how Lightning reports one: SIGTERM as
+    ``SIGTERMException``, Ctrl-C as ``KeyboardInterrupt`` (or the ``sys.exit(1)`` it becomes)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, SIGTERMException):
+            return signal.SIGTERM
+        if isinstance(exc, KeyboardInterrupt):
+            return signal.SIGINT
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+def _signal_name(number: int) -> str:
+    return {signal.SIGINT: "Ctrl-C (SIGINT)"}.get(number, signal.Signals(number).name)
+
+
 def _fit_failure(exc: BaseException) -> str | None:
     """The one-line cause of a fit that ran and failed (:class:`FitFailed`, or a
     :data:`DATA_FAILURES` error :class:`FitHealth` recorded), else ``None``."""
@@ -564,8 +590,9 @@ def _held_run(run_dir: Path) -> str:
         status = None
     if status in (STATUS_OK, STATUS_FAILED):
         return f"already holds a run ({listing})"
-    why = (f"its {METRICS_FILE} says it is still running, but no command runs in it: it was killed"
-           if status == STATUS_RUNNING else f"no {METRICS_FILE}: it ended before its fit did, or was killed")
+    why = {STATUS_RUNNING: f"its {METRICS_FILE} says it is still running, but no command runs in it: it was killed",
+           STATUS_INTERRUPTED: "it was interrupted"}.get(status, f"no {METRICS_FILE}: it ended before its fit did, or "
+                                                                 "was killed")
     return f"already holds a run that did not finish ({listing}; {why})"
 
 
@@ -727,8 +754,11 @@ def train(args: list[str], verbose: bool = False) -> NeuralBrdfCLI:
     """Run ``args`` (``fit|validate|test --config X [--key value ...]``) in this process and return
     the finished LightningCLI (its ``run_dir``, ``model``, ``trainer``).  Raises
     :class:`~neuralbrdf.errors.InputError` for bad input, a configuration that does not parse
-    included (one line: :mod:`~neuralbrdf.lightning.config_errors`), and :class:`FitFailed` for a
-    fit that ran and failed (its ``neuralbrdf_run_dir`` names the run whose metrics.json says why)."""
+    included (one line: :mod:`~neuralbrdf.lightning.config_errors`), :class:`FitFailed` for a
+    fit that ran and failed (its ``neuralbrdf_run_dir`` names the run whose metrics.json says why),
+    :class:`~neuralbrdf.errors.EnvironmentFailure` for a file the machine could not write and
+    :class:`~neuralbrdf.errors.Interrupted` for Ctrl-C or SIGTERM (which Lightning turns into
+    ``SystemExit``)."""
     try:
         with _quiet(verbose):
             args = _resolve_config_files(list(args))
@@ -749,6 +779,13 @@ def train(args: list[str], verbose: bool = False) -> NeuralBrdfCLI:
         failure = FitFailed(cause)
         failure.neuralbrdf_run_dir = getattr(exc, "neuralbrdf_run_dir", None)
         raise failure from exc
+    except BaseException as exc:  # Ctrl-C or SIGTERM (Lightning makes them SystemExit), else as it is
+        signal_number = _interruption(exc)
+        if signal_number is None:
+            raise
+        run_dir = getattr(exc, "neuralbrdf_run_dir", None)
+        kept = f"; {run_dir} keeps what the run saved (a fit: --resume continues it)" if run_dir else ""
+        raise Interrupted(signal_number, f"interrupted by {_signal_name(signal_number)}{kept}") from None
 
 
 def _main(args: list[str] | None) -> int:
@@ -761,7 +798,7 @@ def _main(args: list[str] | None) -> int:
     except FitFailed as failure:
         print(error_line(PROG, f"fit failed: {failure}{_failed_run(failure)}"), file=sys.stderr)
         return EXIT_FAILED
-    except (InputError, EnvironmentFailure) as error:
+    except (InputError, EnvironmentFailure, Interrupted) as error:
         print(error_line(PROG, error), file=sys.stderr)
         return exit_status(error)
     if cli.subcommand is not None and cli.run_dir is not None:

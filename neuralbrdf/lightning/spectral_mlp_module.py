@@ -65,9 +65,9 @@ def check_wavelength_range(wavelengths_nm, range_nm: Sequence[float], where) -> 
     never asked for, a range wider than the data claims wavelengths the model never saw."""
     low, high = float(np.min(wavelengths_nm)), float(np.max(wavelengths_nm))
     if abs(low - range_nm[0]) > RANGE_TOLERANCE_NM or abs(high - range_nm[1]) > RANGE_TOLERANCE_NM:
-        raise InputError(f"holds {low:g}-{high:g} nm but model.wavelength_range_nm is {range_nm[0]:g}-{range_nm[1]:g} nm, "
-                         f"the range the fitted model declares; give --model.wavelength_range_nm '[{low:g}, {high:g}]'",
-                         path=where)
+        raise InputError(f"holds {low:g}-{high:g} nm but model.wavelength_range_nm is {range_nm[0]:g}-"
+                         f"{range_nm[1]:g} nm, the range the fitted model declares; give "
+                         f"--model.wavelength_range_nm '[{low:g}, {high:g}]'", path=where)
 
 
 class SpectralMlpModule(WritesKind, pl.LightningModule):
