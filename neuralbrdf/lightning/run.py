@@ -29,26 +29,35 @@ command on the same directory while one runs is refused at once with status 2 (t
 ``--run_dir`` would interleave their logs; two ``--overwrite`` fits would each replace the other).
 
 **A run never overwrites another run.** ``fit`` into a directory that already holds a run
-(:data:`RUN_ENTRIES`) is refused unless ``--resume`` (continue from its
-``checkpoints/last.ckpt``, or ``--ckpt_path``; ``metrics.csv`` is appended to, ``metrics.json``
-merged and ``fit/wall_time_s`` summed over the sessions) or ``--overwrite`` (the old run's
-files are set aside and deleted when the command ends; a start that fails on bad input puts
-them back).  A start
-that fails (bad input) leaves no run directory behind.
+(:data:`~neuralbrdf.lightning.run_dir.RUN_ENTRIES`) is refused unless ``--resume`` (continue from
+its ``checkpoints/last.ckpt``, or ``--ckpt_path``; ``metrics.csv`` is appended to,
+``metrics.json`` merged and ``fit/wall_time_s`` summed over the sessions) or ``--overwrite``
+(the new run is written beside the old one and put in its place when whole: a fit that failed
+is whole, an interrupted or killed one leaves the old run).  A start that fails (bad input)
+leaves no run directory behind.  What a killed command left in the directory is repaired by the
+next one, which says so (:mod:`neuralbrdf.lightning.run_dir`).  ``metrics.json`` says
+``"status": "running"`` while a fit runs, so a fit that was killed says so.
+
+**Settings that make a fit endless or meaningless** (``trainer.max_epochs: -1`` without another
+limit, a learning rate of 0, …) are refused before the run directory exists
+(:mod:`neuralbrdf.lightning.fit_settings`).
 
 **A failed fit is a failure** (:class:`FitHealth`, added to every ``fit``): a non-finite
 training loss or monitored metric, a network whose gradients are all exactly zero for a whole
 epoch (dead or saturated units, e.g. after a too-large learning rate), or a module that reports
 its own failure (``fit_failure()``, e.g. the ABC fit), or a :data:`DATA_FAILURES` error
-raised inside the fit (all-zero data leaves no sample to score) ends the command with status 1
-and one line ``error: fit failed: <cause>``; ``metrics.json`` then holds ``"status": "failed"`` and
-``"cause"``, and no checkpoint named ``best*`` is left (``last.ckpt`` stays, for inspection).
-A successful fit writes ``"status": "ok"``.  ``metrics.json`` is strict JSON: a non-finite
-number is written as ``null``.
+raised inside the fit ends the command with status 1 and one line ``neuralbrdf train: error: fit
+failed: <cause>``; ``metrics.json`` then holds ``"status": "failed"`` and ``"cause"``, and no
+checkpoint named ``best*`` is left (``last.ckpt`` stays, for inspection).  A successful fit
+writes ``"status": "ok"``; a fit stopped by Ctrl-C or SIGTERM ``"status": "interrupted"`` (its
+checkpoints stay, to ``--resume`` from; exit status 130 or 143).  ``metrics.json`` is strict
+JSON: a non-finite number is written as ``null``.
 
 Bad input (a missing or malformed ``--data.path``, a missing or truncated checkpoint, a
 configuration file that is not YAML, an invalid hyper-parameter raised as
-:class:`~neuralbrdf.errors.InputError`) ends the command with a one-line message and status 2.
+:class:`~neuralbrdf.errors.InputError`) ends the command with a one-line message and status 2; a
+file the machine could not write (a full disk) with one naming it and status 3
+(:mod:`neuralbrdf.errors`).
 """
 
 from __future__ import annotations
@@ -461,6 +470,14 @@ class NeuralBrdfCLI(LightningCLI):
             if not config.get("overwrite"):
                 raise InputError(f"{_held_run(run_dir)}; pass --resume to continue it from checkpoints/last.ckpt or "
                                  "--overwrite to replace it", path=run_dir)
+            callbacks = config.trainer.get("callbacks") or []
+            fixed = [c for c in (callbacks if isinstance(callbacks, list) else [callbacks])
+                     if getattr(getattr(c, "init_args", None), "dirpath", None)]
+            if fixed:  # the new run's checkpoints would land among the old run's
+                raise InputError(f"--overwrite writes the new run beside the old one, but the config fixes "
+                                 f"{fixed[0].class_path.rsplit('.', 1)[-1]}'s dirpath ({fixed[0].init_args.dirpath}); "
+                                 "leave dirpath unset (checkpoints/ of the run directory) or choose another --run_dir",
+                                 path=run_dir)
             self._staging = staging_dir(run_dir)  # the old run stays until the new one is whole
             self._staging.mkdir()
             self._fit_dir = self._staging

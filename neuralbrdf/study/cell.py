@@ -187,8 +187,9 @@ def fit(spec: dict, table: Path, run_dir: Path) -> tuple[float, dict]:
     finally:
         sys.stderr.write(captured.getvalue())
     wall = time.perf_counter() - started
-    if status == EXIT_ENVIRONMENT:  # the machine, not the fit (a full disk): no result, the cell reruns next time
-        raise RuntimeError((_errors(captured.getvalue())[-1:] or ["the fit could not write its run"])[0])
+    if status == EXIT_ENVIRONMENT or status > 128:  # the machine (a full disk) or a signal, not the fit: no
+        # result, the cell runs again next time
+        raise RuntimeError((_errors(captured.getvalue())[-1:] or [f"the fit ended with status {status}"])[0])
     if status == EXIT_BAD_INPUT:  # train.py's bad-input status: the fit refused these data (its one-line reason)
         reason = _errors(captured.getvalue())[-1:] or ["?"]
         raise CellFailure("fit_refused", reason[0][:300])
