@@ -96,8 +96,8 @@ from neuralbrdf.lightning.common import WritesKind
 from neuralbrdf.lightning.config_errors import describe as describe_config_error
 from neuralbrdf.lightning.fit_settings import check_fit_settings
 from neuralbrdf.lightning.progress import EpochLines
-from neuralbrdf.lightning.run_dir import (RUN_ENTRIES, holds_run, join_logs, recover, run_entries, set_aside_log,
-                                          staging_dir, swap_in)
+from neuralbrdf.lightning.run_dir import (RUN_ENTRIES, holds_run, join_logs, recover, remove_entry, run_entries,
+                                          set_aside_log, staging_dir, swap_in)
 from neuralbrdf.lightning.train_help import help_text
 
 #: The command as a user types it, in its error lines (:func:`~neuralbrdf.errors.error_line`).
@@ -448,9 +448,7 @@ class NeuralBrdfCLI(LightningCLI):
             shutil.rmtree(self._created_folder, ignore_errors=True)
         elif self._empty_at_start:  # what this start wrote into a folder that held no run
             for entry in RUN_ENTRIES:
-                path = self.run_dir / entry
-                shutil.rmtree(path, ignore_errors=True) if path.is_dir() and not path.is_symlink() else \
-                    path.unlink(missing_ok=True)
+                remove_entry(self.run_dir / entry)
 
     def _prepare_fit_dir(self, config) -> None:
         run_dir = self.run_dir

@@ -67,7 +67,8 @@ def run_entries(run_dir: Path) -> list[str]:
             if (run_dir / entry).exists() or (run_dir / entry).is_symlink()]
 
 
-def _remove(path: Path) -> None:
+def remove_entry(path: Path) -> None:
+    """Delete a run entry, a folder with what it holds."""
     if path.is_dir() and not path.is_symlink():
         shutil.rmtree(path)
     elif path.exists() or path.is_symlink():
@@ -85,7 +86,7 @@ def _move_entries(source: Path, target: Path, replace: bool = False) -> None:
         if new.exists() or new.is_symlink():
             if not replace:
                 continue
-            _remove(new)
+            remove_entry(new)
         os.replace(old, new)
 
 
@@ -109,7 +110,7 @@ def _put_back(run_dir: Path, replaced: Path) -> None:
     """An older version's ``replaced-run``: the old run back, the half-written new one (every run
     entry of ``run_dir``: the old ones were all set aside) removed."""
     for entry in RUN_ENTRIES:
-        _remove(run_dir / entry)
+        remove_entry(run_dir / entry)
     _move_entries(replaced, run_dir)
     shutil.rmtree(replaced)
 
