@@ -625,8 +625,7 @@ def _environment_failure(exc: BaseException) -> EnvironmentFailure | None:
     oserror = environment_oserror(exc)
     if oserror is None:
         return None
-    return EnvironmentFailure.of(oserror, oserror.filename or getattr(exc, "neuralbrdf_run_dir", None), "cannot write "
-                                 "the run" if oserror.filename is None else "cannot read or write")
+    return EnvironmentFailure.of(oserror, oserror.filename or getattr(exc, "neuralbrdf_run_dir", None))
 
 
 def _input_error(exc: BaseException) -> InputError | None:
