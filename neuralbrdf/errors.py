@@ -31,13 +31,6 @@ ENVIRONMENT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.E
                                 errno.EFBIG, errno.ENOMEM, errno.EMFILE, errno.ENFILE, errno.EBUSY, errno.ETXTBSY})
 
 
-def _located(message: str, path: str | None, line: int | None = None, column: str | None = None) -> str:
-    """``path, line N, column 'C': message`` with the parts that are known."""
-    where = [part for part in (path, None if line is None else f"line {line}",
-                               None if column is None else f"column {column!r}") if part is not None]
-    return f"{', '.join(where)}: {message}" if where else message
-
-
 class InputError(ValueError):
     """Invalid user input: a file, row, column or key that does not meet the contract.
 
@@ -68,7 +61,15 @@ class InputError(ValueError):
         super().__init__(self._format())
 
     def _format(self) -> str:
-        return _located(self.reason, self.path, self.line, self.column)
+        where = []
+        if self.path is not None:
+            where.append(self.path)
+        if self.line is not None:
+            where.append(f"line {self.line}")
+        if self.column is not None:
+            where.append(f"column {self.column!r}")
+        prefix = ", ".join(where)
+        return f"{prefix}: {self.reason}" if prefix else self.reason
 
 
 class OutputError(InputError):
@@ -87,7 +88,7 @@ class EnvironmentFailure(RuntimeError):
         self.path = None if path is None else str(path)
         self.reason = message
         self.errno = errno
-        super().__init__(_located(message, self.path))
+        super().__init__(message if self.path is None else f"{self.path}: {message}")
 
     @classmethod
     def of(cls, error: OSError, path: str | PathLike[str] | None, what: str = "cannot write") -> EnvironmentFailure:
