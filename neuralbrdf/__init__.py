@@ -19,14 +19,14 @@ __version__ = "0.1.0"
 #: Names of :mod:`neuralbrdf.api` offered here, and the error types a caller catches.
 _API = ("FIT_KINDS", "FitResult", "Model", "RenderFailed", "Source", "evaluate", "export", "fit", "load", "read",
         "render_image", "truth")
-_ERRORS = ("FitFailed", "InputError")
+_ERRORS = ("EnvironmentFailure", "FitFailed", "InputError", "Interrupted")
 
 __all__ = [*_API, *_ERRORS]
 
 if TYPE_CHECKING:
     from neuralbrdf.api import (FIT_KINDS, FitResult, Model, RenderFailed, Source, evaluate, export, fit, load,
                                 read, render_image, truth)
-    from neuralbrdf.errors import FitFailed, InputError
+    from neuralbrdf.errors import EnvironmentFailure, FitFailed, InputError, Interrupted
 
 
 def __getattr__(name: str):

@@ -26,6 +26,7 @@ frame, ``z`` the normal, both pointing away from the surface (docs/formats.md#co
 from __future__ import annotations
 
 import json
+import math
 import os
 import warnings
 from collections.abc import Mapping
@@ -53,6 +54,20 @@ FIT_KINDS: dict[str, str] = {
 #: Source kinds with a ground truth everywhere (not only at measured directions).
 TRUTH_KINDS = ("nbrdf", "merl", "virtual")
 VIRTUAL_PREFIX = "virtual:"
+
+
+def _path(value, name: str, expected: str = "a file path (str or os.PathLike)") -> Path:
+    """``value`` as a :class:`~pathlib.Path`, or :class:`InputError` naming the argument ``name``."""
+    if isinstance(value, (str, os.PathLike)):
+        return Path(value)
+    raise InputError(f"{name}: expected {expected}, got {type(value).__name__} {value!r}")
+
+
+def _text(name: str, value, optional: bool = True) -> None:
+    """:class:`InputError` naming the argument ``name`` unless ``value`` is a string (or ``None``)."""
+    if not (isinstance(value, str) or (optional and value is None)):
+        expected = "a string or None" if optional else "a string"
+        raise InputError(f"{name}: expected {expected}, got {type(value).__name__} {value!r}")
 
 
 # --------------------------------------------------------------------------- materials
@@ -115,7 +130,11 @@ def read(source: PathLike, reference: PathLike | None = None, *, plan: str | Non
     from neuralbrdf.data.plans import PLAN_NAMES
     from neuralbrdf.sources import sample_file
 
-    text = os.fspath(source)
+    text = os.fspath(_path(source, "source", "a file path or 'virtual:NAME'"))
+    if reference is not None:
+        _path(reference, "reference")
+    _text("plan", plan)
+    _text("name", name)
     suffix = Path(text).suffix
     sampled = not text.startswith(VIRTUAL_PREFIX) and suffix in (".h5", ".json", ".binary")
     if plan is not None and not sampled:
@@ -159,9 +178,12 @@ class FitResult:
 
 
 def _option(value) -> str:
-    """A value as jsonargparse reads it from the command line (YAML/JSON)."""
+    """A value as jsonargparse reads it from the command line (YAML/JSON; a non-finite float in
+    YAML's spelling, which JSON lacks)."""
     if isinstance(value, str):
         return value
+    if isinstance(value, float) and not math.isfinite(value):
+        return ".nan" if math.isnan(value) else (".inf" if value > 0 else "-.inf")
     return json.dumps(value)
 
 
@@ -220,7 +242,15 @@ def fit(kind: str, data: Source | PathLike | None = None, *, config: PathLike | 
 
     if kind not in FIT_KINDS:
         raise InputError(f"unknown fit kind {kind!r}; expected one of {', '.join(FIT_KINDS)}")
-    config = os.fspath(config) if config is not None else FIT_KINDS[kind]
+    config = os.fspath(_path(config, "config", "a shipped config's name or a YAML file")) if config is not None \
+        else FIT_KINDS[kind]
+    if run_dir is not None:
+        _path(run_dir, "run_dir")
+    if overrides is not None and not isinstance(overrides, Mapping):
+        raise InputError(f"overrides: expected a mapping of config keys to values such as {{'trainer.max_epochs': 5}}, "
+                         f"got {type(overrides).__name__} {overrides!r}")
+    if data is not None and not isinstance(data, Source):
+        _path(data, "data", "a Source, a file path or 'virtual:NAME'")
     source = read(data) if data is not None and not isinstance(data, Source) else data
     args = ["fit", "--config", config]
     if source is not None:
@@ -270,13 +300,21 @@ class Model:
     def __call__(self, wi, wo, wavelength=None) -> np.ndarray:
         import numpy as np
 
-        wi, wo = np.atleast_2d(np.asarray(wi, dtype=np.float64)), np.atleast_2d(np.asarray(wo, dtype=np.float64))
+        try:
+            wi, wo = np.atleast_2d(np.asarray(wi, dtype=np.float64)), np.atleast_2d(np.asarray(wo, dtype=np.float64))
+            wavelength = None if wavelength is None else np.asarray(wavelength, dtype=np.float64)
+        except (TypeError, ValueError) as error:
+            raise InputError(f"wi, wo and wavelength must be numbers (arrays of unit vectors, nm): {error}") from None
         if wi.shape != wo.shape or wi.ndim != 2 or wi.shape[1] != 3:
             raise InputError(f"wi and wo must both be [N, 3] unit vectors, got {list(wi.shape)} and {list(wo.shape)}")
         if self.is_spectral == (wavelength is None):
             raise InputError(f"{self.path.name} is {'spectral: give a wavelength (nm)' if self.is_spectral else 'RGB: give no wavelength'}")
         if wavelength is not None:
-            wavelength = np.broadcast_to(np.asarray(wavelength, dtype=np.float64), (len(wi),))
+            try:
+                wavelength = np.broadcast_to(wavelength, (len(wi),))
+            except ValueError:
+                raise InputError(f"wavelength must be one number or {len(wi)} (one per direction pair), got shape "
+                                 f"{list(wavelength.shape)}") from None
         return self._evaluator.values(wi, wo, wavelength)
 
     def __repr__(self) -> str:
@@ -299,7 +337,7 @@ def load(path: PathLike) -> Model:
     >>> f.shape, bool(f[0] > 10 * f[1])
     ((2,), True)
     """
-    return Model(path)
+    return Model(_path(path, "path", "a model file (.onnx) path"))
 
 
 def export(checkpoint: PathLike, out: PathLike, material: str | None = None) -> Model:
@@ -316,6 +354,9 @@ def export(checkpoint: PathLike, out: PathLike, material: str | None = None) -> 
     """
     from neuralbrdf.onnx_export import ExportValidationError, export_checkpoint
 
+    _path(checkpoint, "checkpoint", "a checkpoint (.ckpt) path")
+    _path(out, "out", "an output model file (.onnx) path")
+    _text("material", material)
     try:
         export_checkpoint(checkpoint, out, material)
     except ExportValidationError as error:
@@ -335,6 +376,9 @@ def truth(source: Source | PathLike, out: PathLike) -> Model:
     """
     from neuralbrdf.evaluation.truth import export_truth
 
+    _path(out, "out", "an output model file (.onnx) path")
+    if not isinstance(source, Source):
+        _path(source, "source", "a Source, 'virtual:NAME', an NBRDF .h5 or a MERL .binary")
     if isinstance(source, Source):
         if not source.has_truth:
             raise InputError(f"a measurement ({source.kind}) is known only where it was measured; a truth comes from "
@@ -347,14 +391,22 @@ def truth(source: Source | PathLike, out: PathLike) -> Model:
 # --------------------------------------------------------------------------- evaluation and rendering
 
 
-def _model_path(model: Model | PathLike) -> Path:
-    return model.path if isinstance(model, Model) else Path(model)
+def _model_path(model: Model | PathLike, name: str) -> Path:
+    return model.path if isinstance(model, Model) else _path(model, name, "a Model or a model file (.onnx) path")
+
+
+def _integers(**values) -> None:
+    """:class:`InputError` naming the first of ``values`` that is neither an integer nor ``None``."""
+    for name, value in values.items():
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int)):
+            raise InputError(f"{name} must be an integer, got {type(value).__name__} {value!r}")
 
 
 def _positive(**values) -> None:
+    _integers(**values)
     for name, value in values.items():
         if value is not None and value < 1:
-            raise InputError(f"{name} must be a positive integer, got {value}")
+            raise InputError(f"{name} must be a positive integer, got {value!r}")
 
 
 def evaluate(model: Model | PathLike, truth: Model | PathLike, out_dir: PathLike, *, scene: PathLike | None = None,
@@ -380,12 +432,20 @@ def evaluate(model: Model | PathLike, truth: Model | PathLike, out_dir: PathLike
     from neuralbrdf.evaluation.evaluate import DEFAULT_RESOLUTION, RenderSettings, SceneTarget
     from neuralbrdf.evaluation.evaluate import evaluate as run_evaluation
 
+    _integers(spp=spp, resolution=resolution, seed=seed)  # their values: checked by the evaluation
+    _text("variant", variant, optional=False)
+    _text("material", material)
     settings = RenderSettings(variant, spp, DEFAULT_RESOLUTION if resolution is None else resolution, seed, backend,
                               fast)  # checked by the evaluation before any work
-    target = None if scene is None else SceneTarget(Path(scene), material, resolution)
+    target = None if scene is None else SceneTarget(_path(scene, "scene", "a Mitsuba scene file path"), material,
+                                                    resolution)
     if target is None and material is not None:
         raise InputError("material names a material of a scene: give the scene too")
-    return run_evaluation(_model_path(model), _model_path(truth), out_dir, settings, render_images=images, scene=target)
+    result = run_evaluation(_model_path(model, "model"), _model_path(truth, "truth"),
+                            _path(out_dir, "out_dir", "a folder path"), settings, render_images=images, scene=target)
+    for note in result["notes"]:  # a truth that is no ground truth, a model scored against itself
+        warnings.warn(note, stacklevel=2)
+    return result
 
 
 class RenderFailed(RuntimeError):
@@ -422,18 +482,24 @@ def render_image(model: Model | PathLike | None = None, out: PathLike | None = N
     from neuralbrdf.render.preview import set_variant, write_images
 
     _positive(spp=spp, resolution=resolution, max_depth=max_depth, spp_per_pass=spp_per_pass)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise InputError(f"seed must be a non-negative integer, got {seed!r}")
+    _text("variant", variant, optional=False)
+    for name, value in (("material", material), ("reference_bsdf", reference_bsdf), ("backend", backend)):
+        _text(name, value)
     written = []
     if out is not None:
-        out = Path(out)
+        out = _path(out, "out", "an output image (.png) path")
         if out.suffix.lower() != ".png":
             raise InputError("the output must be a .png file (with exr, a linear EXR is written beside it)", path=out)
         written = [out, out.with_suffix(".exr")] if exr else [out]
     with command_inputs():  # an output may not be one of the inputs (the model, the scene)
         if scene is not None:
-            draw = _scene_renderer(Path(scene), None if model is None else _model_path(model), material, resolution,
+            draw = _scene_renderer(_path(scene, "scene", "a Mitsuba scene file path"),
+                                   None if model is None else _model_path(model, "model"), material, resolution,
                                    max_depth, backend, rgb_tolerance, spp, spp_per_pass, fast)
         else:
-            draw = _preview_renderer(None if model is None else _model_path(model), reference_bsdf, resolution,
+            draw = _preview_renderer(None if model is None else _model_path(model, "model"), reference_bsdf, resolution,
                                      max_depth, backend, rgb_tolerance, variant, fast)
         check_outputs(*written)
         set_variant(variant)

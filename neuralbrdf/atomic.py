@@ -19,14 +19,21 @@ Every writer in neuralbrdf goes through :func:`atomic_paths` (or its one-file fo
 * **Temporary files are recognisable.** They are named ``.<target name>.neuralbrdf-tmp-<pid>-…``
   (:data:`TEMP_MARKER`), so a temporary file left by a killed command is removed by the next
   write of the same target once its process is gone, and is easy to spot by hand.
-* **Errors name the target.** An ``OSError`` while writing (a read-only folder, a full disk)
-  becomes an :class:`~neuralbrdf.errors.OutputError` naming the target, never the temporary file.
+* **Errors name the target.** A write that fails for the machine's sake (a full disk, a
+  read-only file system, no permission: :data:`~neuralbrdf.errors.ENVIRONMENT_ERRNOS`) becomes an
+  :class:`~neuralbrdf.errors.EnvironmentFailure` ``TARGET: cannot write: no space left on device``
+  (exit status 3), any other ``OSError`` an :class:`~neuralbrdf.errors.OutputError` (exit status
+  2), both naming the target, never the temporary file.  Writers in native code report a full
+  disk in their own words (``torch.save``'s ``basic_ios::clear: iostream error``, an HDF5 or
+  OpenEXR error): an exception from the writer while the target's file system has less than
+  :data:`FULL_DISK_BYTES` free is taken for a full disk (:func:`full_disk`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import contextvars
+import errno
 import os
 import shutil
 import stat
@@ -34,7 +41,10 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-from neuralbrdf.errors import InputError, OutputError
+from neuralbrdf.errors import ENVIRONMENT_ERRNOS, EnvironmentFailure, InputError, OutputError
+
+#: A file system with less free space than this after a writer failed is taken to be full (bytes).
+FULL_DISK_BYTES = 64 * 1024
 
 #: Part of every temporary file name: ``.<target name>.neuralbrdf-tmp-<pid>-<random><suffix>``.
 TEMP_MARKER = ".neuralbrdf-tmp-"
@@ -136,8 +146,10 @@ def check_outputs(*targets: str | os.PathLike[str]) -> list[Path]:
             raise OutputError(f"is given twice as an output (also as {seen[key]})", path=target)
         seen[key] = str(target)
         folder = _existing_ancestor(real.parent)
+        if not folder.is_dir():
+            raise OutputError(f"cannot write: {folder} is not a folder", path=target)
         if not os.access(folder, os.W_OK | os.X_OK):
-            raise OutputError(f"cannot write: folder {folder} is not writable", path=target)
+            raise EnvironmentFailure(f"cannot write: folder {folder} is not writable", path=target, errno=errno.EACCES)
     return reals
 
 
@@ -202,6 +214,48 @@ def _make_folders(folder: Path) -> list[Path]:
     return missing
 
 
+def environment_oserror(error: BaseException | None) -> OSError | None:
+    """The ``OSError`` of the machine's making (:data:`~neuralbrdf.errors.ENVIRONMENT_ERRNOS`) that is
+    ``error`` or caused it, if any."""
+    seen = set()
+    while error is not None and id(error) not in seen:
+        if isinstance(error, OSError) and error.errno in ENVIRONMENT_ERRNOS:
+            return error
+        seen.add(id(error))
+        error = error.__cause__ or error.__context__
+    return None
+
+
+def _free_bytes(folder: Path) -> int | None:
+    """Bytes this process may still write in ``folder``'s file system (``None``: unknown)."""
+    try:
+        info = os.statvfs(folder)
+    except (OSError, AttributeError):
+        return None
+    blocks = info.f_bfree if os.geteuid() == 0 else info.f_bavail  # root may use the reserved blocks
+    return blocks * info.f_frsize
+
+
+def full_disk(folder: str | os.PathLike[str]) -> bool:
+    """Whether ``folder``'s file system has less than :data:`FULL_DISK_BYTES` free (module docstring)."""
+    free = _free_bytes(_existing_ancestor(Path(folder)))
+    return free is not None and free < FULL_DISK_BYTES
+
+
+def environment_failure(error: BaseException, target: str | os.PathLike[str]) -> EnvironmentFailure | None:
+    """``error`` as :class:`~neuralbrdf.errors.EnvironmentFailure` naming ``target`` when the machine
+    caused it (an ``OSError`` of :data:`~neuralbrdf.errors.ENVIRONMENT_ERRNOS` behind it, or a
+    :func:`full_disk` under ``target``), else ``None``."""
+    if isinstance(error, EnvironmentFailure):
+        return error
+    cause = environment_oserror(error)
+    if cause is not None:
+        return EnvironmentFailure.of(cause, target)
+    if isinstance(error, Exception) and full_disk(Path(target).parent):
+        return EnvironmentFailure("cannot write: no space left on device", path=target, errno=errno.ENOSPC)
+    return None
+
+
 def _output_error(error: BaseException, target: Path, temporaries: list[Path]) -> OutputError:
     if isinstance(error, OSError):
         reason = error.strerror or str(error)
@@ -252,8 +306,9 @@ def atomic_paths(*targets: str | os.PathLike[str], replaces_input: bool = False)
     be an input of the command, for a file a run updates in place such as a resumed run's
     ``last.ckpt``); each temporary file keeps its target's suffix so that writers detecting the
     format by extension (matplotlib, Mitsuba) still work.
-    Raises :class:`~neuralbrdf.errors.OutputError` naming the target for refused outputs and for
-    OS errors while writing; nothing is left behind on any error.
+    Raises :class:`~neuralbrdf.errors.OutputError` naming the target for refused outputs and
+    :class:`~neuralbrdf.errors.EnvironmentFailure` (or ``OutputError``) for errors while writing
+    (module docstring); nothing is left behind on any error.
     """
     given = [Path(target) for target in targets]
     if replaces_input:
@@ -285,7 +340,12 @@ def atomic_paths(*targets: str | os.PathLike[str], replaces_input: bool = False)
         _clean_up(temporaries, created)
         raise
     except Exception as error:
+        current = next((target for target, tmp in zip(given, temporaries) if tmp.name in str(error)), current)
+        # a full disk is judged before the temporaries, which fill it, are removed
+        failure = environment_failure(error, current)
         _clean_up(temporaries, created)
+        if failure is not None:
+            raise failure from None
         if isinstance(error, OSError) or any(str(tmp) in str(error) or tmp.name in str(error) for tmp in temporaries):
             raise _output_error(error, current, temporaries) from None
         raise

@@ -1,4 +1,5 @@
-"""Reading checkpoint files with errors that name the file (shared by loaders and the exporter).
+"""Reading checkpoint files with errors that name the file (shared by loaders and the exporter),
+and writing them whole or not at all (:func:`write_checkpoint`).
 
 Checkpoints are untrusted input (docs/robustness.md): they are size-checked before reading
 (:data:`~neuralbrdf.limits.MAX_CHECKPOINT_BYTES`), loaded with ``weights_only`` (never
@@ -17,7 +18,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from neuralbrdf.atomic import note_input
+from neuralbrdf.atomic import atomic_path, note_input
 from neuralbrdf.errors import InputError, one_line
 from neuralbrdf.limits import MAX_CHECKPOINT_BYTES, MAX_MODEL_PARAMETERS, check_file_size
 
@@ -25,6 +26,15 @@ from neuralbrdf.limits import MAX_CHECKPOINT_BYTES, MAX_MODEL_PARAMETERS, check_
 ZIP_MAGIC = b"PK\x03\x04"
 #: First byte of a pickle (protocol 2 and later), the container of legacy ``torch.save`` files.
 PICKLE_PROTOCOL_OPCODE = b"\x80"
+
+
+def write_checkpoint(checkpoint: dict, path: str | os.PathLike[str], replaces_input: bool = False) -> None:
+    """``torch.save`` of ``checkpoint`` to ``path`` through :func:`~neuralbrdf.atomic.atomic_path`
+    (``replaces_input``: see there).  Written through a Python file, so that a full disk is the
+    ``OSError`` it is (``torch.save`` to a path reports it as ``basic_ios::clear: iostream
+    error``), raised as :class:`~neuralbrdf.errors.EnvironmentFailure` naming ``path``."""
+    with atomic_path(path, replaces_input=replaces_input) as temporary, open(temporary, "wb") as handle:
+        torch.save(checkpoint, handle)
 
 
 def read_checkpoint(path: str | os.PathLike[str], what: str = "checkpoint") -> dict:

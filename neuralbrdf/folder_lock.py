@@ -20,7 +20,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from neuralbrdf.errors import InputError
+from neuralbrdf.errors import ENVIRONMENT_ERRNOS, EnvironmentFailure, InputError
 
 #: The lock file inside a locked folder.
 LOCK_FILE = ".neuralbrdf.lock"
@@ -80,6 +80,13 @@ def _open_locked(path: Path) -> int | None:
         os.close(fd)
 
 
+def _failure(what: str, error: OSError, folder: Path) -> InputError | EnvironmentFailure:
+    """``FOLDER: WHAT: reason``: the machine's failure (a full disk, no permission) or bad input."""
+    if error.errno in ENVIRONMENT_ERRNOS:
+        return EnvironmentFailure.of(error, folder, what)
+    return InputError(f"{what}: {error.strerror or error}", path=folder)
+
+
 @contextlib.contextmanager
 def folder_lock(folder: str | os.PathLike[str], what: str) -> Iterator[FolderLock]:
     """Hold the exclusive lock of ``folder`` (created with its parents if missing) for the block.
@@ -96,18 +103,19 @@ def folder_lock(folder: str | os.PathLike[str], what: str) -> Iterator[FolderLoc
     except FileExistsError:
         raise InputError("exists and is not a folder", path=folder) from None
     except OSError as error:
-        raise InputError(f"cannot create the folder: {error.strerror or error}", path=folder) from None
+        raise _failure("cannot create the folder", error, folder) from None
     path = folder / LOCK_FILE
     try:
         fd = _open_locked(path)
     except OSError as error:
-        raise InputError(f"cannot lock the folder: {error.strerror or error}", path=folder) from None
+        raise _failure("cannot lock the folder", error, folder) from None
     if fd is None:
         raise InputError(f"in use by another {what} ({_holder(path)}); wait for it to end or choose another folder",
                          path=folder)
     try:
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode("ascii"), 0)
+        with contextlib.suppress(OSError):  # the holder's id is for messages only (a full disk may refuse it)
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode("ascii"), 0)
         yield FolderLock(folder, created, fd)
     finally:
         if created is not None and folder.is_dir() and [p.name for p in folder.iterdir()] == [LOCK_FILE]:

@@ -24,6 +24,8 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from neuralbrdf.data.loading import load_measurement
 from neuralbrdf.data.merl_binary import MerlBrdf, sample_merl
 from neuralbrdf.data.nbrdf import NbrdfNetwork, sample_plan
@@ -68,12 +70,37 @@ def load_fit_measurement(path, reference=None) -> BrdfTable:
     """:func:`~neuralbrdf.data.loading.load_measurement` for a fit: a spectral table must hold two
     or more wavelengths, since a fitted spectral model covers the range between its data's lowest
     and highest wavelength (one wavelength is no range: the model would claim wavelengths it never
-    saw, or fail at export)."""
+    saw, or fail at export), and its values must carry a signal (:func:`check_signal`)."""
     table = load_measurement(path, reference)
     if table.is_spectral and len(table.wavelengths) < 2:
         raise InputError(f"holds one wavelength ({float(table.wavelengths[0]):g} nm); a spectral fit needs samples at "
                          "two or more wavelengths, whose range the fitted model covers", path=path)
+    check_signal(table, path)
     return table
+
+
+def check_signal(table: BrdfTable, where: str | os.PathLike[str]) -> None:
+    """Refuse a material whose values carry no signal to fit: every BRDF value 0 (a model fitted
+    to it would be a model of nothing, reported as a success).  ``where`` names it."""
+    if not np.any(table.values > 0):
+        raise InputError(f"every BRDF value is 0 ({table.n_rows} rows): there is nothing to fit; check that the "
+                         "values are the sample's (not an empty export, a dark frame or the wrong columns)", path=where)
+
+
+#: Values of one channel within this fraction of the channel's largest value count as equal.
+CONSTANT_TOLERANCE = 1e-6
+
+
+def require_lobe(table: BrdfTable, where: str | os.PathLike[str], model: str) -> None:
+    """Refuse, for a ``model`` that fits a specular lobe (ABC), a material whose every channel holds
+    one value at every measured geometry (a Lambertian surface): no lobe to fit, so the fit could
+    only fail with its lobe parameters at their bounds.  ``where`` names the material."""
+    values = np.asarray(table.values, dtype=np.float64).reshape(table.n_rows, -1)
+    spread = values.max(axis=0) - values.min(axis=0)
+    if table.n_rows > 1 and np.all(spread <= CONSTANT_TOLERANCE * np.abs(values).max(axis=0)):
+        raise InputError(f"every channel holds the same value at all {table.n_rows} geometries (a Lambertian "
+                         f"surface): there is no specular lobe for the {model} model to fit; fit it with a model "
+                         "without a required lobe (spectral_mlp, nlb, nlb_spectral)", path=where)
 
 
 def virtual_measurement(material: str, plan: str, noise: float, seed: int, reference_seed: int) -> BrdfTable:
@@ -120,12 +147,16 @@ def load_material(
         return MaterialData(name or Path(path).stem, load_fit_measurement(path, reference), None)
     if nbrdf is not None:
         network = NbrdfNetwork.load(nbrdf)
+        fit = sample_plan(network, plan)
+        check_signal(fit, nbrdf)
         truth = None if eval_plan is None else sample_plan(network, eval_plan)
-        return MaterialData(name or network.name, sample_plan(network, plan), truth)
+        return MaterialData(name or network.name, fit, truth)
     if merl is not None:
         brdf = MerlBrdf.load(merl)
+        fit = sample_merl(brdf, plan)
+        check_signal(fit, merl)
         truth = None if eval_plan is None else sample_merl(brdf, eval_plan)
-        return MaterialData(name or brdf.name, sample_merl(brdf, plan), truth)
+        return MaterialData(name or brdf.name, fit, truth)
     fit = load_measurement(default_data_path(virtual), default_data_path(REFERENCE_MATERIAL))
     truth = None if eval_plan is None else virtual_truth(virtual, eval_plan)
     return MaterialData(name or virtual, fit, truth)

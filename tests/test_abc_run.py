@@ -27,12 +27,6 @@ NBRDF_DIR = REPO.parent / "shared" / "data" / "merl-nbrdf"
 KNOWN = dict(kd=[0.05, 0.1, 0.2], A=[8.0, 6.0, 4.0], B=300.0, C=1.3, eta=1.6)
 
 
-@pytest.fixture(autouse=True)
-def keep_torch_threads():
-    threads = torch.get_num_threads()
-    yield
-    torch.set_num_threads(threads)
-
 
 def _table_of(tmp_path, values_fn, name="t.csv"):
     ti, tr = in_plane_plan("DS1")
@@ -132,9 +126,10 @@ def test_a_bounded_c_fails_naming_the_parameter_and_the_flag_that_lets_it_fit(tm
     with pytest.warns(UserWarning, match="ABC fit of orange_DS1 FAILED"):
         status = main(["fit", "--config", str(CONFIG), "--run_dir", str(tmp_path / "bounded"), "--data.path",
                        str(path), "--model.bounds.C", "[0.001, 10]"])
-    error = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+    error = [line for line in capsys.readouterr().err.splitlines() if line.startswith("neuralbrdf train: error:")]
     assert status == 1 and len(error) == 1
-    assert error[0].startswith("error: fit failed: ABC fit of orange_DS1: C ran to its upper bound (C = 10, B = ")
+    assert error[0].startswith("neuralbrdf train: error: fit failed: ABC fit of orange_DS1: C ran to its upper bound "
+                               "(C = 10, B = ")
     assert "--model.bounds.C '[0.001, .inf]'" in error[0]
     assert not (tmp_path / "bounded" / "checkpoints" / "best.ckpt").exists()
 

@@ -96,6 +96,49 @@ def test_bad_input_is_one_input_error(files, call, message):
     assert message in str(error.value) and "\n" not in str(error.value)
 
 
+@pytest.mark.parametrize("call, argument", [
+    (lambda f: nb.read(123), "source"),
+    (lambda f: nb.read(None), "source"),
+    (lambda f: nb.read(f / "cyan.csv", reference=5), "reference"),
+    (lambda f: nb.read("virtual:gold", name=3), "name"),
+    (lambda f: nb.fit("abc", 5), "data"),
+    (lambda f: nb.fit("abc", "virtual:gold", config=5), "config"),
+    (lambda f: nb.fit("abc", "virtual:gold", run_dir=5), "run_dir"),
+    (lambda f: nb.fit("abc", "virtual:gold", overrides=["trainer.max_epochs=5"]), "overrides"),
+    (lambda f: nb.load(None), "path"),
+    (lambda f: nb.export(None, f / "x.onnx"), "checkpoint"),
+    (lambda f: nb.export(f / "x.ckpt", 3), "out"),
+    (lambda f: nb.truth(None, f / "x.onnx"), "source"),
+    (lambda f: nb.truth("virtual:gold", None), "out"),
+    (lambda f: nb.evaluate(None, f / "t.onnx", f / "e"), "model"),
+    (lambda f: nb.evaluate(f / "m.onnx", 7, f / "e"), "truth"),
+    (lambda f: nb.evaluate(f / "m.onnx", f / "t.onnx", None), "out_dir"),
+    (lambda f: nb.evaluate(f / "m.onnx", f / "t.onnx", f / "e", spp="8"), "spp"),
+    (lambda f: nb.evaluate(f / "m.onnx", f / "t.onnx", f / "e", scene=1), "scene"),
+    (lambda f: nb.render_image(3), "model"),
+    (lambda f: nb.render_image(f / "m.onnx", 3), "out"),
+    (lambda f: nb.render_image(f / "m.onnx", spp=2.5), "spp"),
+    (lambda f: nb.render_image(f / "m.onnx", seed=-1), "seed"),
+    (lambda f: nb.render_image(f / "m.onnx", variant=None), "variant"),
+])
+def test_an_argument_of_the_wrong_type_is_an_input_error_naming_it(files, call, argument):
+    """``nb.read(123)`` and ``nb.evaluate(None, …)`` raised a bare TypeError from pathlib."""
+    with pytest.raises(InputError) as error:
+        call(files)
+    assert str(error.value).startswith(argument), str(error.value)
+
+
+def test_a_model_scored_against_itself_is_said_as_the_command_says_it(tmp_path):
+    """``nb.evaluate(m, m, out)`` scored 0 silently; every note of the scores is a warning in
+    Python as on the command line."""
+    from onnx_fixtures import write_lambert
+
+    model = write_lambert(tmp_path / "m.onnx")
+    with pytest.warns(UserWarning, match="are the same model .*every error is 0 by construction"):
+        scores = nb.evaluate(model, model, tmp_path / "e", images=False)
+    assert scores["notes"] and "same model" in scores["notes"][0]
+
+
 def test_every_fit_kind_names_a_shipped_config():
     from neuralbrdf.configs_dir import resolve_config
 
@@ -149,6 +192,10 @@ def test_a_model_checks_its_inputs(tmp_path):
         gold(up, up)
     with pytest.raises(InputError, match=r"wi and wo must both be \[N, 3\]"):
         gold(np.ones((2, 2)), np.ones((2, 2)), 550.0)
+    with pytest.raises(InputError, match="must be numbers"):
+        gold("up", up, 550.0)
+    with pytest.raises(InputError, match="one number or 1"):
+        gold(up, up, [500.0, 600.0])
 
 
 @pytest.mark.slow

@@ -23,12 +23,6 @@ TINY_PRETRAINING = ("--data.batches_per_epoch", "1", "--data.val_batches", "1", 
                     "--data.proxy_dir", "null")
 
 
-@pytest.fixture(autouse=True)
-def keep_torch_threads():
-    threads = torch.get_num_threads()
-    yield
-    torch.set_num_threads(threads)
-
 
 @pytest.fixture
 def cut_short(tmp_path) -> Path:
@@ -42,7 +36,7 @@ def cut_short(tmp_path) -> Path:
 
 def _one_error_line(capsys) -> str:
     err = capsys.readouterr().err
-    lines = [line for line in err.splitlines() if line.startswith("error:")]
+    lines = [line for line in err.splitlines() if ": error: " in line]
     assert len(lines) == 1 and "Traceback" not in err, err
     return lines[0]
 
@@ -57,7 +51,7 @@ def test_ckpt_path_cut_short_is_one_line_naming_it(stage, cut_short, tmp_path, c
     run_dir = tmp_path / "run"
     status = train([*stage, "--config", "abc", "--run_dir", str(run_dir), "--ckpt_path", str(cut_short)])
     line = _one_error_line(capsys)
-    assert status == 2 and line == f"error: {cut_short}: {CUT_SHORT}; copy or save it again"
+    assert status == 2 and line == f"neuralbrdf train: error: {cut_short}: {CUT_SHORT}; copy or save it again"
     assert not run_dir.exists()
 
 
@@ -66,8 +60,8 @@ def test_ckpt_path_of_another_model_is_one_line(tmp_path, capsys):
     other = PRETRAINED_DIR / "nlb_compact.ckpt"
     status = train(["validate", "--config", "abc", "--run_dir", str(tmp_path / "run"), "--ckpt_path", str(other)])
     line = _one_error_line(capsys)
-    assert status == 2 and line == (f"error: {other}: checkpoint to evaluate holds a NlbPretrainModule model but the "
-                                    "config's model is AbcFitModule; give the config it was trained with")
+    assert status == 2 and line == (f"neuralbrdf train: error: {other}: checkpoint to evaluate holds a NlbPretrainModule "
+                                    "model but the config's model is AbcFitModule; give the config it was trained with")
     assert not (tmp_path / "run").exists()
 
 
@@ -75,21 +69,21 @@ def test_ckpt_path_of_another_model_is_one_line(tmp_path, capsys):
 def test_model_checkpoint_cut_short_is_one_line(config, cut_short, tmp_path, capsys):
     status = train(["fit", "--config", config, "--run_dir", str(tmp_path / "run"),
                     "--model.checkpoint", str(cut_short)])
-    assert status == 2 and _one_error_line(capsys).startswith(f"error: {cut_short}: {CUT_SHORT}")
+    assert status == 2 and _one_error_line(capsys).startswith(f"neuralbrdf train: error: {cut_short}: {CUT_SHORT}")
     assert not (tmp_path / "run").exists()
 
 
 def test_warm_start_cut_short_is_one_line(cut_short, tmp_path, capsys):
     status = train(["fit", "--config", "nlb_pretrain", "--run_dir", str(tmp_path / "run"), "--trainer.max_epochs",
                     "1", *TINY_PRETRAINING, "--model.warm_start", str(cut_short)])
-    assert status == 2 and _one_error_line(capsys).startswith(f"error: {cut_short}: {CUT_SHORT}")
+    assert status == 2 and _one_error_line(capsys).startswith(f"neuralbrdf train: error: {cut_short}: {CUT_SHORT}")
     assert not (tmp_path / "run").exists()
 
 
 def test_export_ckpt_cut_short_is_one_line(cut_short, tmp_path, capsys):
     out = tmp_path / "model.onnx"
     assert export(["--ckpt", str(cut_short), "--out", str(out)]) == 2
-    assert _one_error_line(capsys).startswith(f"error: {cut_short}: {CUT_SHORT}")
+    assert _one_error_line(capsys).startswith(f"neuralbrdf export: error: {cut_short}: {CUT_SHORT}")
     assert not out.exists()
 
 

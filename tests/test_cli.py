@@ -152,3 +152,64 @@ def test_bad_input_exits_2_with_one_line_and_no_output(tmp_path, capsys, argv_bu
     assert len(err.splitlines()) == 1 and expected in err
     assert not out.exists()
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out")]
+
+
+# --------------------------------------------------------------------------- one error form, no abbreviations
+
+
+@pytest.mark.parametrize("argv, command", [
+    (["to-rgb", "missing.csv", "--out", "x.csv"], "to-rgb"),
+    (["train", "fit", "--config", "abc", "--data.path", "missing.csv"], "train"),
+    (["train", "fitt", "--config", "abc"], "train"),
+    (["export", "--ckpt", "missing.ckpt", "--out", "x.onnx"], "export"),
+    (["render", "--model", "missing.onnx", "--out", "x.png"], "render"),
+    (["study", "--out", "study"], "study"),
+    (["to-rgb", "--no-such-option"], "to-rgb"),
+])
+def test_every_command_says_an_error_in_one_form(tmp_path, capsys, monkeypatch, argv, command):
+    """Errors began 'error:' (train, export, render), 'Error:' (jsonargparse) or 'neuralbrdf to-rgb:
+    error:' (the other commands); argparse's own usage errors use the last form, so all do."""
+    monkeypatch.chdir(tmp_path)
+    try:
+        status = main(argv)
+    except SystemExit as exit_:  # argparse's usage error
+        status = exit_.code
+    assert status == 2
+    lines = [line for line in capsys.readouterr().err.splitlines() if "rror" in line]
+    assert len(lines) == 1 and lines[0].startswith(f"neuralbrdf {command}: error: "), lines
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["plan", "DS1", "--ou", "{out}"], "--ou"),
+    (["to-rgb", "{table}", "--ou", "{out}"], "--ou"),
+    (["export", "--ck", "x.ckpt", "--out", "{out}"], "--ck"),
+    (["render", "--mod", "x.onnx", "--out", "{out}"], "--mod"),
+    (["train", "fit", "--config", "abc", "--trainer.max_epoch", "1", "--run_dir", "{out}"], "--trainer.max_epoch"),
+])
+def test_an_abbreviated_option_is_refused(tmp_path, capsys, argv, option):
+    """``--trainer.max_epoch`` was taken for ``--trainer.max_epochs``: an abbreviation that changes
+    meaning when an option is added; only whole option names are accepted."""
+    table = tmp_path / "t.csv"
+    assert main(["simulate", "--material", "gold", "--plan", "DS4", "--truth", "--out", str(table)]) == 0
+    capsys.readouterr()
+    out = tmp_path / "out"
+    try:
+        status = main([a.format(out=out, table=table) for a in argv])
+    except SystemExit as exit_:
+        status = exit_.code
+    assert status == 2 and not out.exists()
+    err = capsys.readouterr().err
+    assert "error: " in err and (option in err or "required" in err), err
+
+
+def test_the_exit_statuses_are_documented_as_the_code_gives_them():
+    from neuralbrdf import errors
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "robustness.md").read_text()
+    section = text.split("## Exit status", 1)[1].split("\n## ", 1)[0]
+    for status in (errors.EXIT_OK, errors.EXIT_FAILED, errors.EXIT_BAD_INPUT, errors.EXIT_ENVIRONMENT):
+        assert f"| {status} |" in section, status
+    assert errors.exit_status(errors.InputError("x")) == 2
+    assert errors.exit_status(errors.EnvironmentFailure("x")) == 3
+    assert errors.exit_status(errors.FitFailed("x")) == 1

@@ -359,7 +359,7 @@ def test_a_truth_that_is_not_a_ground_truth_is_noted_and_recorded(tmp_path, caps
     assert cli(["evaluate", str(model), "--truth", str(truth), "--out-dir", str(out), "--no-render"]) == 0
     note = (f"the truth {truth} is a 'nlb' model, not a ground truth (kind 'reference'): the scores measure how two "
             "models differ, not how far the model is from the material")
-    assert f"note: {note}\n" in capsys.readouterr().err
+    assert f"warning: {note}\n" in capsys.readouterr().err
     result = json.loads((out / "evaluation.json").read_text())
     assert result["truth_kind"] == "nlb" and result["model_kind"] == "nlb" and result["notes"] == [note]
     assert result["truth_sha256"] == hashlib.sha256(truth.read_bytes()).hexdigest()

@@ -478,7 +478,8 @@ def test_bad_checkpoint_exits_2_with_one_line_naming_it(case, tmp_path, capsys):
     out = tmp_path / "model.onnx"
     assert export_command.main(["--ckpt", str(path), "--out", str(out), *extra]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith("error: ") and str(path) in err and message in err, err
+    assert err.count("\n") == 1 and err.startswith("neuralbrdf export: error: ") and str(path) in err, err
+    assert message in err, err
     assert _no_output_left(tmp_path, out.name)
 
 

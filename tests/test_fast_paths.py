@@ -532,3 +532,52 @@ def test_any_spectral_file_gets_its_fast_paths_the_spectral_nlb_too(tmp_path, ca
     model = load_model(out)
     assert model.kind == "nlb_spectral" and set(model.fast_paths) == {OUTPUT_RGB, OUTPUT_FAST}
     assert model.output_view(OUTPUT_FAST).is_spectral and not model.output_view(OUTPUT_RGB).is_spectral
+
+
+# --------------------------------------------------------------------------- which models get an RGB head
+
+
+def test_observer_coverage_is_the_share_of_each_cie_weight_in_the_range():
+    """Against colour-science's own CMFs and D65, summed by hand on the 10 nm grid."""
+    import colour
+
+    from neuralbrdf.lod.fast_paths import observer_coverage
+
+    grid = np.arange(400, 701, 10)
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
+    d65 = colour.SDS_ILLUMINANTS["D65"]
+    weighted = np.array([d65[w] * cmfs[w] for w in grid])
+    inside = (grid >= 500) & (grid <= 600)
+    np.testing.assert_allclose(observer_coverage((500.0, 600.0)), weighted[inside].sum(0) / weighted.sum(0), rtol=1e-6)
+    np.testing.assert_allclose(observer_coverage((380.0, 780.0)), 1.0)
+    np.testing.assert_allclose(observer_coverage((800.0, 900.0)), 0.0)
+
+
+def test_a_spectral_model_outside_the_visible_range_gets_no_rgb_head(tmp_path, capsys):
+    """A spectral fit of 800-900 nm exported an RGB head distilled from its value at 800 nm, clamped
+    across 400-700 nm; the file is written without one, with a warning, and the head is refused
+    when asked for."""
+    from neuralbrdf.cli.main import main as cli
+    from neuralbrdf.data.table import read_table, write_table
+    from neuralbrdf.lightning.run import main as train
+
+    infrared_model = fx.write_spectral_lambert(tmp_path / "ir.onnx", wavelength_range=(800.0, 900.0))
+    with pytest.raises(InputError, match=r"covers 800-900 nm, which holds 0 % of the CIE 1931 observer's weight"):
+        add_fast_paths(infrared_model, tmp_path / "never.onnx", (OUTPUT_RGB,), TINY)
+    assert not (tmp_path / "never.onnx").exists()
+
+    visible = tmp_path / "visible.csv"
+    assert cli(["simulate", "--material", "gold", "--plan", "DS2", "--truth", "--out", str(visible)]) == 0
+    table = read_table(visible)
+    infrared = tmp_path / "infrared.csv"
+    write_table(dataclasses.replace(table, wavelengths=np.linspace(800.0, 900.0, len(table.wavelengths))), infrared)
+    threads = torch.get_num_threads()
+    assert train(["fit", "--config", "abc", "--data.path", str(infrared), "--run_dir", str(tmp_path / "run"),
+                  "--model.n_starts", "1", "--data.eval_plan", "null", "--trainer.enable_progress_bar", "false"]) == 0
+    torch.set_num_threads(threads)
+    capsys.readouterr()
+    out = tmp_path / "abc.onnx"
+    with pytest.warns(UserWarning, match="covers 800-900 nm.*it gets no RGB head"):
+        status = export_command.main(["--ckpt", str(tmp_path / "run" / "checkpoints" / "best.ckpt"), "--out", str(out)])
+    assert status == 0
+    assert load_model(out).wavelength_range_nm == (800.0, 900.0) and load_model(out).fast_paths == {}

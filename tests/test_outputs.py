@@ -15,7 +15,7 @@ import pytest
 from neuralbrdf import atomic
 from neuralbrdf.atomic import TEMP_MARKER, atomic_paths, atomic_write, command_inputs, note_input
 from neuralbrdf.cli.main import main
-from neuralbrdf.errors import OutputError
+from neuralbrdf.errors import EnvironmentFailure, OutputError
 
 
 @pytest.fixture
@@ -153,7 +153,7 @@ def test_several_outputs_appear_together_or_not_at_all(tmp_path, monkeypatch):
         return real_replace(src, dst)
 
     monkeypatch.setattr(atomic.os, "replace", flaky_replace)
-    with pytest.raises(OutputError, match="No space left on device"):
+    with pytest.raises(EnvironmentFailure, match="cannot write: no space left on device"):
         with atomic_paths(png, exr) as (tmp_png, tmp_exr):
             tmp_png.write_text("new png")
             tmp_exr.write_text("new exr")

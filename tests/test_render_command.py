@@ -140,7 +140,7 @@ def test_bad_input_exits_2_with_one_line(models, case, tmp_path, capsys):
         arguments += ["--out", str(tmp_path / "x.png")]
     assert render_command.main(["--resolution", "8", "--spp", "1", "--quiet", *arguments]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and err.startswith("error: ") and message in err, err
+    assert err.count("\n") == 1 and err.startswith("neuralbrdf render: error: ") and message in err, err
     assert list(tmp_path.iterdir()) == []
 
 
@@ -168,7 +168,7 @@ def test_user_errors_are_one_line_before_any_rendering(models, tmp_path, capsys,
     for name, (arguments, message) in cases.items():
         assert render_command.main(["--spp", "1", "--quiet", *arguments]) == 2, name
         err = capsys.readouterr().err
-        assert err.count("\n") == 1 and err.startswith("error: ") and message in err, (name, err)
+        assert err.count("\n") == 1 and err.startswith("neuralbrdf render: error: ") and message in err, (name, err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file", "folder.png", "model.png"]
 
 

@@ -320,3 +320,78 @@ def test_two_seeds_of_a_noise_free_nlb_fit_are_the_same_fit(tmp_path, config):
                       "--trainer.enable_progress_bar", "false"]) == 0
         fitted.append(read_checkpoint(run / "checkpoints" / "fitted.ckpt")["state_dict"])
     assert fitted[0].keys() == fitted[1].keys() and all(torch.equal(fitted[0][k], fitted[1][k]) for k in fitted[0])
+
+
+# --------------------------------------------------------------------------- a killed study
+
+
+STUDY_DRIVER = r"""
+import sys
+from pathlib import Path
+
+from neuralbrdf.evaluation import truth
+from neuralbrdf.study import runner
+
+def export_truth(source, out):
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    Path(out).write_text(f"truth of {source}\n")
+
+truth.export_truth = export_truth
+runner.WORKER_COMMAND = (sys.executable, "-c", sys.argv[1])  # the real worker loop, a cell that never ends
+from neuralbrdf.cli.main import main
+sys.exit(main(sys.argv[2:]))
+"""
+
+ENDLESS_CELL_WORKER = r"""
+import os, time
+from pathlib import Path
+from neuralbrdf.study import cell
+
+def endless_cell(folder):
+    Path(MARKER).write_text(str(os.getpid()))
+    while True:
+        time.sleep(1)
+
+cell._import_fitting = lambda: None
+cell._run_logged = endless_cell
+cell.serve()
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states from /proc")
+def test_a_killed_studys_workers_end_with_it(tmp_path):
+    """SIGKILL of the study: its cell worker went on with its cell (writing result.json seconds later)
+    and held the folder, so a rerun raced a ghost or was refused; it now ends within a moment."""
+    import os
+    import signal
+    import subprocess
+    import time
+
+    from process_hooks import is_alive
+
+    marker, out = tmp_path / "cell-started", tmp_path / "study"
+    worker_code = ENDLESS_CELL_WORKER.replace("MARKER", repr(str(marker)))
+    with open(tmp_path / "log.txt", "w") as log:
+        study_process = subprocess.Popen(
+            [sys.executable, "-c", STUDY_DRIVER, worker_code, "study", "--profile", str(profile(tmp_path)),
+             "--out", str(out), "--no-progress"], stdout=log, stderr=subprocess.STDOUT)
+    worker = None
+    try:
+        deadline = time.monotonic() + 120
+        while not (marker.is_file() and marker.read_text()):
+            assert study_process.poll() is None and time.monotonic() < deadline, (tmp_path / "log.txt").read_text()
+            time.sleep(0.05)
+        worker = int(marker.read_text())
+        study_process.send_signal(signal.SIGKILL)
+        study_process.wait()
+        ended = time.monotonic() + 10
+        while is_alive(worker) and time.monotonic() < ended:
+            time.sleep(0.05)
+        assert not is_alive(worker), "the cell worker outlived its study"
+        with folder_lock(out, "study"):  # and the folder is free for a rerun
+            pass
+    finally:
+        if study_process.poll() is None:
+            study_process.kill()
+        if worker is not None and is_alive(worker):
+            os.kill(worker, signal.SIGKILL)

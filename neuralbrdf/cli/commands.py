@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import csv
-import sys
 import dataclasses
 from pathlib import Path
 
@@ -129,9 +128,7 @@ def evaluate(args) -> None:
     result = run_evaluation(args.model, args.truth, args.out_dir, scene=args.scene, material=args.material,
                             variant=args.variant, spp=args.spp, resolution=args.resolution, seed=args.seed,
                             backend=args.backend, fast=args.fast, images=not args.no_render)
-    for note in result["notes"]:
-        print(f"note: {note}", file=sys.stderr)
-    print(format_table(result))
+    print(format_table(result))  # its notes were warnings (neuralbrdf.api.evaluate)
     print(f"-> {args.out_dir}/evaluation.json" + ("" if args.no_render else ", model.png, truth.png, error_map.png, comparison.png"))
 
 

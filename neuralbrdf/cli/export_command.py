@@ -17,9 +17,10 @@ file.  ``--model`` adds fast paths to a file that has none of those asked for, e
 model exported elsewhere.  Settings: ``configs/lod/default.yaml``, section ``fast_paths``
 (``--config`` names another file).
 
-Exit status: 0 written; 2 bad input (unreadable or foreign checkpoint or model, unknown material,
-nothing to add: one line naming the file and key); 1 the exported graph failed validation or a
-fast path missed its error bound (one line, nothing written).
+Exit status (docs/robustness.md): 0 written; 2 bad input (unreadable or foreign checkpoint or
+model, unknown material, nothing to add: one line naming the file and key); 1 the exported graph
+failed validation or a fast path missed its error bound; 3 the output could not be written (no
+space left on device, no permission); one line each, nothing written.
 """
 
 from __future__ import annotations
@@ -27,11 +28,12 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
+import warnings
 from pathlib import Path
 
 from neuralbrdf import kinds
 from neuralbrdf.atomic import check_outputs, command_inputs
-from neuralbrdf.errors import InputError
+from neuralbrdf.errors import EXIT_FAILED, EXIT_OK, EnvironmentFailure, InputError, error_line, exit_status
 from neuralbrdf.onnx_contract import OUTPUT_FAST, OUTPUT_RGB
 from neuralbrdf.onnx_export import ExportValidationError, write_model
 
@@ -43,12 +45,13 @@ def _kinds_help() -> str:
 
 def build_parser(prog: str = "neuralbrdf export") -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog=prog,
+        prog=prog, allow_abbrev=False,
         description="Export a trained checkpoint (spectral MLP, ABC fit, or a latent fit of the NLB or the spectral "
         "NLB) to one self-contained "
         "ONNX file (docs/formats.md#onnx-model-files), validated against PyTorch with onnxruntime before it is written, with fast paths "
         "distilled from it (a spectral model's RGB head by default; --fast: a compact copy). Exit status: 0 "
-        "written, 2 bad input, 1 the graph failed validation or a fast path its error bound (nothing written).",
+        "written, 2 bad input, 1 the graph failed validation or a fast path its error bound, 3 the output could "
+        "not be written (no space left on device, no permission); nothing written unless 0.",
         epilog=_kinds_help(),
     )
     source = parser.add_mutually_exclusive_group(required=True)
@@ -71,11 +74,19 @@ def build_parser(prog: str = "neuralbrdf export") -> argparse.ArgumentParser:
     return parser
 
 
-def _wanted(is_spectral: bool, present, args) -> tuple[str, ...]:
-    """The fast paths to add to a model (spectral or not, with the fast paths ``present``)."""
+def _wanted(wavelength_range_nm, present, args) -> tuple[str, ...]:
+    """The fast paths to add to a model (of this wavelength range, ``None`` for RGB, with the fast
+    paths ``present``); a spectral model outside the colour conversion's range gets no RGB head,
+    with a warning (:func:`~neuralbrdf.lod.fast_paths.rgb_head_problem`)."""
+    from neuralbrdf.lod.fast_paths import rgb_head_problem
+
     wanted = []
-    if is_spectral and not args.no_rgb_head and OUTPUT_RGB not in present:
-        wanted.append(OUTPUT_RGB)
+    if wavelength_range_nm is not None and not args.no_rgb_head and OUTPUT_RGB not in present:
+        problem = rgb_head_problem(wavelength_range_nm)
+        if problem is None:
+            wanted.append(OUTPUT_RGB)
+        else:
+            warnings.warn(problem, stacklevel=2)
     if args.fast:
         wanted.append(OUTPUT_FAST)
     return tuple(wanted)
@@ -91,13 +102,13 @@ def _export(args) -> None:
         if args.material is not None:
             raise InputError("--material goes with --ckpt (a model file holds one material)", column="--material")
         model = kinds.load_model(args.model)
-        wanted = _wanted(model.is_spectral, model.fast_paths, args)
+        wanted = _wanted(model.wavelength_range_nm, model.fast_paths, args)
         if not wanted:
             raise InputError("nothing to add: ask for --fast, or give a spectral model without an RGB head",
                              path=args.model)
     else:
         exportable = kinds.load_exportable(args.ckpt, args.material)
-        wanted = _wanted(exportable.is_spectral, (), args)
+        wanted = _wanted(exportable.wavelength_range_nm, (), args)
     check_outputs(out)  # after the inputs are read: an output may not be one of them
     settings = load_lod_config(args.config).fast_paths if wanted else None
     with tempfile.TemporaryDirectory(prefix="neuralbrdf-export-") as work:
@@ -122,10 +133,10 @@ def main(argv: list[str] | None = None, prog: str = "neuralbrdf export") -> int:
     try:
         with command_inputs():  # --out may not be the checkpoint or model it reads (neuralbrdf.atomic)
             _export(args)
-    except InputError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    except (InputError, EnvironmentFailure) as error:
+        print(error_line(prog, error), file=sys.stderr)
+        return exit_status(error)
     except (ExportValidationError, FastPathError) as error:
-        print(f"error: {args.out} not written: {error}", file=sys.stderr)
-        return 1
-    return 0
+        print(error_line(prog, f"{args.out} not written: {error}"), file=sys.stderr)
+        return EXIT_FAILED
+    return EXIT_OK

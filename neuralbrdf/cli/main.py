@@ -4,7 +4,7 @@ Conventions (docs/formats.md#conventions): angles in degrees; in-plane files use
 theta_r`` in [-90, 90] with the mirror direction at ``theta_r = theta_i``; BRDF sample tables
 use spherical ``theta_i, phi_i, theta_o, phi_o``; BRDF values in sr⁻¹ without cosine factor;
 wavelengths in nm.  Every output is written atomically; bad input exits with status 2 and a
-one-line reason naming the file, line and column.
+one-line reason naming the file, line and column (exit statuses: :mod:`neuralbrdf.errors`).
 """
 
 from __future__ import annotations
@@ -16,7 +16,8 @@ from neuralbrdf.atomic import command_inputs
 from neuralbrdf.cli import commands
 from neuralbrdf.console import clean_warnings
 from neuralbrdf.data.plans import PLAN_NAMES
-from neuralbrdf.errors import InputError
+from neuralbrdf.errors import (ENVIRONMENT_ERRNOS, EXIT_BAD_INPUT, EXIT_ENVIRONMENT, EXIT_OK, EnvironmentFailure,
+                               InputError, error_line, exit_status)
 from neuralbrdf.render import DEFAULT_VARIANT
 from neuralbrdf.study import command as study_command
 
@@ -49,13 +50,15 @@ def build_parser() -> argparse.ArgumentParser:
         description=__doc__.split("\n\n")[0],
         epilog=EPILOG,
         formatter_class=_formatter,
+        allow_abbrev=False,  # --ou is not --out: an abbreviation would change meaning as options are added
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, help_text in DELEGATED.items():  # parsed by their own commands (main)
         sub.add_parser(name, help=help_text, add_help=False)
 
     def add(name, func, help_text, description):
-        p = sub.add_parser(name, help=help_text, description=description, epilog=EPILOG, formatter_class=_formatter)
+        p = sub.add_parser(name, help=help_text, description=description, epilog=EPILOG, formatter_class=_formatter,
+                           allow_abbrev=False)
         p.set_defaults(func=func)
         return p
 
@@ -266,8 +269,9 @@ def _delegated(name: str):
 
 
 def main(argv: list[str] | None = None) -> int:
-    """The ``neuralbrdf`` command; returns the exit status (2 on bad input).  Warnings are printed
-    as one line each (:func:`neuralbrdf.console.clean_warnings`)."""
+    """The ``neuralbrdf`` command; returns the exit status (:mod:`neuralbrdf.errors`: 2 on bad input,
+    3 when the machine could not write an output).  Warnings are printed as one line each
+    (:func:`neuralbrdf.console.clean_warnings`)."""
     argv = sys.argv[1:] if argv is None else list(argv)
     with clean_warnings():
         if argv and argv[0] in DELEGATED:
@@ -276,16 +280,19 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
+    prog = f"neuralbrdf {args.command}"
     try:
         with command_inputs():
             status = args.func(args)  # a command that can fail after its work returns its exit status
-    except InputError as err:
-        print(f"neuralbrdf {args.command}: error: {err}", file=sys.stderr)
-        return 2
-    except OSError as err:
-        print(f"neuralbrdf {args.command}: error: {err}", file=sys.stderr)
-        return 2
-    return status or 0
+    except (InputError, EnvironmentFailure) as error:
+        print(error_line(prog, error), file=sys.stderr)
+        return exit_status(error)
+    except OSError as error:  # one that no reader or writer named: its file, if the OS gave one
+        if error.errno in ENVIRONMENT_ERRNOS:
+            error = EnvironmentFailure.of(error, error.filename, "cannot read or write")
+        print(error_line(prog, error), file=sys.stderr)
+        return EXIT_ENVIRONMENT if isinstance(error, EnvironmentFailure) else EXIT_BAD_INPUT
+    return status or EXIT_OK
 
 
 if __name__ == "__main__":

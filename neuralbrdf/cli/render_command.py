@@ -44,9 +44,10 @@ with a message.  Model values that are negative or not finite are clamped to 0 i
 and counted; a non-zero count is reported on stderr (the model file's load-time probe refuses
 models it finds negative, this catches the rest).
 
-Exit status 2 with one line for bad input (missing or invalid model, unsupported or
-unavailable variant — a ``cuda_*`` variant without a CUDA device —, invalid numbers, refused
-outputs).
+Exit status (docs/robustness.md) 2 with one line for bad input (missing or invalid model,
+unsupported or unavailable variant — a ``cuda_*`` variant without a CUDA device —, invalid
+numbers, refused outputs), 1 for a render that is not finite, 3 for outputs the machine could not
+write (no space left on device, no permission).
 """
 
 from __future__ import annotations
@@ -57,7 +58,7 @@ import time
 from pathlib import Path
 
 from neuralbrdf.console import clean_warnings
-from neuralbrdf.errors import InputError
+from neuralbrdf.errors import EXIT_FAILED, EXIT_OK, EnvironmentFailure, InputError, error_line, exit_status
 from neuralbrdf.render import DEFAULT_VARIANT
 from neuralbrdf.render.preview import (
     BACKENDS,
@@ -72,7 +73,7 @@ from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE
 
 def build_parser(prog: str = "neuralbrdf render") -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog=prog,
+        prog=prog, allow_abbrev=False,
         description="Render an exported .onnx BRDF model (or a built-in reference BSDF) in the material-preview "
         "scene shipped in neuralbrdf/render/scenes/material_preview.xml.",
     )
@@ -128,10 +129,10 @@ def build_parser(prog: str = "neuralbrdf render") -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None, prog: str = "neuralbrdf render") -> int:
     args = build_parser(prog).parse_args(argv)
     with clean_warnings():  # e.g. clamped model values: one line
-        return _render(args)
+        return _render(args, prog)
 
 
-def _render(args: argparse.Namespace) -> int:
+def _render(args: argparse.Namespace, prog: str) -> int:
     from neuralbrdf.api import RenderFailed, render_image
 
     out = Path(args.out)
@@ -143,13 +144,13 @@ def _render(args: argparse.Namespace) -> int:
                      spp=args.spp, resolution=args.resolution, seed=args.seed, backend=args.backend,
                      rgb_tolerance=args.rgb_tolerance, max_depth=args.max_depth, spp_per_pass=args.spp_per_pass,
                      exr=args.exr, fast=args.fast, progress=not args.quiet)
-    except InputError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    except (InputError, EnvironmentFailure) as error:
+        print(error_line(prog, error), file=sys.stderr)
+        return exit_status(error)
     except RenderFailed:
-        print(f"error: the render of {described} is not finite; nothing written", file=sys.stderr)
-        return 1
+        print(error_line(prog, f"the render of {described} is not finite; nothing written"), file=sys.stderr)
+        return EXIT_FAILED
     written = [out, out.with_suffix(".exr")] if args.exr else [out]
     print(f"rendered {described} in {args.variant} at {args.spp} spp in {time.perf_counter() - started:.1f} s; wrote "
           f"{', '.join(map(str, written))}")
-    return 0
+    return EXIT_OK

@@ -273,7 +273,7 @@ def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path
         "truth": str(truth_path),
         **_described("model", model.model),
         **_described("truth", truth.model),
-        "notes": _notes(truth.model),
+        "notes": _notes(model.model, truth.model),
         **{name: directions.metrics[name] for name in DIRECTION_METRICS},
     }
     output = rendered_output(model.file, settings.variant, settings.fast) if render_images else OUTPUT_F
@@ -318,11 +318,17 @@ def _described(role: str, model) -> dict:
             f"{role}_sha256": model.sha256}
 
 
-def _notes(truth) -> list[str]:
-    if truth.kind == REFERENCE_KIND:
-        return []
-    return [f"the truth {truth.path} is a {truth.kind!r} model, not a ground truth (kind {REFERENCE_KIND!r}): the "
-            "scores measure how two models differ, not how far the model is from the material"]
+def _notes(model, truth) -> list[str]:
+    """What a reader of the scores must know: a truth that is no ground truth, a model scored
+    against itself."""
+    notes = []
+    if model.sha256 == truth.sha256:
+        notes.append(f"the model {model.path} and the truth {truth.path} are the same model (SHA-256 "
+                     f"{model.sha256[:12]}): every error is 0 by construction and says nothing of the model")
+    elif truth.kind != REFERENCE_KIND:
+        notes.append(f"the truth {truth.path} is a {truth.kind!r} model, not a ground truth (kind {REFERENCE_KIND!r}): "
+                     "the scores measure how two models differ, not how far the model is from the material")
+    return notes
 
 
 def _write_outputs(result: dict, images, names: tuple[str, str], out_dir: Path) -> None:

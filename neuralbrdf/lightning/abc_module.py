@@ -28,7 +28,7 @@ from neuralbrdf.fitting.abc_fit import AbcBounds, AbcFitResult, fit_abc
 from neuralbrdf.lightning.common import WritesKind
 from neuralbrdf.metrics import hemisphere_logcos_rmse
 from neuralbrdf.physics.abc import AbcParameters
-from neuralbrdf.sources import MaterialData
+from neuralbrdf.sources import MaterialData, require_lobe
 
 
 class AbcFitModule(WritesKind, pl.LightningModule):
@@ -56,6 +56,13 @@ class AbcFitModule(WritesKind, pl.LightningModule):
 
     def configure_optimizers(self):
         return None  # the fit runs its own bounded optimiser (SciPy TNC)
+
+    def prepare_data(self) -> None:
+        # after the data module read the material, before the run writes anything: a material
+        # without a lobe is refused as bad input, not fitted into a failure at the lobe's bounds
+        material = getattr(self.trainer.datamodule, "material", None) if self._trainer is not None else None
+        if isinstance(material, MaterialData) and self.trainer.state.fn == "fit":
+            require_lobe(material.fit, material.fit.source or material.name, "ABC")
 
     def training_step(self, material: MaterialData, batch_idx: int) -> None:
         if self.result is None:

@@ -40,7 +40,7 @@ _NESTED = re.compile(r"NestedArg\(key='([^']+)'")
 _UNKNOWN_OPTION = re.compile(r"does not accept option '([^']+)'")
 _UNRECOGNIZED = re.compile(r"unrecognized arguments: (.*)")
 _EXPECTED = re.compile(r"Expected a <class '(\w+)'>")
-_GOT_VALUE = re.compile(r"(?:Got value|Given value): (.*)")
+_GOT_VALUE = re.compile(r"(?:Got value|Given value): (.*?)(?:\. Got value: .*)?$", re.MULTILINE)
 _INVALID_CHOICE = re.compile(r"invalid choice: '([^']*)' \(choose from (.*)\)")
 _REQUIRED = re.compile(r"arguments are required: (\S+)")
 
@@ -108,15 +108,32 @@ def where(key: str, args: Sequence[str], configs: Iterable[str | Path], value: s
     that holds it (config files are read before the flags), else the command line (``--key``);
     with ``value``, the flag giving that value first (flags override the files); ``(None, key)``
     if neither."""
-    flags = [(arg, following) for arg, following in zip(args, [*args[1:], ""]) if arg.startswith("--")]
-    flagged = [arg[2:].split("=", 1) if "=" in arg else [arg[2:], following] for arg, following in flags]
-    given = [given_value for name, given_value in flagged if plain_key(name) == key]
+    given = _flag_values(key, args)
     if value is not None and value in given:
         return None, f"--{key}"
     for config in configs:
         if key in config_keys(config):
             return str(config), key
     return (None, f"--{key}") if given else (None, key)
+
+
+def _flag_values(key: str, args: Sequence[str]) -> list[str]:
+    """The values the command line ``args`` give ``key`` (``--key V`` or ``--key=V``), in order."""
+    flags = [(arg, following) for arg, following in zip(args, [*args[1:], ""]) if arg.startswith("--")]
+    flagged = [arg[2:].split("=", 1) if "=" in arg else [arg[2:], following] for arg, following in flags]
+    return [given_value for name, given_value in flagged if plain_key(name) == key]
+
+
+def given_at(key: str, args: Sequence[str], configs: Sequence[str | Path]) -> tuple[str | None, str]:
+    """``(config file, how the key is shown)`` of the value of ``key`` in effect after parsing: a
+    flag (``--key``; flags override the files), else the last config file that holds it, else
+    ``(None, key)`` (a default)."""
+    if _flag_values(key, args):
+        return None, f"--{key}"
+    for config in reversed(list(configs)):
+        if key in config_keys(config):
+            return str(config), key
+    return None, key
 
 
 def _names(bad: str, valid: Sequence[str]) -> str:

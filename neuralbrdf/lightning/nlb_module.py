@@ -34,9 +34,8 @@ import torch
 from pytorch_lightning.cli import LRSchedulerCallable, OptimizerCallable
 
 from neuralbrdf import metrics
-from neuralbrdf.atomic import atomic_path
 from neuralbrdf.errors import InputError
-from neuralbrdf.checkpoints import check_weights_match, read_checkpoint
+from neuralbrdf.checkpoints import check_weights_match, read_checkpoint, write_checkpoint
 from neuralbrdf.lightning.corpus_data import CorpusSamples
 from neuralbrdf.lightning.common import scheduled_optimizer
 from neuralbrdf.losses import check_loss_domain, nlb_loss
@@ -242,6 +241,5 @@ def save_pretrained(pretrained: PretrainedNlb, path: str | os.PathLike[str]) -> 
     checkpoint = {"state_dict": state, "pytorch-lightning_version": pl.__version__,
                   "hyper_parameters": {**config, "n_materials": len(pretrained.latents), "_class_path": class_path},
                   "material_names": list(pretrained.names)}
-    with atomic_path(path) as temporary:
-        torch.save(checkpoint, temporary)
+    write_checkpoint(checkpoint, path)
     return path

@@ -25,8 +25,7 @@ import pytorch_lightning as pl
 import torch
 from pytorch_lightning.cli import LRSchedulerCallable, OptimizerCallable
 
-from neuralbrdf.atomic import atomic_path
-from neuralbrdf.checkpoints import check_weights_match, read_checkpoint
+from neuralbrdf.checkpoints import check_weights_match, read_checkpoint, write_checkpoint
 from neuralbrdf.errors import InputError
 from neuralbrdf.lightning.corpus_data import CorpusSamples
 from neuralbrdf.lightning.nlb_module import AutoDecoderPretraining
@@ -163,6 +162,5 @@ def save_spectral_pretrained(pretrained: PretrainedSpectralNlb, path: str | os.P
                   "hyper_parameters": {**asdict(pretrained.network.config), "n_materials": len(pretrained.shared),
                                        "_class_path": class_path},
                   "material_names": list(pretrained.names)}
-    with atomic_path(path) as temporary:
-        torch.save(checkpoint, temporary)
+    write_checkpoint(checkpoint, path)
     return path

@@ -16,7 +16,7 @@ there:
 * ``checkpoints/`` — from the config's ``ModelCheckpoint`` (best and last), each written
   whole or not at all (:class:`AtomicCheckpointIO`);
 * ``metrics.csv`` and ``hparams.yaml`` — the :class:`~pytorch_lightning.loggers.CSVLogger`
-  (unless the config names another logger);
+  (unless the config names another logger), written at every logged step;
 * ``metrics.json`` — :class:`MetricsJson`.
 
 ``validate`` and ``test`` write their ``config.yaml``/``metrics.csv`` under ``<run>/validate/``
@@ -29,37 +29,46 @@ command on the same directory while one runs is refused at once with status 2 (t
 ``--run_dir`` would interleave their logs; two ``--overwrite`` fits would each replace the other).
 
 **A run never overwrites another run.** ``fit`` into a directory that already holds a run
-(:data:`RUN_ENTRIES`) is refused unless ``--resume`` (continue from its
-``checkpoints/last.ckpt``, or ``--ckpt_path``; ``metrics.csv`` is appended to, ``metrics.json``
-merged and ``fit/wall_time_s`` summed over the sessions) or ``--overwrite`` (the old run's
-files are set aside and deleted when the command ends; a start that fails on bad input puts
-them back).  A start
-that fails (bad input) leaves no run directory behind.
+(:data:`~neuralbrdf.lightning.run_dir.RUN_ENTRIES`) is refused unless ``--resume`` (continue from
+its ``checkpoints/last.ckpt``, or ``--ckpt_path``; ``metrics.csv`` is appended to,
+``metrics.json`` merged and ``fit/wall_time_s`` summed over the sessions) or ``--overwrite``
+(the new run is written beside the old one and put in its place when whole: a fit that failed
+is whole, an interrupted or killed one leaves the old run).  A start that fails (bad input)
+leaves no run directory behind.  What a killed command left in the directory is repaired by the
+next one, which says so (:mod:`neuralbrdf.lightning.run_dir`).  ``metrics.json`` says
+``"status": "running"`` while a fit runs, so a fit that was killed says so.
+
+**Settings that make a fit endless or meaningless** (``trainer.max_epochs: -1`` without another
+limit, a learning rate of 0, …) are refused before the run directory exists
+(:mod:`neuralbrdf.lightning.fit_settings`).
 
 **A failed fit is a failure** (:class:`FitHealth`, added to every ``fit``): a non-finite
 training loss or monitored metric, a network whose gradients are all exactly zero for a whole
 epoch (dead or saturated units, e.g. after a too-large learning rate), or a module that reports
 its own failure (``fit_failure()``, e.g. the ABC fit), or a :data:`DATA_FAILURES` error
-raised inside the fit (all-zero data leaves no sample to score) ends the command with status 1
-and one line ``error: fit failed: <cause>``; ``metrics.json`` then holds ``"status": "failed"`` and
-``"cause"``, and no checkpoint named ``best*`` is left (``last.ckpt`` stays, for inspection).
-A successful fit writes ``"status": "ok"``.  ``metrics.json`` is strict JSON: a non-finite
-number is written as ``null``.
+raised inside the fit ends the command with status 1 and one line ``neuralbrdf train: error: fit
+failed: <cause>``; ``metrics.json`` then holds ``"status": "failed"`` and ``"cause"``, and no
+checkpoint named ``best*`` is left (``last.ckpt`` stays, for inspection).  A successful fit
+writes ``"status": "ok"``; a fit stopped by Ctrl-C or SIGTERM ``"status": "interrupted"`` (its
+checkpoints stay, to ``--resume`` from; exit status 130 or 143).  ``metrics.json`` is strict
+JSON: a non-finite number is written as ``null``.
 
 Bad input (a missing or malformed ``--data.path``, a missing or truncated checkpoint, a
 configuration file that is not YAML, an invalid hyper-parameter raised as
-:class:`~neuralbrdf.errors.InputError`) ends the command with a one-line message and status 2.
+:class:`~neuralbrdf.errors.InputError`) ends the command with a one-line message and status 2; a
+file the machine could not write (a full disk) with one naming it and status 3
+(:mod:`neuralbrdf.errors`).
 """
 
 from __future__ import annotations
 
 import contextlib
-import csv
 import json
 import logging
 import math
 import os
 import shutil
+import signal
 import sys
 import time
 import warnings
@@ -74,24 +83,29 @@ from pytorch_lightning.callbacks import ModelCheckpoint
 from pytorch_lightning.cli import LightningCLI
 from pytorch_lightning.loggers import CSVLogger
 from pytorch_lightning.plugins.io import TorchCheckpointIO
+from pytorch_lightning.utilities.exceptions import SIGTERMException
 
-from neuralbrdf.atomic import TEMP_MARKER, atomic_path, atomic_write, command_inputs
-from neuralbrdf.errors import FitFailed, InputError, one_line
-from neuralbrdf.checkpoints import read_checkpoint
+from neuralbrdf.atomic import atomic_write, command_inputs, environment_oserror
+from neuralbrdf.errors import (EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, EnvironmentFailure, FitFailed, InputError,
+                               Interrupted, error_line, exit_status, one_line)
+from neuralbrdf.checkpoints import read_checkpoint, write_checkpoint
 from neuralbrdf.configs_dir import config_not_found, overlay_base, resolve_config
 from neuralbrdf.console import clean_warnings, on_terminal
 from neuralbrdf.folder_lock import folder_lock, outermost_missing
 from neuralbrdf.lightning.common import WritesKind
 from neuralbrdf.lightning.config_errors import describe as describe_config_error
+from neuralbrdf.lightning.fit_settings import check_fit_settings
 from neuralbrdf.lightning.progress import EpochLines
+from neuralbrdf.lightning.run_dir import (RUN_ENTRIES, holds_run, join_logs, recover, remove_entry, run_entries,
+                                          set_aside_log, staging_dir, swap_in)
 from neuralbrdf.lightning.train_help import help_text
 
+#: The command as a user types it, in its error lines (:func:`~neuralbrdf.errors.error_line`).
+PROG = "neuralbrdf train"
 METRICS_FILE = "metrics.json"
 RUNS_ROOT = Path("runs")
 SUBCOMMANDS = ("fit", "validate", "test")
-#: What a run writes into its directory; a directory holding any of these holds a run.
-RUN_ENTRIES = ("metrics.json", "metrics.csv", "config.yaml", "hparams.yaml", "checkpoints", "validate", "test")
-STATUS_OK, STATUS_FAILED = "ok", "failed"
+STATUS_OK, STATUS_FAILED, STATUS_RUNNING, STATUS_INTERRUPTED = "ok", "failed", "running", "interrupted"
 #: ``--ckpt_path`` values Lightning resolves itself rather than as files.
 LIGHTNING_CKPT_NAMES = ("best", "last", "hpc", "registry")
 
@@ -171,6 +185,8 @@ class MetricsJson(pl.Callback):
                 earlier = None
             if isinstance(earlier, (int, float)) and math.isfinite(earlier):
                 self._earlier_wall_time_s = float(earlier)
+        # until the fit ends: a run whose fit was killed says so (its checkpoints stay, to --resume)
+        self._write(trainer, {"status": STATUS_RUNNING, "cause": None}, merge=_is_resuming(trainer))
 
     def on_fit_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
         metrics = {f"fit/{name}": _number(value) for name, value in trainer.callback_metrics.items()}
@@ -285,6 +301,13 @@ class FitHealth(pl.Callback):
     def on_exception(self, trainer: pl.Trainer, pl_module: pl.LightningModule, exception: BaseException) -> None:
         if trainer.state.fn != "fit" or _input_error(exception) is not None or not trainer.is_global_zero:
             return
+        signal_number = _interruption(exception)
+        if signal_number is not None:  # not a failure: the checkpoints stay, to --resume from
+            with contextlib.suppress(EnvironmentFailure):
+                write_metrics(Path(trainer.default_root_dir) / self.filename,
+                              {"status": STATUS_INTERRUPTED, "cause": f"interrupted by {_signal_name(signal_number)}",
+                               "fit/epochs": trainer.current_epoch}, merge=True)
+            return
         cause = str(exception) if isinstance(exception, FitFailed) else one_line(exception)
         if isinstance(exception, Exception):
             exception.neuralbrdf_fit_failure = cause  # read by main() for the one-line report
@@ -299,53 +322,52 @@ class FitHealth(pl.Callback):
         if extras is not None:
             metrics.update({f"fit/{name}": value for name, value in extras().items()})
         path = Path(trainer.default_root_dir) / self.filename
-        if not _is_resuming(trainer):
-            path.unlink(missing_ok=True)  # a new fit's metrics.json describes only it
-        write_metrics(path, metrics, merge=True)
-        if not _is_resuming(trainer):
-            return
-        # metrics.json of the resumed run may name the best checkpoint just removed.
-        merged = json.loads(path.read_text(encoding="utf-8"))
-        merged.pop("fit/best_model_path", None)
-        merged.pop("fit/best_model_score", None)
-        write_metrics(path, merged, merge=False)
+        try:
+            if not _is_resuming(trainer):
+                path.unlink(missing_ok=True)  # a new fit's metrics.json describes only it
+            write_metrics(path, metrics, merge=True)
+            if not _is_resuming(trainer):
+                return
+            # metrics.json of the resumed run may name the best checkpoint just removed.
+            merged = json.loads(path.read_text(encoding="utf-8"))
+            merged.pop("fit/best_model_path", None)
+            merged.pop("fit/best_model_score", None)
+            write_metrics(path, merged, merge=False)
+        except EnvironmentFailure:
+            pass  # the disk that stopped the fit keeps its record too: the command's error line says why
 
 
 class AtomicCheckpointIO(TorchCheckpointIO):
-    """Checkpoints written whole or not at all (:mod:`neuralbrdf.atomic`): a run killed while
-    saving never leaves a truncated ``last.ckpt`` or ``best.ckpt``."""
+    """Checkpoints written whole or not at all (:func:`~neuralbrdf.checkpoints.write_checkpoint`): a
+    run killed while saving never leaves a truncated ``last.ckpt`` or ``best.ckpt``, and a full
+    disk is one line naming the file.
+
+    ``moved``: ``(folder, final folder)`` of a run written in a staging folder and moved into
+    place when whole (``fit --overwrite``, :mod:`~neuralbrdf.lightning.run_dir`): the callbacks'
+    state records the paths the checkpoints will have, so that a later ``--resume`` keeps its
+    best checkpoint's score.
+    """
+
+    def __init__(self, moved: tuple[Path, Path] | None = None) -> None:
+        super().__init__()
+        # as given and resolved: Lightning keeps the paths in the form it was handed them
+        self.moved = [] if moved is None else [(str(a), str(b)) for a, b in (moved, [p.resolve() for p in moved])]
+
+    def _moved(self, value):
+        if isinstance(value, str):
+            for old, new in self.moved:
+                if value == old or value.startswith(old + os.sep):
+                    return new + value[len(old):]
+        if isinstance(value, Mapping):
+            return {self._moved(key): self._moved(item) for key, item in value.items()}
+        return value
 
     def save_checkpoint(self, checkpoint: dict, path, storage_options=None) -> None:
         if storage_options is not None:
             raise TypeError(f"{type(self).__name__} takes no storage_options")
-        with atomic_path(path, replaces_input=True) as tmp:  # a resumed run replaces its last.ckpt
-            torch.save(checkpoint, tmp)
-
-
-def holds_run(run_dir: Path) -> bool:
-    """Whether ``run_dir`` holds the files of a run (:data:`RUN_ENTRIES`)."""
-    return any((run_dir / entry).exists() for entry in RUN_ENTRIES)
-
-
-def _read_csv_log(path: Path) -> tuple[list[str], list[dict]]:
-    """Header and rows of a CSV log (empty if missing or unreadable)."""
-    try:
-        with open(path, newline="", encoding="utf-8") as handle:
-            reader = csv.DictReader(handle)
-            rows = list(reader)
-            return list(reader.fieldnames or []), rows
-    except (OSError, UnicodeDecodeError, csv.Error):
-        return [], []
-
-
-def _prepend_csv_log(path: Path, header: list[str], rows: list[dict]) -> None:
-    """Put ``rows`` (the log of the sessions before a resume) in front of the log at ``path``."""
-    new_header, new_rows = _read_csv_log(path)
-    fields = [*header, *(name for name in new_header if name not in header)]
-    with atomic_write(path) as handle:
-        writer = csv.DictWriter(handle, fieldnames=fields, restval="")
-        writer.writeheader()
-        writer.writerows([*rows, *new_rows])
+        if self.moved and "callbacks" in checkpoint:
+            checkpoint = {**checkpoint, "callbacks": self._moved(checkpoint["callbacks"])}
+        write_checkpoint(checkpoint, path, replaces_input=True)  # a resumed run replaces its last.ckpt
 
 
 def _fresh_run_dir(config_paths) -> tuple[Path, Path]:
@@ -372,57 +394,61 @@ class NeuralBrdfCLI(LightningCLI):
         kwargs.setdefault("subclass_mode_data", True)
         kwargs.setdefault("auto_configure_optimizers", False)
         # parse errors are raised (main() reports them in one line), and usage names this command
-        kwargs.setdefault("parser_kwargs", {"prog": "neuralbrdf train", "exit_on_error": False,
-                                            **{name: {"exit_on_error": False} for name in SUBCOMMANDS}})
+        kwargs.setdefault("parser_kwargs", {"prog": PROG, "exit_on_error": False, "allow_abbrev": False,
+                                            **{name: {"exit_on_error": False, "allow_abbrev": False}
+                                               for name in SUBCOMMANDS}})
+        self._args = [str(arg) for arg in kwargs.get("args") or []]  # the command line, for messages naming a key
         self.run_dir: Path | None = None
+        self._fit_dir: Path | None = None  # where the trainer writes: the run directory, or fit --overwrite's staging
         self._created_folder: Path | None = None  # the outermost folder made for the run directory
-        self._set_aside: Path | None = None
-        self._earlier_log: tuple[list[str], list[dict]] | None = None
+        self._staging: Path | None = None
+        self._earlier_log: Path | None = None
+        self._empty_at_start = False  # a fit into a folder that held no run
         self._run_dir_lock = contextlib.ExitStack()
         with self._run_dir_lock:  # held from before_instantiate_classes to the end of the command
             try:
                 super().__init__(*args, **kwargs)
             except BaseException as exc:
-                self._restore_earlier_log()
-                self._after_failure(exc)
+                self._end_after_failure(exc)
                 exc.neuralbrdf_run_dir = self.run_dir  # where a failed fit's metrics.json says why
                 exc.neuralbrdf_parsers = getattr(self, "_subcommand_parsers", {})  # the valid names of a bad key
                 raise
-            self._restore_earlier_log()
-            self._drop_set_aside()
+            self._end()
 
-    def _restore_earlier_log(self) -> None:
-        """A resumed run's ``metrics.csv``: the earlier sessions' rows, then this one's."""
+    # -- the run directory (module docstring; :mod:`neuralbrdf.lightning.run_dir`)
+
+    def _end(self) -> None:
+        """A finished command: a resumed run's log joined, a replacement run put in place."""
         if self._earlier_log is not None:
-            _prepend_csv_log(self.run_dir / "metrics.csv", *self._earlier_log)
+            join_logs(self.run_dir, self._earlier_log)
             self._earlier_log = None
+        if self._staging is not None:
+            swap_in(self.run_dir, self._staging)
+            self._staging = None
 
-    # -- the run directory (module docstring)
-
-    def _after_failure(self, exc: BaseException) -> None:
-        """A start that failed on bad input leaves the run directory as it found it."""
-        if self.run_dir is None or _input_error(exc) is None:
-            self._drop_set_aside()
+    def _end_after_failure(self, exc: BaseException) -> None:
+        """A command that failed: a failed fit is a whole run (it replaces the old one with its
+        cause); a start refused as bad input leaves the run directory as it found it; anything
+        else (an interruption, a full disk, a bug) leaves the run that was there."""
+        if self.run_dir is None:
+            return
+        if self._earlier_log is not None:
+            join_logs(self.run_dir, self._earlier_log)
+            self._earlier_log = None
+        if self._staging is not None:
+            if _fit_failure(exc) is not None:
+                swap_in(self.run_dir, self._staging)
+            else:
+                shutil.rmtree(self._staging, ignore_errors=True)
+            self._staging = None
+            return
+        if _input_error(exc) is None:
             return
         if self._created_folder is not None:
             shutil.rmtree(self._created_folder, ignore_errors=True)
-            return
-        if self._set_aside is not None:
+        elif self._empty_at_start:  # what this start wrote into a folder that held no run
             for entry in RUN_ENTRIES:
-                new = self.run_dir / entry
-                if new.is_dir() and not new.is_symlink():
-                    shutil.rmtree(new, ignore_errors=True)
-                else:
-                    new.unlink(missing_ok=True)
-            for old in self._set_aside.iterdir():
-                os.replace(old, self.run_dir / old.name)
-            self._set_aside.rmdir()
-            self._set_aside = None
-
-    def _drop_set_aside(self) -> None:
-        if self._set_aside is not None:
-            shutil.rmtree(self._set_aside, ignore_errors=True)
-            self._set_aside = None
+                remove_entry(self.run_dir / entry)
 
     def _prepare_fit_dir(self, config) -> None:
         run_dir = self.run_dir
@@ -435,23 +461,24 @@ class NeuralBrdfCLI(LightningCLI):
                 raise InputError("--resume: no run to resume here (checkpoints/last.ckpt not found)", path=run_dir)
             read_checkpoint(ckpt, "checkpoint to resume from")
             config.ckpt_path = str(ckpt)
-            header, rows = _read_csv_log(run_dir / "metrics.csv")
-            if header:
-                self._earlier_log = (header, rows)
-                (run_dir / "metrics.csv").unlink()  # this session's log starts afresh, then both join
+            self._earlier_log = set_aside_log(run_dir)  # this session's log starts afresh, then both join
             return
-        if run_dir.exists() and holds_run(run_dir):
+        self._empty_at_start = not holds_run(run_dir)
+        if not self._empty_at_start:
             if not config.get("overwrite"):
-                raise InputError(
-                    "already holds a run (metrics.json, checkpoints, ...); pass --resume to continue it from "
-                    "checkpoints/last.ckpt or --overwrite to replace it",
-                    path=run_dir,
-                )
-            self._set_aside = run_dir / f"{TEMP_MARKER.lstrip('.')}{os.getpid()}-replaced-run"
-            self._set_aside.mkdir()
-            for entry in RUN_ENTRIES:
-                if (run_dir / entry).exists() or (run_dir / entry).is_symlink():
-                    os.replace(run_dir / entry, self._set_aside / entry)
+                raise InputError(f"{_held_run(run_dir)}; pass --resume to continue it from checkpoints/last.ckpt or "
+                                 "--overwrite to replace it", path=run_dir)
+            callbacks = config.trainer.get("callbacks") or []
+            fixed = [c for c in (callbacks if isinstance(callbacks, list) else [callbacks])
+                     if getattr(getattr(c, "init_args", None), "dirpath", None)]
+            if fixed:  # the new run's checkpoints would land among the old run's
+                raise InputError(f"--overwrite writes the new run beside the old one, but the config fixes "
+                                 f"{fixed[0].class_path.rsplit('.', 1)[-1]}'s dirpath ({fixed[0].init_args.dirpath}); "
+                                 "leave dirpath unset (checkpoints/ of the run directory) or choose another --run_dir",
+                                 path=run_dir)
+            self._staging = staging_dir(run_dir)  # the old run stays until the new one is whole
+            self._staging.mkdir()
+            self._fit_dir = self._staging
 
     @staticmethod
     def subcommands() -> dict[str, set[str]]:
@@ -474,8 +501,8 @@ class NeuralBrdfCLI(LightningCLI):
         )
         parser.add_argument(
             "--overwrite", action=ActionYesNo, default=False,
-            help="fit: replace the run already in --run_dir (its files are set aside, and put back if the new run "
-            "fails to start on bad input).",
+            help="fit: replace the run already in --run_dir; the new run is written beside it and takes its place "
+            "when whole (a run that fails to start, is interrupted or killed leaves the old one).",
         )
 
     def _resolve_run_dir(self, config) -> tuple[Path, Path | None]:
@@ -511,20 +538,27 @@ class NeuralBrdfCLI(LightningCLI):
         config = self.config[self.subcommand]
         if config.get("num_threads"):
             torch.set_num_threads(config.num_threads)
+        if self.subcommand == "fit":  # before the run directory: an endless or empty fit is refused at once
+            check_fit_settings(config, self._args, _config_args(self._args)[1])
         self.run_dir, fresh = self._resolve_run_dir(config)
         lock = self._run_dir_lock.enter_context(folder_lock(self.run_dir, "training run"))
         self._created_folder = fresh or lock.created
+        self._fit_dir = self.run_dir
+        for note in recover(self.run_dir):  # what commands killed in this directory left behind
+            warnings.warn(f"{self.run_dir}: {note}", stacklevel=2)
         if self.subcommand == "fit":
             self._prepare_fit_dir(config)
         self.save_config_kwargs = {"overwrite": True, **self.save_config_kwargs}
 
     def instantiate_trainer(self, **kwargs) -> pl.Trainer:
-        kwargs["default_root_dir"] = str(self.run_dir)
+        kwargs["default_root_dir"] = str(self._fit_dir)
         if self._get(self.config_init, "trainer", {}).get("logger") in (None, True):
             version = "" if self.subcommand == "fit" else self.subcommand
-            kwargs["logger"] = CSVLogger(self.run_dir, name="", version=version)
+            # every logged step reaches the file: a killed run keeps its log up to its last step
+            kwargs["logger"] = CSVLogger(self._fit_dir, name="", version=version, flush_logs_every_n_steps=1)
         if not self._get(self.config_init, "trainer", default={}).get("plugins"):
-            kwargs["plugins"] = [AtomicCheckpointIO()]
+            moved = None if self._fit_dir == self.run_dir else (self._fit_dir, self.run_dir)
+            kwargs["plugins"] = [AtomicCheckpointIO(moved)]
         trainer = self._get(self.config_init, "trainer", default={})
         added = [FitHealth()] if self.subcommand == "fit" else []
         if trainer.get("enable_progress_bar") is not False and not on_terminal():
@@ -533,6 +567,65 @@ class NeuralBrdfCLI(LightningCLI):
             configured = trainer.get("callbacks") or []
             kwargs["callbacks"] = [*(configured if isinstance(configured, list) else [configured]), *added]
         return super().instantiate_trainer(**kwargs)
+
+
+def _interruption(exc: BaseException) -> int | None:
+    """The signal that stopped a command, if ``exc`` is how Lightning reports one: SIGTERM as
+    ``SIGTERMException``, Ctrl-C as ``KeyboardInterrupt`` (or the ``sys.exit(1)`` it becomes)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, SIGTERMException):
+            return signal.SIGTERM
+        if isinstance(exc, KeyboardInterrupt):
+            return signal.SIGINT
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+def _signal_name(number: int) -> str:
+    return {signal.SIGINT: "Ctrl-C (SIGINT)"}.get(number, signal.Signals(number).name)
+
+
+def _fit_failure(exc: BaseException) -> str | None:
+    """The one-line cause of a fit that ran and failed (:class:`FitFailed`, or a
+    :data:`DATA_FAILURES` error :class:`FitHealth` recorded), else ``None``."""
+    if isinstance(exc, FitFailed):
+        return str(exc)
+    cause = getattr(exc, "neuralbrdf_fit_failure", None)
+    return cause if cause is not None and isinstance(exc, DATA_FAILURES) else None
+
+
+def _held_run(run_dir: Path) -> str:
+    """What the run in ``run_dir`` holds, for the refusal of a fit that would replace it."""
+    listing = ", ".join(run_entries(run_dir))
+    try:
+        status = json.loads((run_dir / METRICS_FILE).read_text(encoding="utf-8")).get("status")
+    except (OSError, ValueError, AttributeError):
+        status = None
+    if status in (STATUS_OK, STATUS_FAILED):
+        return f"already holds a run ({listing})"
+    why = {STATUS_RUNNING: f"its {METRICS_FILE} says it is still running, but no command runs in it: it was killed",
+           STATUS_INTERRUPTED: "it was interrupted"}.get(status, f"no {METRICS_FILE}: it ended before its fit did, or "
+                                                                 "was killed")
+    return f"already holds a run that did not finish ({listing}; {why})"
+
+
+def _environment_failure(exc: BaseException) -> EnvironmentFailure | None:
+    """The :class:`~neuralbrdf.errors.EnvironmentFailure` behind ``exc``, or one made of the
+    ``OSError`` of the machine's making behind it (a log that Lightning writes itself), naming
+    its file or else the run directory; ``None`` otherwise."""
+    seen = set()
+    cause = exc
+    while cause is not None and id(cause) not in seen:
+        if isinstance(cause, EnvironmentFailure):
+            return cause
+        seen.add(id(cause))
+        cause = cause.__cause__ or cause.__context__
+    oserror = environment_oserror(exc)
+    if oserror is None:
+        return None
+    return EnvironmentFailure.of(oserror, oserror.filename or getattr(exc, "neuralbrdf_run_dir", None))
 
 
 def _input_error(exc: BaseException) -> InputError | None:
@@ -675,8 +768,11 @@ def train(args: list[str], verbose: bool = False) -> NeuralBrdfCLI:
     """Run ``args`` (``fit|validate|test --config X [--key value ...]``) in this process and return
     the finished LightningCLI (its ``run_dir``, ``model``, ``trainer``).  Raises
     :class:`~neuralbrdf.errors.InputError` for bad input, a configuration that does not parse
-    included (one line: :mod:`~neuralbrdf.lightning.config_errors`), and :class:`FitFailed` for a
-    fit that ran and failed (its ``neuralbrdf_run_dir`` names the run whose metrics.json says why)."""
+    included (one line: :mod:`~neuralbrdf.lightning.config_errors`), :class:`FitFailed` for a
+    fit that ran and failed (its ``neuralbrdf_run_dir`` names the run whose metrics.json says why),
+    :class:`~neuralbrdf.errors.EnvironmentFailure` for a file the machine could not write and
+    :class:`~neuralbrdf.errors.Interrupted` for Ctrl-C or SIGTERM (which Lightning turns into
+    ``SystemExit``)."""
     try:
         with _quiet(verbose):
             args = _resolve_config_files(list(args))
@@ -688,30 +784,37 @@ def train(args: list[str], verbose: bool = False) -> NeuralBrdfCLI:
         parser = getattr(exc, "neuralbrdf_parsers", {}).get(args[0] if args else "")
         raise describe_config_error(str(exc), args, _config_args(args)[1], parser) from None
     except Exception as exc:
-        error = _input_error(exc)
+        error = _input_error(exc) or _environment_failure(exc)
         if error is not None:
             raise error from None
-        cause = getattr(exc, "neuralbrdf_fit_failure", None)
-        if cause is None or not isinstance(exc, DATA_FAILURES):
+        cause = _fit_failure(exc)
+        if cause is None:
             raise
         failure = FitFailed(cause)
         failure.neuralbrdf_run_dir = getattr(exc, "neuralbrdf_run_dir", None)
         raise failure from exc
+    except BaseException as exc:  # Ctrl-C or SIGTERM (Lightning makes them SystemExit), else as it is
+        signal_number = _interruption(exc)
+        if signal_number is None:
+            raise
+        run_dir = getattr(exc, "neuralbrdf_run_dir", None)
+        kept = f"; {run_dir} keeps what the run saved (a fit: --resume continues it)" if run_dir else ""
+        raise Interrupted(signal_number, f"interrupted by {_signal_name(signal_number)}{kept}") from None
 
 
 def _main(args: list[str] | None) -> int:
     args = sys.argv[1:] if args is None else list(args)
     if not args or args[0] in ("-h", "--help"):
         print(help_text(), file=sys.stdout if args else sys.stderr)
-        return 0 if args else 2
+        return EXIT_OK if args else EXIT_BAD_INPUT
     try:
         cli = train([arg for arg in args if arg != "--verbose"], verbose="--verbose" in args)
     except FitFailed as failure:
-        print(f"error: fit failed: {failure}{_failed_run(failure)}", file=sys.stderr)
-        return 1
-    except InputError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+        print(error_line(PROG, f"fit failed: {failure}{_failed_run(failure)}"), file=sys.stderr)
+        return EXIT_FAILED
+    except (InputError, EnvironmentFailure, Interrupted) as error:
+        print(error_line(PROG, error), file=sys.stderr)
+        return exit_status(error)
     if cli.subcommand is not None and cli.run_dir is not None:
         print(_summary(cli), file=sys.stderr)
-    return 0
+    return EXIT_OK

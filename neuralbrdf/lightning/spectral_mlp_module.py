@@ -55,6 +55,21 @@ from neuralbrdf.models.spectral_mlp import Activation, OutputActivation, Spectra
 TRAINING_HEMISPHERE_STRATA = (8, 10)
 
 
+#: Data and ``wavelength_range_nm`` ends within this many nm agree.
+RANGE_TOLERANCE_NM = 1e-6
+
+
+def check_wavelength_range(wavelengths_nm, range_nm: Sequence[float], where) -> None:
+    """Refuse data whose wavelengths are not the span ``range_nm`` the model declares (exported as
+    its range, which renderers and evaluations query): data outside it would be fitted and then
+    never asked for, a range wider than the data claims wavelengths the model never saw."""
+    low, high = float(np.min(wavelengths_nm)), float(np.max(wavelengths_nm))
+    if abs(low - range_nm[0]) > RANGE_TOLERANCE_NM or abs(high - range_nm[1]) > RANGE_TOLERANCE_NM:
+        raise InputError(f"holds {low:g}-{high:g} nm but model.wavelength_range_nm is {range_nm[0]:g}-"
+                         f"{range_nm[1]:g} nm, the range the fitted model declares; give "
+                         f"--model.wavelength_range_nm '[{low:g}, {high:g}]'", path=where)
+
+
 class SpectralMlpModule(WritesKind, pl.LightningModule):
     """Fits a :class:`~neuralbrdf.models.spectral_mlp.SpectralMLP` with an Eq. 5.1-weighted loss.
 
@@ -115,6 +130,14 @@ class SpectralMlpModule(WritesKind, pl.LightningModule):
         for name, value in (("gamma", gamma), ("rel_rmse_floor", rel_rmse_floor)):
             if not (np.isfinite(value) and value >= 0):
                 raise InputError(f"model.{name} must be a finite number >= 0, got {value}", column=name)
+
+    def prepare_data(self) -> None:
+        # the data module has read its measurement; nothing of the run is written yet
+        measurement = getattr(self.trainer.datamodule, "measurement", None) if self._trainer is not None else None
+        if measurement is not None:
+            table = measurement()[0]
+            check_wavelength_range(table.wavelengths, self.hparams.wavelength_range_nm,
+                                   getattr(self.trainer.datamodule, "path", None) or table.source)
 
     def forward(self, theta_i_deg, theta_r_deg, wavelength_nm):
         return self.network(theta_i_deg, theta_r_deg, wavelength_nm)

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import os
 import sys
 from collections.abc import Iterator
@@ -40,7 +41,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from neuralbrdf.atomic import atomic_paths
+from neuralbrdf.atomic import atomic_paths, full_disk
 from neuralbrdf.console import progress as progress_bar
 from neuralbrdf.errors import InputError, one_line
 from neuralbrdf.limits import DRJIT_MAX_MULTIPLY_ADDS
@@ -306,11 +307,24 @@ def within_drjit_budget(material: Material) -> Material:
 
 def write_images(image: np.ndarray, png: str | Path, exr: str | Path | None = None) -> None:
     """8-bit sRGB PNG of a linear RGB image (values clipped to [0, 1]) and, if ``exr`` is given,
-    the linear float32 RGB OpenEXR; written atomically, both or neither."""
+    the linear float32 RGB OpenEXR; written atomically, both or neither, and each read back
+    (:func:`_write_checked`)."""
     bitmap = mi.Bitmap(np.ascontiguousarray(image, dtype=np.float32), mi.Bitmap.PixelFormat.RGB)
     srgb = bitmap.convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.UInt8, srgb_gamma=True)
     targets = [png] if exr is None else [png, exr]
     with atomic_paths(*targets) as temporaries:
-        srgb.write(str(temporaries[0]))
+        _write_checked(srgb, temporaries[0])
         if exr is not None:
-            bitmap.write(str(temporaries[1]))
+            _write_checked(bitmap, temporaries[1])
+
+
+def _write_checked(bitmap, path: Path) -> None:
+    """``bitmap.write(path)``, then the file read back: Mitsuba's PNG writer reports no error when
+    the disk fills and leaves an empty file, which must not be put in place as the image."""
+    bitmap.write(str(path))
+    try:
+        whole = tuple(mi.Bitmap(str(path)).size()) == tuple(bitmap.size())
+    except RuntimeError:
+        whole = False
+    if not whole:
+        raise OSError(errno.ENOSPC if full_disk(path.parent) else errno.EIO, "the image file written is not readable")

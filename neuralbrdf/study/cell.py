@@ -52,6 +52,7 @@ import json
 import math
 import os
 import sys
+import threading
 import time
 import traceback
 from pathlib import Path
@@ -59,6 +60,7 @@ from pathlib import Path
 import numpy as np
 
 from neuralbrdf.atomic import atomic_write, file_version
+from neuralbrdf.errors import EXIT_BAD_INPUT, EXIT_ENVIRONMENT, EnvironmentFailure
 
 #: Reference seed offset: the Munsell N9 is measured with its own noise stream.
 REFERENCE_SEED_OFFSET = 1
@@ -149,13 +151,20 @@ def fit_arguments(spec: dict, table: Path, run_dir: Path) -> list[str]:
             *seed_args(variant["method"], cell["seed"]), "--trainer.enable_progress_bar", "false"]
 
 
+def _errors(output: str) -> list[str]:
+    """``train.py``'s error lines in ``output``, each as ``error: MESSAGE`` (its command name cut)."""
+    from neuralbrdf.lightning.run import PROG
+
+    marker = f"{PROG}: "
+    return [line.strip()[len(marker):] for line in output.splitlines() if line.strip().startswith(f"{marker}error:")]
+
+
 def _refusal(output: str) -> str:
     """The one line that says why ``train.py`` refused its arguments (its ``error:`` line, or the
     option its parser named as not accepted)."""
     lines = [line.strip() for line in output.splitlines()]
     named = [line for line in lines if "is not accepted" in line or "unrecognized arguments" in line]
-    errors = [line for line in lines if line.startswith("error:")]
-    return (named or errors or ["the fit refused its arguments"])[-1][:300]
+    return (named or _errors(output) or ["the fit refused its arguments"])[-1][:300]
 
 
 def fit(spec: dict, table: Path, run_dir: Path) -> tuple[float, dict]:
@@ -178,13 +187,16 @@ def fit(spec: dict, table: Path, run_dir: Path) -> tuple[float, dict]:
     finally:
         sys.stderr.write(captured.getvalue())
     wall = time.perf_counter() - started
-    if status == 2:  # train.py's bad-input status: the fit refused these data (its one-line reason)
-        reason = [line for line in captured.getvalue().splitlines() if line.startswith("error:")][-1:] or ["?"]
+    if status == EXIT_ENVIRONMENT or status > 128:  # the machine (a full disk) or a signal, not the fit: no
+        # result, the cell runs again next time
+        raise RuntimeError((_errors(captured.getvalue())[-1:] or [f"the fit ended with status {status}"])[0])
+    if status == EXIT_BAD_INPUT:  # train.py's bad-input status: the fit refused these data (its one-line reason)
+        reason = _errors(captured.getvalue())[-1:] or ["?"]
         raise CellFailure("fit_refused", reason[0][:300])
     if _non_finite_logged_loss(run_dir):
         raise CellFailure("non_finite_loss", "a logged training loss is NaN or infinite")
     if status != 0:  # train.py's "fit failed" status, with its one-line cause
-        reason = [line for line in captured.getvalue().splitlines() if line.startswith("error:")][-1:]
+        reason = _errors(captured.getvalue())[-1:]
         reason = reason[0][:300] if reason else f"training exited with status {status}"
         finite = "finite" in reason.lower() or "nan" in reason.lower()
         raise CellFailure("non_finite_loss" if finite else "optimizer_failure", reason)
@@ -316,6 +328,8 @@ def run_cell(cell_dir: Path) -> dict:
                 result["renders"] = {"variant": variant, "dir": "evaluation"}
                 result["per_angle"] = per_angle(model, truth)
                 step("per_angle")
+        except EnvironmentFailure:
+            raise  # the machine (a full disk): no result, the cell reruns next time
         except (ValueError, RuntimeError) as error:
             raise CellFailure("evaluation_error", f"{type(error).__name__}: {error}"[:300]) from None
         if spec["is_main"]:
@@ -364,10 +378,37 @@ def _import_fitting() -> None:
                                       measurement_data, spectral_mlp_module)
 
 
+#: Environment variable naming the study process a worker serves (:func:`die_with_study`).
+STUDY_PID_VARIABLE = "NEURALBRDF_STUDY_PID"
+#: Seconds between a worker's checks that its study still runs.
+STUDY_POLL_S = 0.1
+#: Exit status of a worker whose study ended under it.
+ORPHANED_EXIT = 70
+
+
+def die_with_study(study_pid: int | None = None) -> None:
+    """End this worker process as soon as the study that started it (``study_pid``, default
+    :data:`STUDY_PID_VARIABLE` or the parent process) is gone, whatever it was doing: a study that
+    was killed reads no answers, and a rerun must not find a cell folder still being written.  A
+    thread polls the parent process every :data:`STUDY_POLL_S` seconds (Linux's parent-death signal
+    would follow the thread that started the worker, one of the study's pool threads, not the study)."""
+    if study_pid is None:
+        study_pid = int(os.environ.get(STUDY_PID_VARIABLE) or os.getppid())
+
+    def watch() -> None:
+        while os.getppid() == study_pid:
+            time.sleep(STUDY_POLL_S)
+        os._exit(ORPHANED_EXIT)  # no cleanup: what the cell wrote is rerun by the next study
+
+    threading.Thread(target=watch, name="die-with-study", daemon=True).start()
+
+
 def serve(requests=None) -> None:
     """Run the cell of each line of ``requests`` (stdin) and answer :data:`DONE` on the original stdout;
-    anything else the process prints between cells goes to stderr, never into the answers."""
+    anything else the process prints between cells goes to stderr, never into the answers.  The
+    worker ends with its study (:func:`die_with_study`)."""
     requests = sys.stdin if requests is None else requests
+    die_with_study()
     with os.fdopen(os.dup(1), "w", buffering=1) as answers:
         os.dup2(2, 1)
         _import_fitting()

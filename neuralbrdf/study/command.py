@@ -13,7 +13,8 @@ DESCRIPTION = (
     "PROFILE is a shipped profile (quick, full, spectral, latent_prior: configs/study/) or your own YAML file. "
     "With --report-only, DIR/figures and DIR/index.html are drawn again from DIR/study.json and no cell runs. Exit "
     "status: 0 when every cell gave a model; 1 when a cell crashed (the study is incomplete; a rerun retries it) or a "
-    "fit failed (unless --allow-failures); 2 for bad input. The report and study.json's health say which cells."
+    "fit failed (unless --allow-failures); 2 for bad input; 3 when a file could not be written (no space left on "
+    "device). The report and study.json's health say which cells."
 )
 
 

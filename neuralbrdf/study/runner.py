@@ -10,8 +10,10 @@ and is cleared and rerun.  Cells run as child processes (``python -m neuralbrdf.
 result is reported as ``cell_crashed`` (its log in ``cells/KEY/log.txt``) and rerun next time.
 
 One study at a time runs in ``DIR``: it holds the folder's lock
-(:func:`~neuralbrdf.folder_lock.folder_lock`) from start to end, and so do its cell workers, so
-a worker still finishing its cell after the study was killed keeps a new run out until it ends.
+(:func:`~neuralbrdf.folder_lock.folder_lock`) from start to end, and so do its cell workers.  A
+worker ends with its study (:func:`~neuralbrdf.study.cell.die_with_study`: within a tenth of a
+second of a study killed by any signal), so a rerun never races a cell still being written; until
+the worker is gone, the lock it holds keeps a new run out.
 ``study.json``'s ``health`` (:mod:`neuralbrdf.study.health`) says whether every cell gave a
 model; it sets the command's exit status.
 """
@@ -36,7 +38,7 @@ from neuralbrdf.console import progress as progress_bar
 from neuralbrdf.folder_lock import folder_lock
 from neuralbrdf.study import aggregate
 from neuralbrdf.study.cache import Repairs, cached_result, read_runs, truth_file, write_runs
-from neuralbrdf.study.cell import WORKER_THREADS
+from neuralbrdf.study.cell import STUDY_PID_VARIABLE, WORKER_THREADS
 from neuralbrdf.study.cells import Cell, cell_key, is_rendered, plan_cells, seeding_description
 from neuralbrdf.study.figures import write_figures
 from neuralbrdf.study.health import health
@@ -61,7 +63,7 @@ class CellWorker:
 
     def _start(self) -> None:
         self.close()
-        env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONWARNINGS": "ignore"}
+        env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONWARNINGS": "ignore", STUDY_PID_VARIABLE: str(os.getpid())}
         self.process = subprocess.Popen(self.command, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                         stderr=subprocess.DEVNULL, env=env, text=True, bufsize=1,
                                         pass_fds=self.keep_fds)
@@ -117,7 +119,8 @@ def run_one(cell: Cell, spec: dict, cells_dir: Path, repairs: Repairs,
     if folder.exists():
         shutil.rmtree(folder)
     folder.mkdir(parents=True)
-    (folder / "cell.json").write_text(json.dumps(spec, indent=1))
+    with atomic_write(folder / "cell.json", encoding="utf-8") as handle:
+        json.dump(spec, handle, indent=1)
     own = worker is None
     worker = CellWorker() if own else worker
     try:
