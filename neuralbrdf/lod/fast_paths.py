@@ -49,13 +49,13 @@ from neuralbrdf.onnx_contract import OUTPUT_F, OUTPUT_FAST, OUTPUT_RGB, FastPath
 from neuralbrdf.onnx_export import ExportValidationError, trace, validate, with_fast_paths
 
 
-#: Least share of each of the CIE 1931 X, Y, Z weights (D65, the sRGB grid 400–700 nm, SPEC §2.3)
+#: Least share of each of the CIE 1931 X, Y, Z weights (D65, the sRGB grid 400–700 nm, docs/formats.md#spectral-to-linear-srgb)
 #: that a spectral model's wavelength range must hold for it to get an RGB head (module docstring).
 MIN_OBSERVER_COVERAGE = 0.99
 
 
 def observer_coverage(wavelength_range_nm: tuple[float, float]) -> np.ndarray:
-    """The share of each of the X, Y, Z weights of the sRGB conversion's grid (SPEC §2.3) that lies
+    """The share of each of the X, Y, Z weights of the sRGB conversion's grid (docs/formats.md#spectral-to-linear-srgb) that lies
     within ``wavelength_range_nm`` (``[3]``; the rest the model would give by extrapolation)."""
     from neuralbrdf.data.colorimetry import xyz_weights
     from neuralbrdf.render.spectral_quadrature import SRGB_GRID_NM
