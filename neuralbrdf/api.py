@@ -62,11 +62,13 @@ VIRTUAL_PREFIX = "virtual:"
 class Source:
     """A material read by :func:`read`: where it comes from and its samples.
 
-    ``kind`` is ``table`` (a BRDF sample table, SPEC §2.1), ``gcms`` (a GCMS raw file calibrated
+    ``kind`` is ``table`` (a BRDF sample table, spherical or signed in-plane), ``gcms`` (a GCMS raw file calibrated
     against its Munsell N9 ``reference``, SPEC §2.2), ``nbrdf`` (an NBRDF proxy ``.h5``, SPEC §2.4),
     ``merl`` (a MERL ``.binary`` measurement) or ``virtual`` (a stand-in of the virtual
     goniospectrophotometer, SPEC §2.5: its shipped DS1 measurement).  ``samples`` is the BRDF table
     a fit sees: the file, the calibrated measurement, or the proxy / MERL table sampled on ``plan``.
+    ``trust_units``: a measurement read as it is although its numbers look like a unit slip
+    (:mod:`neuralbrdf.data.units`); a fit of this source reads it so too.
     """
 
     kind: str
@@ -75,6 +77,7 @@ class Source:
     name: str
     reference: str | None = None
     plan: str | None = None
+    trust_units: bool = False
 
     @property
     def is_spectral(self) -> bool:
@@ -94,14 +97,17 @@ class Source:
             return {"virtual": self.location}
         if self.kind in ("nbrdf", "merl"):
             return {self.kind: self.location, "plan": self.plan}
-        return {"path": self.location} if self.reference is None else {"path": self.location, "reference": self.reference}
+        return {"path": self.location, **({} if self.reference is None else {"reference": self.reference}),
+                **({"trust_units": True} if self.trust_units else {})}
 
 
 def read(source: PathLike, reference: PathLike | None = None, *, plan: str | None = None,
-         name: str | None = None) -> Source:
-    """Read a material: a BRDF table, a GCMS raw file with its Munsell N9 ``reference``, an
-    NBRDF proxy ``NAME.h5`` or a MERL ``NAME.binary`` (both sampled on ``plan``, default DS1), or
-    ``virtual:NAME`` (``cyan``, ``magenta``, ``gold``, ``gonio``: the shipped DS1 measurement).
+         name: str | None = None, trust_units: bool = False) -> Source:
+    """Read a material: a BRDF table (spherical or signed in-plane), a GCMS raw file with its
+    Munsell N9 ``reference``, an NBRDF proxy ``NAME.h5`` or a MERL ``NAME.binary`` (both sampled on
+    ``plan``, default DS1), or ``virtual:NAME`` (``cyan``, ``magenta``, ``gold``, ``gonio``: the
+    shipped DS1 measurement).  A measurement whose numbers look like a unit slip (angles in
+    radians, wavelengths in µm, ... :mod:`neuralbrdf.data.units`) is refused unless ``trust_units``.
 
     >>> import neuralbrdf as nb
     >>> gold = nb.read("virtual:gold")
@@ -124,6 +130,8 @@ def read(source: PathLike, reference: PathLike | None = None, *, plan: str | Non
         raise InputError(f"unknown plan {plan!r}; expected one of {', '.join(PLAN_NAMES)}")
     if reference is not None and (text.startswith(VIRTUAL_PREFIX) or sampled):
         raise InputError(f"a Munsell reference goes with a GCMS raw file, not with {text}")
+    if trust_units and (text.startswith(VIRTUAL_PREFIX) or sampled):
+        raise InputError(f"trust_units goes with a measurement file, not with {text}")
     if text.startswith(VIRTUAL_PREFIX):
         from neuralbrdf.virtual.instrument import default_data_path
         from neuralbrdf.virtual.materials import REFERENCE_MATERIAL
@@ -135,9 +143,9 @@ def read(source: PathLike, reference: PathLike | None = None, *, plan: str | Non
         plan = plan or "DS1"
         samples = sample_file(text, plan)
         return Source("merl" if suffix == ".binary" else "nbrdf", text, samples, name or Path(text).stem, plan=plan)
-    samples = load_measurement(text, reference)
+    samples = load_measurement(text, reference, trust_units)
     return Source("table" if reference is None else "gcms", text, samples, name or Path(text).stem,
-                  None if reference is None else os.fspath(reference))
+                  None if reference is None else os.fspath(reference), trust_units=trust_units)
 
 
 # --------------------------------------------------------------------------- fitting
@@ -186,7 +194,7 @@ def _data_arguments(config: str, source: Source) -> list[str]:
     accepted = class_options(class_path) if class_path else []
     options = source.options()
     if set(options) <= set(accepted):
-        return [argument for key, value in options.items() for argument in (f"--data.{key}", value)]
+        return [argument for key, value in options.items() for argument in (f"--data.{key}", _option(value))]
     if "sources" in accepted:
         return ["--data.sources", json.dumps([options])]
     takes = [key for key in ("path", "reference", "nbrdf", "merl", "virtual") if key in accepted]
@@ -216,12 +224,14 @@ def fit(kind: str, data: Source | PathLike | None = None, *, config: PathLike | 
     """
     import torch
 
+    from neuralbrdf.data.units import overridden_by
     from neuralbrdf.lightning.run import METRICS_FILE, fitted_checkpoint, train
 
     if kind not in FIT_KINDS:
         raise InputError(f"unknown fit kind {kind!r}; expected one of {', '.join(FIT_KINDS)}")
     config = os.fspath(config) if config is not None else FIT_KINDS[kind]
-    source = read(data) if data is not None and not isinstance(data, Source) else data
+    with overridden_by(f"nb.fit({kind!r}, nb.read(..., trust_units=True))"):
+        source = read(data) if data is not None and not isinstance(data, Source) else data
     args = ["fit", "--config", config]
     if source is not None:
         args += _data_arguments(config, source)
