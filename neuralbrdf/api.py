@@ -161,9 +161,10 @@ class FitResult:
     checkpoint: Path
     metrics: dict[str, Any] = field(repr=False)
 
-    def export(self, out: PathLike, material: str | None = None) -> Model:
-        """:func:`export` of this fit's checkpoint."""
-        return export(self.checkpoint, out, material)
+    def export(self, out: PathLike, material: str | None = None, *, fast: bool = False, rgb_head: bool = True,
+               config: str = "default") -> Model:
+        """:func:`export` of this fit's checkpoint (the same file, checks and defaults)."""
+        return export(self.checkpoint, out, material, fast=fast, rgb_head=rgb_head, config=config)
 
 
 def _option(value) -> str:
@@ -312,23 +313,30 @@ def load(path: PathLike) -> Model:
     return Model(path)
 
 
-def export(checkpoint: PathLike, out: PathLike, material: str | None = None) -> Model:
+def export(checkpoint: PathLike, out: PathLike, material: str | None = None, *, fast: bool = False,
+           rgb_head: bool = True, config: str = "default") -> Model:
     """Export a trained checkpoint (spectral MLP, ABC, or an NLB or spectral NLB latent fit;
     ``material`` when it holds several) to one ``.onnx`` file, validated against PyTorch before it
-    is written.
+    is written — exactly what ``neuralbrdf export`` writes and prints: a spectral model gets its
+    RGB head ``f_rgb`` unless ``rgb_head=False``; ``fast=True`` adds the compact copy ``f_fast``;
+    ``config`` names the fast paths' settings (docs/export-render.md).  The same checkpoint and
+    options give the same bytes.
 
     >>> import tempfile, neuralbrdf as nb
     >>> quick = {"model.n_starts": 1, "data.eval_plan": None}     # one start, no hemisphere score: seconds
     >>> with tempfile.TemporaryDirectory() as folder:
     ...     result = nb.fit("abc", "virtual:gold", run_dir=f"{folder}/run", overrides=quick)
-    ...     nb.export(result.checkpoint, f"{folder}/gold_abc.onnx")
+    ...     nb.export(result.checkpoint, f"{folder}/gold_abc.onnx", rgb_head=False)
+    wrote .../gold_abc.onnx: abc model of 'gold'; onnxruntime vs PyTorch on 17408 probes: max error ...
     Model('.../gold_abc.onnx', kind='abc', material='gold', spectral 400-700 nm)
     """
-    from neuralbrdf.onnx_export import ExportValidationError, export_checkpoint
+    from neuralbrdf.exporting import export_model
+    from neuralbrdf.lod.fast_paths import FastPathError
+    from neuralbrdf.onnx_export import ExportValidationError
 
     try:
-        export_checkpoint(checkpoint, out, material)
-    except ExportValidationError as error:
+        export_model(out, checkpoint=checkpoint, material=material, fast=fast, rgb_head=rgb_head, config=config)
+    except (ExportValidationError, FastPathError) as error:
         raise InputError(f"not written: {error}", path=out) from None
     return Model(out)
 
