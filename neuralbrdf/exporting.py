@@ -93,7 +93,7 @@ def export_model(out: PathLike, *, checkpoint: PathLike | None = None, model: Pa
         if model is not None:
             if material is not None:
                 raise InputError("a material goes with a checkpoint (a model file holds one material)",
-                                 column="--material")
+                                 key="--material")
             parent = kinds.load_model(model)
             wanted = fast_paths_wanted(parent.is_spectral, parent.fast_paths, fast, rgb_head)
             if not wanted:

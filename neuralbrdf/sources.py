@@ -55,7 +55,7 @@ class MaterialData:
 
 def _check_plan(plan: str | None, key: str) -> None:
     if plan is not None and plan not in PLAN_NAMES:
-        raise InputError(f"unknown plan {plan!r}; expected one of {', '.join(PLAN_NAMES)}", column=key)
+        raise InputError(f"unknown plan {plan!r}; expected one of {', '.join(PLAN_NAMES)}", key=key)
 
 
 def virtual_truth(material: str, plan: str) -> BrdfTable:
@@ -116,7 +116,7 @@ def load_material(
     if len(given) != 1:
         raise InputError(f"give exactly one of {', '.join('data.' + k for k in SOURCE_KEYS)}; got {given or 'none'}")
     if reference is not None and path is None:
-        raise InputError("data.reference goes with a GCMS raw data.path", column="data.reference")
+        raise InputError("data.reference goes with a GCMS raw data.path", key="data.reference")
     _check_plan(plan, "data.plan")
     _check_plan(eval_plan, "data.eval_plan")
     if path is not None:
@@ -138,20 +138,20 @@ def check_source(source, where: str) -> dict[str, str | bool]:
     """One material source as a mapping of :data:`MATERIAL_KEYS`, checked (strings, and
     ``trust_units`` a bool); ``where`` names it in errors."""
     if not isinstance(source, dict):
-        raise InputError(f"expected a mapping such as {{nbrdf: FILE.h5}}, got {source!r}", column=where)
+        raise InputError(f"expected a mapping such as {{nbrdf: FILE.h5}}, got {source!r}", key=where)
     for key in source:
         if key not in MATERIAL_KEYS:
-            raise InputError(f"unknown key {key!r}; expected {', '.join(MATERIAL_KEYS)}", column=where)
+            raise InputError(f"unknown key {key!r}; expected {', '.join(MATERIAL_KEYS)}", key=where)
     given = [k for k in SOURCE_KEYS if k in source]
     if len(given) != 1:
-        raise InputError(f"needs exactly one of {', '.join(SOURCE_KEYS)}, got {given or 'none'}", column=where)
+        raise InputError(f"needs exactly one of {', '.join(SOURCE_KEYS)}, got {given or 'none'}", key=where)
     if "reference" in source and given[0] != "path":
-        raise InputError("'reference' goes with a GCMS raw 'path'", column=where)
+        raise InputError("'reference' goes with a GCMS raw 'path'", key=where)
     if "plan" in source and (given[0] not in SAMPLED_KEYS or source["plan"] not in PLAN_NAMES):
         raise InputError(f"'plan' is for nbrdf and merl sources, one of {', '.join(PLAN_NAMES)}; got "
-                         f"{source['plan']!r}", column=where)
+                         f"{source['plan']!r}", key=where)
     if "trust_units" in source and (given[0] != "path" or not isinstance(source["trust_units"], bool)):
-        raise InputError(f"'trust_units' is true or false, for a 'path'; got {source['trust_units']!r}", column=where)
+        raise InputError(f"'trust_units' is true or false, for a 'path'; got {source['trust_units']!r}", key=where)
     return {k: v if k == "trust_units" else str(v) for k, v in source.items()}
 
 

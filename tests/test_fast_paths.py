@@ -140,10 +140,10 @@ def test_output_model_keeps_only_what_the_output_reads(lambert_files):
 @pytest.mark.parametrize("case, fragment", [
     ("rgb head of an RGB model", "'f_rgb' is the linear sRGB of a spectral model"),
     ("rgb head reading the wavelength", "'f_rgb' depends on 'wavelength'"),
-    ("missing entry", "column 'neuralbrdf.f_fast.relative_cost': the fast path 'f_fast' lacks its metadata entry"),
+    ("missing entry", "key 'neuralbrdf.f_fast.relative_cost': the fast path 'f_fast' lacks its metadata entry"),
     ("entry without output", "describes the fast path 'f_rgb', which the graph does not output"),
     ("negative fast path", "fast path 'f_fast': output 'f' is negative"),
-    ("bad cost", "column 'neuralbrdf.f_fast.relative_cost': metadata value 0.0 must be > 0"),
+    ("bad cost", "key 'neuralbrdf.f_fast.relative_cost': metadata value 0.0 must be > 0"),
 ])
 def test_a_bad_fast_path_is_refused_naming_it(lambert_files, case, fragment):
     d = lambert_files["dir"]

@@ -102,7 +102,7 @@ def demo(args) -> None:
     materials = args.material or STAND_INS
     for name in materials:
         if name not in STAND_INS:
-            raise InputError(f"unknown stand-in {name!r}; expected {', '.join(STAND_INS)}", column="--material")
+            raise InputError(f"unknown stand-in {name!r}; expected {', '.join(STAND_INS)}", key="--material")
     existing = [path.name for path in demo_outputs(out, materials) if path.exists() or path.is_symlink()]
     if existing and not args.overwrite:  # checked before any work: a rerun never replaces them silently
         raise InputError(f"already holds the demo's outputs ({', '.join(existing[:3])}{', ...' if len(existing) > 3 else ''}); "
@@ -153,7 +153,7 @@ def _counts(text: str, length: int, option: str) -> tuple[int, ...]:
     except ValueError:
         counts = ()
     if len(counts) != length or min(counts) < 1:
-        raise InputError(f"{option} {text!r}: expected {length} positive integers joined by 'x'", column=option)
+        raise InputError(f"{option} {text!r}: expected {length} positive integers joined by 'x'", key=option)
     return counts
 
 

@@ -169,17 +169,17 @@ class LatentFitData(pl.LightningDataModule):
             sources = [{"path": path, **({} if reference is None else {"reference": reference}),
                         **({"trust_units": True} if trust_units else {})}]
         elif reference is not None:
-            raise InputError("data.reference goes with a GCMS raw data.path", column="data.reference")
+            raise InputError("data.reference goes with a GCMS raw data.path", key="data.reference")
         elif trust_units:
             raise InputError("data.trust_units goes with data.path (in data.sources, a source's own trust_units)",
-                             column="data.trust_units")
+                             key="data.trust_units")
         if not sources:
-            raise InputError("at least one source is needed", column="data.sources")
+            raise InputError("at least one source is needed", key="data.sources")
         for plan_name, key in ((plan, "data.plan"), (eval_plan, "data.eval_plan")):
             if plan_name is not None and plan_name not in PLAN_NAMES:
-                raise InputError(f"unknown plan {plan_name!r}; expected one of {', '.join(PLAN_NAMES)}", column=key)
+                raise InputError(f"unknown plan {plan_name!r}; expected one of {', '.join(PLAN_NAMES)}", key=key)
         if not isinstance(steps_per_epoch, int) or steps_per_epoch < 1:
-            raise InputError(f"must be a positive integer, got {steps_per_epoch!r}", column="data.steps_per_epoch")
+            raise InputError(f"must be a positive integer, got {steps_per_epoch!r}", key="data.steps_per_epoch")
         self.sources = [check_source(s, f"data.sources[{i}]") for i, s in enumerate(sources)]
         if path is None:
             self._override = [f"trust_units: true in data.sources[{i}]" for i in range(len(self.sources))]
@@ -187,7 +187,7 @@ class LatentFitData(pl.LightningDataModule):
         duplicates = sorted({n for n in self.material_names if self.material_names.count(n) > 1})
         if duplicates:
             raise InputError(
-                f"material names must be unique, {duplicates} repeat (set 'name')", column="data.sources"
+                f"material names must be unique, {duplicates} repeat (set 'name')", key="data.sources"
             )
         if low2012_abc is not None and not os.path.isfile(low2012_abc):  # optional: said at once, then skipped
             warnings.warn(f"data.low2012_abc: {low2012_abc} not found; no comparison with Löw et al.'s ABC fits",
@@ -196,10 +196,10 @@ class LatentFitData(pl.LightningDataModule):
         self.plan, self.eval_plan, self.low2012_abc = plan, eval_plan, low2012_abc
         for key, value in (("batch_size", batch_size), ("batch_values", batch_values)):
             if value is not None and (not isinstance(value, int) or isinstance(value, bool) or value < 1):
-                raise InputError(f"must be a positive integer or null, got {value!r}", column=f"data.{key}")
+                raise InputError(f"must be a positive integer or null, got {value!r}", key=f"data.{key}")
         if batch_size is not None and batch_values is not None:
             raise InputError("give data.batch_size (pairs) or data.batch_values (values), not both",
-                             column="data.batch_values")
+                             key="data.batch_values")
         self.steps_per_epoch, self.batch_size, self.seed = steps_per_epoch, batch_size, seed
         self.batch_values = batch_values
         self.spectral = spectral
@@ -207,7 +207,7 @@ class LatentFitData(pl.LightningDataModule):
             rgb = [name for name, source in zip(self.material_names, self.sources) if "nbrdf" in source]
             if rgb:
                 raise InputError(f"NBRDF proxies are RGB and cannot enter a spectral fit: {rgb}; "
-                                 "fit them with data.spectral: false", column="data.sources")
+                                 "fit them with data.spectral: false", key="data.sources")
         #: The wavelength grid (nm) of a spectral fit, once set up; ``None`` for RGB.
         self.wavelengths_nm: np.ndarray | None = None
         self._steps: _Steps | None = None

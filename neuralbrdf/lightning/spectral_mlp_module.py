@@ -114,7 +114,7 @@ class SpectralMlpModule(WritesKind, pl.LightningModule):
             )
         for name, value in (("gamma", gamma), ("rel_rmse_floor", rel_rmse_floor)):
             if not (np.isfinite(value) and value >= 0):
-                raise InputError(f"model.{name} must be a finite number >= 0, got {value}", column=name)
+                raise InputError(f"model.{name} must be a finite number >= 0, got {value}", key=f"model.{name}")
 
     def forward(self, theta_i_deg, theta_r_deg, wavelength_nm):
         return self.network(theta_i_deg, theta_r_deg, wavelength_nm)

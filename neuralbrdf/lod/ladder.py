@@ -368,7 +368,7 @@ def read_ladder(folder: str | Path) -> Ladder:
     except (json.JSONDecodeError, UnicodeDecodeError) as error:
         raise InputError(f"not JSON: {error}", path=path) from None
     if not isinstance(document, dict) or document.get("format") != LADDER_FORMAT:
-        raise InputError(f"not a ladder file (format must be {LADDER_FORMAT!r})", path=path, column="format")
+        raise InputError(f"not a ladder file (format must be {LADDER_FORMAT!r})", path=path, key="format")
     try:
         parent = document["parent"]
         rungs = []
@@ -387,7 +387,7 @@ def read_ladder(folder: str | Path) -> Ladder:
     except (KeyError, TypeError, ValueError) as error:
         raise InputError(f"malformed ladder entry ({type(error).__name__}: {error})", path=path) from None
     if not ladder.rungs or ladder.rungs[0].name != FULL_RUNG:
-        raise InputError("a ladder lists its full model as rung 'full'", path=path, column="rungs")
+        raise InputError("a ladder lists its full model as rung 'full'", path=path, key="rungs")
     return ladder
 
 

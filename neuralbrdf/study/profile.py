@@ -151,7 +151,7 @@ class _Reader:
         self.path = path
 
     def fail(self, key: str, message: str):
-        raise InputError(message, path=self.path, column=key)
+        raise InputError(message, path=self.path, key=key)
 
     def mapping(self, value, key: str, allowed: tuple[str, ...], required: tuple[str, ...] = ()) -> dict:
         if not isinstance(value, dict):
