@@ -45,7 +45,7 @@ stability:
   noise: [0.0, 0.01]
   seeds: [0]
 """
-N_STUDY_CELLS = 6
+N_STUDY_CELLS = 4  # DS1, DS2, DS3 without noise and DS1 with 1 % noise
 
 
 def contender(module: str, go: Path, args: list[str], cwd: Path, **popen) -> subprocess.Popen:

@@ -28,7 +28,8 @@ colour variants and the sampler render it unchanged:
 * ``fast`` — a parent with a fast path ``f_fast`` (``neuralbrdf export --fast``,
   :mod:`neuralbrdf.lod.fast_paths`): the parent file itself with the plugin property ``fast``, its
   error and cost measured like a rung file's.  A model file without a ladder folder still offers
-  this rung to ``neuralbrdf select`` (:func:`embedded_ladder`, numbers from its metadata).
+  this rung to ``neuralbrdf select`` (:func:`embedded_ladder`, numbers from its metadata: the
+  cost there is counted in Dr.Jit operations, not timed, :mod:`neuralbrdf.lod.fast_paths`).
 
 Each rung records in its ``metadata_props`` (keys :data:`RUNG_KEY` …) what it approximates (the
 parent's file name and SHA-256), its error against the parent — ``hemisphere_logcos_rmse``
