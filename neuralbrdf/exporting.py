@@ -1,5 +1,5 @@
 """The one export path: a checkpoint (or a model file that gets fast paths added) to one validated
-``.onnx`` file (SPEC §6) — what ``neuralbrdf export``, :func:`neuralbrdf.export` and
+``.onnx`` file (docs/formats.md#onnx-model-files) — what ``neuralbrdf export``, :func:`neuralbrdf.export` and
 :meth:`neuralbrdf.FitResult.export` all run, so that the three write the same file and print the
 same checks.
 

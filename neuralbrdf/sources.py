@@ -3,8 +3,9 @@
 The one vocabulary of every data module and config (``data.*`` keys, and the entries of a
 latent fit's ``data.sources``).  One material comes from exactly one of:
 
-* ``path`` — the user's measurement: a BRDF sample table (SPEC §2.1), a signed in-plane BRDF
-  table, or a GCMS raw file with its Munsell N9 ``reference`` (SPEC §2.2), checked for unit
+* ``path`` — the user's measurement: a BRDF sample table (docs/formats.md#brdf-sample-table), a
+  signed in-plane BRDF table (docs/formats.md#in-plane-brdf-table), or a GCMS raw file with its
+  Munsell N9 ``reference`` (docs/formats.md#gcms-raw-measurement), checked for unit
   slips (:mod:`neuralbrdf.data.units`) unless ``trust_units``;
 * ``nbrdf`` — a MERL-proxy NBRDF network (SPEC §2.4) sampled on ``plan``;
 * ``merl`` — a MERL ``.binary`` measurement (:mod:`neuralbrdf.data.merl_binary`) sampled on

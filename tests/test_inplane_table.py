@@ -73,6 +73,11 @@ def test_gcms_raw_still_asks_for_its_reference(tmp_path):
         load_measurement(default_data_path("gold"))
     with pytest.raises(InputError, match="is a GCMS raw file"):
         read_brdf_table(default_data_path("gold"))
+    lines = default_data_path("gold").read_text().splitlines()
+    header = lines[0].split(",")
+    (tmp_path / "gold.csv").write_text("\n".join([",".join(header[:2] + [f"{float(w):.1f}" for w in header[2:]]),
+                                                *lines[1:]]) + "\n")  # 390.0, ...: the same bands
+    assert load_measurement(tmp_path / "gold.csv", default_data_path("munsell_n9")).n_rows == 1001
 
 
 @pytest.mark.parametrize("row, line_column, words", [

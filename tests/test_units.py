@@ -236,3 +236,15 @@ def test_few_rows_are_not_judged_by_their_angles(gold):
     few = BrdfTable(np.full(5, 1.0), np.zeros(5), np.linspace(0.2, 1.2, 5), np.zeros(5), gold.values[rows],
                     gold.wavelengths)
     assert unit_problem(few) is None
+
+
+def test_polar_angles_above_90_are_refused_with_the_convention_named(tmp_path):
+    """A scattering angle of 0-180° (or a signed angle) in a spherical table: the reader's range
+    check names the line and column, and says how angles are measured and where signed ones go."""
+    path = tmp_path / "t.csv"
+    path.write_text("theta_i,phi_i,theta_o,phi_o,R,G,B\n30,0,120,0,1,1,1\n")
+    with pytest.raises(InputError) as caught:
+        nb.read(path)
+    assert str(caught.value) == (f"{path}, line 2, column 'theta_o': angle 120° outside [0, 90] degrees (polar angles "
+                                 "are measured from the normal; signed in-plane angles go in an in-plane table: "
+                                 "theta_i_signed, theta_r_signed)")

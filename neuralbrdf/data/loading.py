@@ -1,4 +1,4 @@
-"""One entry point for measured data, used by the command line and training configs (SPEC §2).
+"""One entry point for measured data, used by the command line and training configs (docs/formats.md).
 
 Three file formats hold a measurement, told apart by their header alone (docs/formats.md):
 
@@ -18,8 +18,8 @@ from __future__ import annotations
 import os
 
 from neuralbrdf.data.calibration import calibrate
-from neuralbrdf.data.csvio import NumericCsv, read_numeric_csv
-from neuralbrdf.data.gcms import GCMS_ANGLE_COLUMNS, GCMS_HEADER, gcms_from_csv, read_gcms
+from neuralbrdf.data.csvio import NumericCsv, parse_wavelength, read_numeric_csv
+from neuralbrdf.data.gcms import GCMS_ANGLE_COLUMNS, GCMS_WAVELENGTHS_NM, gcms_from_csv, read_gcms
 from neuralbrdf.data.inplane_table import inplane_table_from_csv, is_inplane_header
 from neuralbrdf.data.table import INPLANE_ANGLE_COLUMNS, BrdfTable, table_from_csv
 from neuralbrdf.data.units import check_units
@@ -31,13 +31,14 @@ def _is_gcms(csv_file: NumericCsv) -> bool:
     file that starts ``theta_i, theta_r`` with other columns is neither GCMS raw nor a table."""
     if csv_file.header[:2] != GCMS_ANGLE_COLUMNS:
         return False
-    if csv_file.header != GCMS_HEADER:
-        values = csv_file.header[2:]
+    values = csv_file.header[2:]
+    if [parse_wavelength(name) for name in values] != GCMS_WAVELENGTHS_NM.tolist():
         raise csv_file.header_error(
             f"starts theta_i, theta_r like a GCMS raw file, whose columns are the radiance factor at 390, 400, ..., "
             f"730 nm, but holds {', '.join(values[:4])}{', ...' if len(values) > 4 else ''}; a table of calibrated "
             f"BRDF values at signed in-plane angles names them {', '.join(INPLANE_ANGLE_COLUMNS)} (docs/formats.md)",
-            column=next((got for got, want in zip(values, GCMS_HEADER[2:]) if got != want), None),
+            column=next((got for got, want in zip(values, GCMS_WAVELENGTHS_NM) if parse_wavelength(got) != want),
+                        None),
         )
     return True
 

@@ -84,7 +84,7 @@ def _student(parent: OnnxEvaluator, output: str, settings: FastPathSettings) -> 
     module = distill_student(samples, shape.hidden, shape.hidden_layers, shape.activation, settings.distill, range_nm)
     error = float(hemisphere_scores(TorchEvaluator(module, teacher.is_spectral), teacher, strata=settings.error_strata)
                   ["hemisphere_logcos_rmse"])
-    what = "linear sRGB of f (31-wavelength integral, SPEC §2.3)" if output == OUTPUT_RGB else "f"
+    what = "linear sRGB of f (31-wavelength integral, docs/formats.md#spectral-to-linear-srgb)" if output == OUTPUT_RGB else "f"
     describes = f"{module.describe()} distilled from {settings.distill.n_pairs} samples of the {what}"
     if not error <= settings.max_hemisphere_logcos_rmse:
         raise FastPathError(f"the {output} student's error against the model, hemisphere log-cos RMSE {error:.3g}, "
