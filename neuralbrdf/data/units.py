@@ -174,7 +174,8 @@ def _cosine_weighted(table: BrdfTable) -> tuple[str, None] | None:
     usable = (np.abs(log_cos_ratio) >= math.log(MIN_COSINE_RATIO)) & (values[a] > floor) & (values[b] > floor)
     if usable.sum() < MIN_RECIPROCAL_PAIRS:
         return None
-    log_ratio, log_cos_ratio = np.log(values[a] / values[b])[usable], log_cos_ratio[usable]
+    a, b, log_cos_ratio = a[usable], b[usable], log_cos_ratio[usable]
+    log_ratio = np.log(values[a] / values[b])  # both above the floor: finite
     for sign, weight in ((1.0, "cos theta_o"), (-1.0, "cos theta_i")):
         follows = float(np.mean(np.abs(log_ratio - sign * log_cos_ratio) < np.abs(log_ratio)))
         if follows >= COSINE_PAIR_FRACTION:
