@@ -164,7 +164,7 @@ def _fast_path_settings(settings: Settings):
     if settings.distill_steps is None:
         return config
     small = dataclasses.replace(config.distill, steps=settings.distill_steps, n_pairs=8192, batch=1024)
-    return dataclasses.replace(config, distill=small, cost_batches=(2**14, 2**16), cost_rounds=1, error_strata=(8, 10),
+    return dataclasses.replace(config, distill=small, error_strata=(8, 10),
                                max_hemisphere_logcos_rmse=math.inf)
 
 

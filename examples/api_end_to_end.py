@@ -7,7 +7,8 @@ fits the spectral MLP through the shipped config (``configs/spectral_mlp.yaml``,
 ``neuralbrdf train fit --config spectral_mlp``), exports it to ONNX, exports the material's ground
 truth, scores the model against it where users look (hemisphere, in-plane regions, rendered image)
 and renders it in the material-preview scene.  Everything lands in ``--out-dir``, replaced on a
-rerun.  ``--quick``: one epoch and tiny renders (seconds; what the test runs).
+rerun.  ``--quick``: one epoch, no RGB head in the model file and tiny renders (seconds; what the
+test runs).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import neuralbrdf as nb
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out-dir", default="out/api", help="output folder (default out/api)")
-    parser.add_argument("--quick", action="store_true", help="one epoch, 16-pixel renders at 2 spp")
+    parser.add_argument("--quick", action="store_true", help="one epoch, no RGB head, 16-pixel renders at 2 spp")
     args = parser.parse_args(argv)
     out = Path(args.out_dir)
 
@@ -33,7 +34,7 @@ def main(argv: list[str] | None = None) -> dict:
     print(f"fit: {result.checkpoint} (in-plane relative RMSE: glossy "
           f"{result.metrics['fit/inplane_glossy_rel_rmse']:.3f}, diffuse {result.metrics['fit/inplane_diffuse_rel_rmse']:.3f})")
 
-    model = result.export(out / "gold.onnx")
+    model = result.export(out / "gold.onnx", rgb_head=not args.quick)  # --quick: no RGB head (seconds to distil)
     truth = nb.truth(gold, out / "gold_truth.onnx")
     print(f"export: {model}; truth: {truth}")
 

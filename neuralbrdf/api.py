@@ -77,11 +77,13 @@ def _text(name: str, value, optional: bool = True) -> None:
 class Source:
     """A material read by :func:`read`: where it comes from and its samples.
 
-    ``kind`` is ``table`` (a BRDF sample table, docs/formats.md#brdf-sample-table), ``gcms`` (a GCMS raw file calibrated
+    ``kind`` is ``table`` (a BRDF sample table, spherical or signed in-plane), ``gcms`` (a GCMS raw file calibrated
     against its Munsell N9 ``reference``, docs/formats.md#gcms-raw-measurement), ``nbrdf`` (an NBRDF proxy ``.h5``, docs/formats.md#nbrdf-proxy),
     ``merl`` (a MERL ``.binary`` measurement) or ``virtual`` (a stand-in of the virtual
     goniospectrophotometer, docs/measure.md#the-virtual-goniospectrophotometer: its shipped DS1 measurement).  ``samples`` is the BRDF table
     a fit sees: the file, the calibrated measurement, or the proxy / MERL table sampled on ``plan``.
+    ``trust_units``: a measurement read as it is although its numbers look like a unit slip
+    (:mod:`neuralbrdf.data.units`); a fit of this source reads it so too.
     """
 
     kind: str
@@ -90,6 +92,7 @@ class Source:
     name: str
     reference: str | None = None
     plan: str | None = None
+    trust_units: bool = False
 
     @property
     def is_spectral(self) -> bool:
@@ -109,14 +112,17 @@ class Source:
             return {"virtual": self.location}
         if self.kind in ("nbrdf", "merl"):
             return {self.kind: self.location, "plan": self.plan}
-        return {"path": self.location} if self.reference is None else {"path": self.location, "reference": self.reference}
+        return {"path": self.location, **({} if self.reference is None else {"reference": self.reference}),
+                **({"trust_units": True} if self.trust_units else {})}
 
 
 def read(source: PathLike, reference: PathLike | None = None, *, plan: str | None = None,
-         name: str | None = None) -> Source:
-    """Read a material: a BRDF table, a GCMS raw file with its Munsell N9 ``reference``, an
-    NBRDF proxy ``NAME.h5`` or a MERL ``NAME.binary`` (both sampled on ``plan``, default DS1), or
-    ``virtual:NAME`` (``cyan``, ``magenta``, ``gold``, ``gonio``: the shipped DS1 measurement).
+         name: str | None = None, trust_units: bool = False) -> Source:
+    """Read a material: a BRDF table (spherical or signed in-plane), a GCMS raw file with its
+    Munsell N9 ``reference``, an NBRDF proxy ``NAME.h5`` or a MERL ``NAME.binary`` (both sampled on
+    ``plan``, default DS1), or ``virtual:NAME`` (``cyan``, ``magenta``, ``gold``, ``gonio``: the
+    shipped DS1 measurement).  A measurement whose numbers look like a unit slip (angles in
+    radians, wavelengths in µm, ... :mod:`neuralbrdf.data.units`) is refused unless ``trust_units``.
 
     >>> import neuralbrdf as nb
     >>> gold = nb.read("virtual:gold")
@@ -143,6 +149,8 @@ def read(source: PathLike, reference: PathLike | None = None, *, plan: str | Non
         raise InputError(f"unknown plan {plan!r}; expected one of {', '.join(PLAN_NAMES)}")
     if reference is not None and (text.startswith(VIRTUAL_PREFIX) or sampled):
         raise InputError(f"a Munsell reference goes with a GCMS raw file, not with {text}")
+    if trust_units and (text.startswith(VIRTUAL_PREFIX) or sampled):
+        raise InputError(f"trust_units goes with a measurement file, not with {text}")
     if text.startswith(VIRTUAL_PREFIX):
         from neuralbrdf.virtual.instrument import default_data_path
         from neuralbrdf.virtual.materials import REFERENCE_MATERIAL
@@ -154,9 +162,9 @@ def read(source: PathLike, reference: PathLike | None = None, *, plan: str | Non
         plan = plan or "DS1"
         samples = sample_file(text, plan)
         return Source("merl" if suffix == ".binary" else "nbrdf", text, samples, name or Path(text).stem, plan=plan)
-    samples = load_measurement(text, reference)
+    samples = load_measurement(text, reference, trust_units)
     return Source("table" if reference is None else "gcms", text, samples, name or Path(text).stem,
-                  None if reference is None else os.fspath(reference))
+                  None if reference is None else os.fspath(reference), trust_units=trust_units)
 
 
 # --------------------------------------------------------------------------- fitting
@@ -172,9 +180,10 @@ class FitResult:
     checkpoint: Path
     metrics: dict[str, Any] = field(repr=False)
 
-    def export(self, out: PathLike, material: str | None = None) -> Model:
-        """:func:`export` of this fit's checkpoint."""
-        return export(self.checkpoint, out, material)
+    def export(self, out: PathLike, material: str | None = None, *, fast: bool = False, rgb_head: bool = True,
+               config: str = "default") -> Model:
+        """:func:`export` of this fit's checkpoint (the same file, checks and defaults)."""
+        return export(self.checkpoint, out, material, fast=fast, rgb_head=rgb_head, config=config)
 
 
 def _option(value) -> str:
@@ -208,7 +217,7 @@ def _data_arguments(config: str, source: Source) -> list[str]:
     accepted = class_options(class_path) if class_path else []
     options = source.options()
     if set(options) <= set(accepted):
-        return [argument for key, value in options.items() for argument in (f"--data.{key}", value)]
+        return [argument for key, value in options.items() for argument in (f"--data.{key}", _option(value))]
     if "sources" in accepted:
         return ["--data.sources", json.dumps([options])]
     takes = [key for key in ("path", "reference", "nbrdf", "merl", "virtual") if key in accepted]
@@ -238,6 +247,7 @@ def fit(kind: str, data: Source | PathLike | None = None, *, config: PathLike | 
     """
     import torch
 
+    from neuralbrdf.data.units import overridden_by
     from neuralbrdf.lightning.run import METRICS_FILE, fitted_checkpoint, train
 
     if kind not in FIT_KINDS:
@@ -251,7 +261,8 @@ def fit(kind: str, data: Source | PathLike | None = None, *, config: PathLike | 
                          f"got {type(overrides).__name__} {overrides!r}")
     if data is not None and not isinstance(data, Source):
         _path(data, "data", "a Source, a file path or 'virtual:NAME'")
-    source = read(data) if data is not None and not isinstance(data, Source) else data
+    with overridden_by(f"nb.fit({kind!r}, nb.read(..., trust_units=True))"):
+        source = read(data) if data is not None and not isinstance(data, Source) else data
     args = ["fit", "--config", config]
     if source is not None:
         args += _data_arguments(config, source)
@@ -340,26 +351,33 @@ def load(path: PathLike) -> Model:
     return Model(_path(path, "path", "a model file (.onnx) path"))
 
 
-def export(checkpoint: PathLike, out: PathLike, material: str | None = None) -> Model:
+def export(checkpoint: PathLike, out: PathLike, material: str | None = None, *, fast: bool = False,
+           rgb_head: bool = True, config: str = "default") -> Model:
     """Export a trained checkpoint (spectral MLP, ABC, or an NLB or spectral NLB latent fit;
     ``material`` when it holds several) to one ``.onnx`` file, validated against PyTorch before it
-    is written.
+    is written — exactly what ``neuralbrdf export`` writes and prints: a spectral model gets its
+    RGB head ``f_rgb`` unless ``rgb_head=False``; ``fast=True`` adds the compact copy ``f_fast``;
+    ``config`` names the fast paths' settings (docs/export-render.md).  The same checkpoint and
+    options give the same bytes.
 
     >>> import tempfile, neuralbrdf as nb
     >>> quick = {"model.n_starts": 1, "data.eval_plan": None}     # one start, no hemisphere score: seconds
     >>> with tempfile.TemporaryDirectory() as folder:
     ...     result = nb.fit("abc", "virtual:gold", run_dir=f"{folder}/run", overrides=quick)
-    ...     nb.export(result.checkpoint, f"{folder}/gold_abc.onnx")
+    ...     nb.export(result.checkpoint, f"{folder}/gold_abc.onnx", rgb_head=False)
+    wrote .../gold_abc.onnx: abc model of 'gold'; onnxruntime vs PyTorch on 17408 probes: max error ...
     Model('.../gold_abc.onnx', kind='abc', material='gold', spectral 400-700 nm)
     """
-    from neuralbrdf.onnx_export import ExportValidationError, export_checkpoint
+    from neuralbrdf.exporting import export_model
+    from neuralbrdf.lod.fast_paths import FastPathError
+    from neuralbrdf.onnx_export import ExportValidationError
 
     _path(checkpoint, "checkpoint", "a checkpoint (.ckpt) path")
     _path(out, "out", "an output model file (.onnx) path")
     _text("material", material)
     try:
-        export_checkpoint(checkpoint, out, material)
-    except ExportValidationError as error:
+        export_model(out, checkpoint=checkpoint, material=material, fast=fast, rgb_head=rgb_head, config=config)
+    except (ExportValidationError, FastPathError) as error:
         raise InputError(f"not written: {error}", path=out) from None
     return Model(out)
 
@@ -530,7 +548,7 @@ def _preview_renderer(model: Path | None, reference_bsdf: str | None, resolution
     ))
     if fast:
         if model is None:
-            raise InputError("fast renders a model's fast path; give a model or a scene", column="--fast")
+            raise InputError("fast renders a model's fast path; give a model or a scene", key="--fast")
         from neuralbrdf.kinds import load_model
         from neuralbrdf.render.fast_paths import chosen_output
 

@@ -86,7 +86,7 @@ def check_weights_match(
         with torch.device("meta"):
             module = build()
     except InputError as error:
-        raise InputError(f"invalid hyper-parameters: {error.reason}", path=path, column=error.column) from None
+        raise InputError(f"invalid hyper-parameters: {error.reason}", path=path, column=error.column, key=error.key) from None
     except Exception as error:  # a constructor rejecting foreign hyper-parameters
         raise InputError(f"hyper-parameters do not describe a model ({one_line(error)})", path=path) from None
     expected = module.state_dict()
@@ -101,10 +101,10 @@ def check_weights_match(
         key = prefix + name
         found = state_dict.get(key) if isinstance(state_dict, Mapping) else None
         if not isinstance(found, torch.Tensor):
-            raise InputError("the weights lack this tensor of the model its hyper-parameters describe", path=path, column=key)
+            raise InputError("the weights lack this tensor of the model its hyper-parameters describe", path=path, key=key)
         if tuple(found.shape) != tuple(tensor.shape):
             raise InputError(
                 f"weight of shape {list(found.shape)} where the hyper-parameters need {list(tensor.shape)}",
                 path=path,
-                column=key,
+                key=key,
             )

@@ -43,7 +43,10 @@ class InputError(ValueError):
     line:
         1-based line number in that file (the header is line 1), if known.
     column:
-        Column name or key, if known.
+        Column of a table (CSV), if known.
+    key:
+        Key of a configuration, metadata entry or other mapping (``model.n_starts``), or a
+        command-line option (``--material``), if known; shown as ``key '...'`` (``option '--...'``).
     """
 
     def __init__(
@@ -53,10 +56,12 @@ class InputError(ValueError):
         path: str | PathLike[str] | None = None,
         line: int | None = None,
         column: str | None = None,
+        key: str | None = None,
     ) -> None:
         self.path = None if path is None else str(path)
         self.line = line
         self.column = column
+        self.key = key
         self.reason = message
         super().__init__(self._format())
 
@@ -68,6 +73,8 @@ class InputError(ValueError):
             where.append(f"line {self.line}")
         if self.column is not None:
             where.append(f"column {self.column!r}")
+        if self.key is not None:
+            where.append(f"{'option' if self.key.startswith('--') else 'key'} {self.key!r}")
         prefix = ", ".join(where)
         return f"{prefix}: {self.reason}" if prefix else self.reason
 

@@ -169,10 +169,10 @@ def log_cosine(f, cos_theta_i):
     return xp.log1p(f * xp.clip(cos_theta_i, 0.0, None)[:, None])
 
 
-def check_loss_domain(domain: str, column: str = "loss_domain") -> str:
-    """``domain`` if it is one of :data:`LOSS_DOMAINS`, else :class:`InputError` naming ``column``."""
+def check_loss_domain(domain: str, key: str = "loss_domain") -> str:
+    """``domain`` if it is one of :data:`LOSS_DOMAINS`, else :class:`InputError` naming ``key``."""
     if domain not in LOSS_DOMAINS:
-        raise InputError(f"unknown loss domain {domain!r}; expected one of {', '.join(LOSS_DOMAINS)}", column=column)
+        raise InputError(f"unknown loss domain {domain!r}; expected one of {', '.join(LOSS_DOMAINS)}", key=key)
     return domain
 
 

@@ -216,7 +216,7 @@ def generic_metadata(
         metadata[WAVELENGTH_MAX_KEY] = repr(float(wavelength_range_nm[1]))
     for key, value in (kind_metadata or {}).items():
         if not key.startswith(kind_key(kind, "")):
-            raise InputError(f"a {kind} model's own metadata keys start with {kind_key(kind, '')!r}", column=key)
+            raise InputError(f"a {kind} model's own metadata keys start with {kind_key(kind, '')!r}", key=key)
         metadata[key] = str(value)
     _check_metadata(metadata, "<metadata>", is_spectral=wavelength_range_nm is not None)
     return metadata
@@ -367,9 +367,9 @@ def metadata_float(metadata: Mapping[str, str], key: str, path) -> float:
     try:
         value = float(text)
     except ValueError:
-        raise InputError(f"metadata value {text!r} is not a number", path=path, column=key) from None
+        raise InputError(f"metadata value {text!r} is not a number", path=path, key=key) from None
     if not math.isfinite(value):
-        raise InputError(f"metadata value {text!r} is not finite", path=path, column=key)
+        raise InputError(f"metadata value {text!r} is not finite", path=path, key=key)
     return value
 
 
@@ -379,18 +379,18 @@ def metadata_float_list(metadata: Mapping[str, str], key: str, path) -> tuple[fl
     try:
         values = json.loads(text)
     except json.JSONDecodeError:
-        raise InputError(f"metadata value {text!r} is not JSON", path=path, column=key) from None
+        raise InputError(f"metadata value {text!r} is not JSON", path=path, key=key) from None
     if (
         not isinstance(values, list)
         or not values
         or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
     ):
         raise InputError(
-            f"metadata value {text!r} must be a non-empty JSON list of numbers", path=path, column=key
+            f"metadata value {text!r} must be a non-empty JSON list of numbers", path=path, key=key
         )
     values = tuple(float(v) for v in values)
     if not all(math.isfinite(v) and v >= 0.0 for v in values):
-        raise InputError(f"metadata value {text!r} must be finite and >= 0", path=path, column=key)
+        raise InputError(f"metadata value {text!r} must be finite and >= 0", path=path, key=key)
     return values
 
 
@@ -402,18 +402,18 @@ def _fast_paths(metadata: Mapping[str, str], outputs: Sequence[str], path) -> di
     orphans = sorted(described - set(outputs))
     if orphans:
         raise InputError(f"metadata describes the fast path {orphans[0]!r}, which the graph does not output",
-                         path=path, column=fast_path_key(orphans[0], FAST_PATH_KEYS[0]))
+                         path=path, key=fast_path_key(orphans[0], FAST_PATH_KEYS[0]))
     found = {}
     for output in outputs:
         missing = [fast_path_key(output, field) for field in FAST_PATH_KEYS if fast_path_key(output, field) not in metadata]
         if missing:
-            raise InputError(f"the fast path {output!r} lacks its metadata entry", path=path, column=missing[0])
+            raise InputError(f"the fast path {output!r} lacks its metadata entry", path=path, key=missing[0])
         error = metadata_float(metadata, fast_path_key(output, "hemisphere_logcos_rmse"), path)
         cost = metadata_float(metadata, fast_path_key(output, "relative_cost"), path)
         for field, value, ok, rule in (("hemisphere_logcos_rmse", error, error >= 0, ">= 0"),
                                        ("relative_cost", cost, cost > 0, "> 0")):
             if not ok:
-                raise InputError(f"metadata value {value!r} must be {rule}", path=path, column=fast_path_key(output, field))
+                raise InputError(f"metadata value {value!r} must be {rule}", path=path, key=fast_path_key(output, field))
         found[output] = FastPath(output, metadata[fast_path_key(output, "approximates")], error, cost)
     return found
 
@@ -425,21 +425,21 @@ def _check_metadata(metadata: Mapping[str, str], path, is_spectral: bool):
         raise InputError(f"missing metadata keys {missing} (docs/formats.md#onnx-model-files)", path=path)
     kind = metadata[KIND_KEY]
     if not kind.isidentifier():
-        raise InputError(f"model kind {kind!r} is not a name (letters, digits, '_')", path=path, column=KIND_KEY)
+        raise InputError(f"model kind {kind!r} is not a name (letters, digits, '_')", path=path, key=KIND_KEY)
     version = metadata[FORMAT_VERSION_KEY]
     if version != FORMAT_VERSION:
         raise InputError(
             f"format version {version!r} is not supported (this library reads {FORMAT_VERSION!r})",
             path=path,
-            column=FORMAT_VERSION_KEY,
+            key=FORMAT_VERSION_KEY,
         )
     if not metadata[MATERIAL_KEY].strip():
-        raise InputError("material name is empty", path=path, column=MATERIAL_KEY)
+        raise InputError("material name is empty", path=path, key=MATERIAL_KEY)
     foreign = sorted(key for key in metadata if key.startswith("neuralbrdf.") and key.count(".") >= 2
                      and key.split(".")[1] not in (kind, *FAST_PATH_OUTPUTS, *SHARED_NAMESPACES))
     if foreign:  # e.g. a fitted model whose kind was edited to 'reference': its own keys say what it is
         raise InputError(f"metadata key {foreign[0]!r} belongs to kind {foreign[0].split('.')[1]!r}, but the file "
-                         f"declares kind {kind!r}", path=path, column=KIND_KEY)
+                         f"declares kind {kind!r}", path=path, key=KIND_KEY)
     wavelength_keys = [k for k in (WAVELENGTH_MIN_KEY, WAVELENGTH_MAX_KEY) if k in metadata]
     wavelength_range = None
     if is_spectral:
@@ -452,7 +452,7 @@ def _check_metadata(metadata: Mapping[str, str], path, is_spectral: bool):
             raise InputError(
                 f"wavelength range {low:g}..{high:g} nm is empty or not positive",
                 path=path,
-                column=WAVELENGTH_MAX_KEY,
+                key=WAVELENGTH_MAX_KEY,
             )
         wavelength_range = (low, high)
     elif wavelength_keys:

@@ -3,8 +3,10 @@
 The one vocabulary of every data module and config (``data.*`` keys, and the entries of a
 latent fit's ``data.sources``).  One material comes from exactly one of:
 
-* ``path`` — the user's measurement: a BRDF sample table (docs/formats.md#brdf-sample-table) or a GCMS raw file with
-  its Munsell N9 ``reference`` (docs/formats.md#gcms-raw-measurement);
+* ``path`` — the user's measurement: a BRDF sample table (docs/formats.md#brdf-sample-table), a
+  signed in-plane BRDF table (docs/formats.md#in-plane-brdf-table), or a GCMS raw file with its
+  Munsell N9 ``reference`` (docs/formats.md#gcms-raw-measurement), checked for unit
+  slips (:mod:`neuralbrdf.data.units`) unless ``trust_units``;
 * ``nbrdf`` — a MERL-proxy NBRDF network (docs/formats.md#nbrdf-proxy) sampled on ``plan``;
 * ``merl`` — a MERL ``.binary`` measurement (:mod:`neuralbrdf.data.merl_binary`) sampled on
   ``plan`` (nearest cell, RGB);
@@ -42,7 +44,7 @@ SOURCE_KEYS = ("path", "nbrdf", "merl", "virtual")
 #: Source keys of files sampled on a plan (``plan`` applies to them).
 SAMPLED_KEYS = ("nbrdf", "merl")
 #: Every key a material source may have.
-MATERIAL_KEYS = (*SOURCE_KEYS, "reference", "plan", "name")
+MATERIAL_KEYS = (*SOURCE_KEYS, "reference", "plan", "name", "trust_units")
 
 
 @dataclass(frozen=True)
@@ -56,7 +58,7 @@ class MaterialData:
 
 def _check_plan(plan: str | None, key: str) -> None:
     if plan is not None and plan not in PLAN_NAMES:
-        raise InputError(f"unknown plan {plan!r}; expected one of {', '.join(PLAN_NAMES)}", column=key)
+        raise InputError(f"unknown plan {plan!r}; expected one of {', '.join(PLAN_NAMES)}", key=key)
 
 
 def virtual_truth(material: str, plan: str) -> BrdfTable:
@@ -66,12 +68,12 @@ def virtual_truth(material: str, plan: str) -> BrdfTable:
     return BrdfTable(*angles, values, GROUND_TRUTH_WAVELENGTHS_NM.copy(), source=f"virtual {material} on {plan}")
 
 
-def load_fit_measurement(path, reference=None) -> BrdfTable:
+def load_fit_measurement(path, reference=None, trust_units: bool = False) -> BrdfTable:
     """:func:`~neuralbrdf.data.loading.load_measurement` for a fit: a spectral table must hold two
     or more wavelengths, since a fitted spectral model covers the range between its data's lowest
     and highest wavelength (one wavelength is no range: the model would claim wavelengths it never
     saw, or fail at export), and its values must carry a signal (:func:`check_signal`)."""
-    table = load_measurement(path, reference)
+    table = load_measurement(path, reference, trust_units)
     if table.is_spectral and len(table.wavelengths) < 2:
         raise InputError(f"holds one wavelength ({float(table.wavelengths[0]):g} nm); a spectral fit needs samples at "
                          "two or more wavelengths, whose range the fitted model covers", path=path)
@@ -133,18 +135,20 @@ def load_material(
     plan: str = "DS1",
     eval_plan: str | None = "low",
     name: str | None = None,
+    trust_units: bool = False,
 ) -> MaterialData:
-    """Load one material from exactly one source (module docstring); ``plan`` applies to NBRDF and MERL."""
+    """Load one material from exactly one source (module docstring); ``plan`` applies to NBRDF and
+    MERL, ``trust_units`` to a ``path``."""
     sources = (("path", path), ("nbrdf", nbrdf), ("merl", merl), ("virtual", virtual))
     given = [key for key, value in sources if value is not None]
     if len(given) != 1:
         raise InputError(f"give exactly one of {', '.join('data.' + k for k in SOURCE_KEYS)}; got {given or 'none'}")
     if reference is not None and path is None:
-        raise InputError("data.reference goes with a GCMS raw data.path", column="data.reference")
+        raise InputError("data.reference goes with a GCMS raw data.path", key="data.reference")
     _check_plan(plan, "data.plan")
     _check_plan(eval_plan, "data.eval_plan")
     if path is not None:
-        return MaterialData(name or Path(path).stem, load_fit_measurement(path, reference), None)
+        return MaterialData(name or Path(path).stem, load_fit_measurement(path, reference, trust_units), None)
     if nbrdf is not None:
         network = NbrdfNetwork.load(nbrdf)
         fit = sample_plan(network, plan)
@@ -162,22 +166,25 @@ def load_material(
     return MaterialData(name or virtual, fit, truth)
 
 
-def check_source(source, where: str) -> dict[str, str]:
-    """One material source as a mapping of :data:`MATERIAL_KEYS`, checked; ``where`` names it in errors."""
+def check_source(source, where: str) -> dict[str, str | bool]:
+    """One material source as a mapping of :data:`MATERIAL_KEYS`, checked (strings, and
+    ``trust_units`` a bool); ``where`` names it in errors."""
     if not isinstance(source, dict):
-        raise InputError(f"expected a mapping such as {{nbrdf: FILE.h5}}, got {source!r}", column=where)
+        raise InputError(f"expected a mapping such as {{nbrdf: FILE.h5}}, got {source!r}", key=where)
     for key in source:
         if key not in MATERIAL_KEYS:
-            raise InputError(f"unknown key {key!r}; expected {', '.join(MATERIAL_KEYS)}", column=where)
+            raise InputError(f"unknown key {key!r}; expected {', '.join(MATERIAL_KEYS)}", key=where)
     given = [k for k in SOURCE_KEYS if k in source]
     if len(given) != 1:
-        raise InputError(f"needs exactly one of {', '.join(SOURCE_KEYS)}, got {given or 'none'}", column=where)
+        raise InputError(f"needs exactly one of {', '.join(SOURCE_KEYS)}, got {given or 'none'}", key=where)
     if "reference" in source and given[0] != "path":
-        raise InputError("'reference' goes with a GCMS raw 'path'", column=where)
+        raise InputError("'reference' goes with a GCMS raw 'path'", key=where)
     if "plan" in source and (given[0] not in SAMPLED_KEYS or source["plan"] not in PLAN_NAMES):
         raise InputError(f"'plan' is for nbrdf and merl sources, one of {', '.join(PLAN_NAMES)}; got "
-                         f"{source['plan']!r}", column=where)
-    return {k: str(v) for k, v in source.items()}
+                         f"{source['plan']!r}", key=where)
+    if "trust_units" in source and (given[0] != "path" or not isinstance(source["trust_units"], bool)):
+        raise InputError(f"'trust_units' is true or false, for a 'path'; got {source['trust_units']!r}", key=where)
+    return {k: v if k == "trust_units" else str(v) for k, v in source.items()}
 
 
 def source_name(source: dict[str, str]) -> str:

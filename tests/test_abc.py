@@ -187,7 +187,7 @@ def test_parameters_from_dict_rejects_bad_values_naming_the_key(change, key):
     mapping = {**NYLON.to_dict(), **change}
     with pytest.raises(InputError) as info:
         AbcParameters.from_dict(mapping, source="params.json")
-    assert info.value.column == key and info.value.path == "params.json"
+    assert info.value.key == key and info.value.path == "params.json"
     missing = NYLON.to_dict()
     del missing["eta"]
     with pytest.raises(InputError, match="missing"):
@@ -382,4 +382,4 @@ def test_kd_ignores_rows_nobody_measured():
 def test_bounds_from_a_config_are_checked_naming_the_key(bounds, key, message):
     with pytest.raises(InputError, match=re.escape(message)) as info:
         AbcBounds.from_config(bounds)
-    assert info.value.column == key
+    assert info.value.key == key

@@ -206,7 +206,7 @@ def test_bad_generation_arguments_raise(kwargs, column):
     kwargs.setdefault("seed", 0)
     with pytest.raises(InputError) as info:
         generate_materials(**kwargs)
-    assert info.value.column == column
+    assert info.value.key == column
 
 
 # ------------------------------------------------------------------------------- sampling

@@ -47,7 +47,7 @@ CONFIG = load_lod_config()  # the shipped configs/lod/default.yaml
 TINY = dataclasses.replace(
     CONFIG.fast_paths,
     distill=dataclasses.replace(CONFIG.fast_paths.distill, n_pairs=4096, steps=300, batch=1024),
-    cost_batches=(2**12, 2**14), cost_rounds=1, error_strata=(8, 10), max_hemisphere_logcos_rmse=1.0,
+    error_strata=(8, 10), max_hemisphere_logcos_rmse=1.0,
 )
 HEAD_ALBEDO = (0.8, 0.5, 0.2)
 
@@ -140,10 +140,10 @@ def test_output_model_keeps_only_what_the_output_reads(lambert_files):
 @pytest.mark.parametrize("case, fragment", [
     ("rgb head of an RGB model", "'f_rgb' is the linear sRGB of a spectral model"),
     ("rgb head reading the wavelength", "'f_rgb' depends on 'wavelength'"),
-    ("missing entry", "column 'neuralbrdf.f_fast.relative_cost': the fast path 'f_fast' lacks its metadata entry"),
+    ("missing entry", "key 'neuralbrdf.f_fast.relative_cost': the fast path 'f_fast' lacks its metadata entry"),
     ("entry without output", "describes the fast path 'f_rgb', which the graph does not output"),
     ("negative fast path", "fast path 'f_fast': output 'f' is negative"),
-    ("bad cost", "column 'neuralbrdf.f_fast.relative_cost': metadata value 0.0 must be > 0"),
+    ("bad cost", "key 'neuralbrdf.f_fast.relative_cost': metadata value 0.0 must be > 0"),
 ])
 def test_a_bad_fast_path_is_refused_naming_it(lambert_files, case, fragment):
     d = lambert_files["dir"]
@@ -332,7 +332,7 @@ def test_add_fast_paths_records_error_and_cost_that_hold(distilled):
     for report in reports:
         recorded = model.fast_paths[report.output]
         assert recorded.hemisphere_logcos_rmse == pytest.approx(report.hemisphere_logcos_rmse)
-        assert recorded.relative_cost > 0 and "distilled from 4096 samples of gold.onnx" in recorded.approximates
+        assert 0 < recorded.relative_cost < 1 and "distilled from 4096 samples of the " in recorded.approximates
         # measured again, through onnxruntime, against the teacher: the record holds
         reference = OnnxEvaluator(parent)
         teacher = rgb_teacher(reference) if report.output == OUTPUT_RGB else reference
@@ -362,8 +362,7 @@ def tiny_config(tmp_path: Path) -> Path:
 
     raw = yaml.safe_load(CONFIG.path.read_text())
     raw["fast_paths"]["distill"].update(n_pairs=4096, steps=100, batch=1024)
-    raw["fast_paths"].update(cost_batches=[2**12, 2**14], cost_rounds=1, error_strata=[6, 8],
-                             max_hemisphere_logcos_rmse=1.0)
+    raw["fast_paths"].update(error_strata=[6, 8], max_hemisphere_logcos_rmse=1.0)
     path = tmp_path / "tiny.yaml"
     path.write_text(yaml.safe_dump(raw))
     return path

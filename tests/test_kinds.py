@@ -132,7 +132,7 @@ def test_checkpoints_without_the_kind_key_are_recognised_by_their_layout(checkpo
 def test_a_checkpoint_of_no_trained_kind_is_refused_naming_the_key(checkpoint):
     with pytest.raises(InputError, match=r"unknown checkpoint kind .*expected one of \['abc', 'nlb', 'nlb_spectral', 'spectral_mlp'\]") as info:
         kinds.checkpoint_kind(checkpoint, "x.ckpt")
-    assert info.value.column == CHECKPOINT_KIND_KEY and str(info.value.path) == "x.ckpt"
+    assert info.value.key == CHECKPOINT_KIND_KEY and str(info.value.path) == "x.ckpt"
 
 
 def test_the_shipped_pretrained_networks_name_a_class_that_exists():

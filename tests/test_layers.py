@@ -27,7 +27,7 @@ FLOORS = (
     {"onnx_export", "render"},
     {"evaluation"},
     {"lightning"},
-    {"study", "lod", "cli", "api", "__main__"},
+    {"study", "lod", "exporting", "cli", "api", "__main__"},
 )
 FLOOR = {group: level for level, groups in enumerate(FLOORS) for group in groups}
 

@@ -480,7 +480,7 @@ def test_latent_fit_detects_a_changed_weight(tmp_path):
 def test_bad_latent_sources_raise(sources):
     with pytest.raises(InputError) as info:
         LatentFitData(sources)
-    assert info.value.column.startswith("data.sources")
+    assert info.value.key.startswith("data.sources")
 
 
 def test_latent_sources_of_the_same_measurement_agree(tmp_path):

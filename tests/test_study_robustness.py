@@ -225,7 +225,7 @@ def test_a_bad_profile_is_refused_naming_its_key_and_leaves_no_folder(tmp_path, 
     out = tmp_path / "study"
     assert study(path, out) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and f"{path}, column {key!r}:" in err and message in err, err
+    assert err.count("\n") == 1 and f"{path}, key {key!r}:" in err and message in err, err
     assert not out.exists()
 
 
@@ -242,7 +242,7 @@ def test_a_truth_file_must_be_a_valid_ground_truth(tmp_path, fake, capsys):
         path = profile(tmp_path, f'{truth}", table: "{table}')
         assert study(path, tmp_path / "study") == 2
         err = capsys.readouterr().err
-        assert f"column 'materials[0].truth': {message}" in err, err
+        assert f"key 'materials[0].truth': {message}" in err, err
     assert not (tmp_path / "study").exists()
 
 
@@ -279,7 +279,7 @@ def test_the_cell_passes_its_seed_to_the_abc_starts_and_they_differ():
     from neuralbrdf.fitting.abc_fit import AbcBounds, _start_shapes
     from neuralbrdf.study.cell import fit_arguments
 
-    spec = {"variant": {"config": "abc.yaml", "args": [], "method": "abc"},
+    spec = {"variant": {"config": "abc.yaml", "args": [], "method": "abc"}, "material": {},
             "cell": {"seed": 3}}
     args = fit_arguments(spec, Path("t.csv"), Path("run"))
     assert args[args.index("--model.seed") + 1] == "3" and args[args.index("--seed_everything") + 1] == "3"
@@ -292,7 +292,7 @@ def test_a_typo_in_a_variants_arguments_is_a_refused_fit_in_one_line(tmp_path):
     from neuralbrdf.configs_dir import resolve_config
 
     spec = {"variant": {"config": str(resolve_config("abc")), "args": ["--model.n_startz", "1"], "method": "abc"},
-            "cell": {"seed": 0}}
+            "material": {}, "cell": {"seed": 0}}
     with pytest.raises(CellFailure) as failure:
         fit(spec, tmp_path / "table.csv", tmp_path / "run")
     assert failure.value.cause == "fit_refused"

@@ -182,7 +182,7 @@ BAD_TABLES = [
     ("irregular wavelengths", f"{ANGLES},400,410,430\n10,0,20,180,1,1,1\n", 1, "430", "regular"),
     ("mixed RGB and spectral", f"{RGB_HEADER},400\n{GOOD_ROW},1\n", 1, "400", "mixes RGB"),
     ("negative weight", f"{RGB_HEADER},weight\n{GOOD_ROW},1\n{GOOD_ROW},-0.5\n", 3, "weight", "negative weight"),
-    ("gcms file", "theta_i,theta_r,390\n10,20,0.5\n", 1, "theta_r", "GCMS raw file?"),
+    ("gcms file", "theta_i,theta_r,390\n10,20,0.5\n", 1, "theta_r", "a GCMS raw file starts theta_i, theta_r"),
     ("repeat with other values", f"{RGB_HEADER}\n{GOOD_ROW}\n10,0,20,200,0.1,0.2,0.3\n10,0,20,180,0.1,0.25,0.3\n", 4,
      None, "repeated geometry (theta_i, phi_i, theta_o, phi_o) = (10, 0, 20, 180) with different values than line 2"),
     ("repeat with other weight", f"{RGB_HEADER},weight\n{GOOD_ROW},1\n{GOOD_ROW},2\n", 3, None,

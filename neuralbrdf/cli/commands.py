@@ -13,9 +13,12 @@ from neuralbrdf.console import progress
 from neuralbrdf.data import plans
 from neuralbrdf.data.calibration import calibrate as calibrate_measurement
 from neuralbrdf.data.gcms import read_gcms, write_gcms
-from neuralbrdf.data.loading import load_measurement
+from neuralbrdf.data.csvio import read_csv_header
+from neuralbrdf.data.inplane_table import is_inplane_header, write_inplane_table
+from neuralbrdf.data.loading import load_measurement, read_brdf_table
+from neuralbrdf.data.units import check_units, overridden_by
 from neuralbrdf.sources import sample_file, virtual_truth
-from neuralbrdf.data.table import read_table, write_table
+from neuralbrdf.data.table import write_table
 from neuralbrdf.errors import InputError
 from neuralbrdf.plotting import DEFAULT_THETA_I_DEG, plot_inplane
 from neuralbrdf.virtual import instrument
@@ -50,17 +53,24 @@ def simulate(args) -> None:
     print(f"GCMS raw measurement of {args.material} on {args.plan} -> {args.out}")
 
 
+#: The option of the commands that read a measurement as it is where its numbers look like a unit slip.
+TRUST_UNITS_FLAG = "--trust-units"
+
+
 def calibrate(args) -> None:
-    table = calibrate_measurement(read_gcms(args.sample), read_gcms(args.reference))
+    with overridden_by(TRUST_UNITS_FLAG):
+        table = check_units(calibrate_measurement(read_gcms(args.sample), read_gcms(args.reference)), args.trust_units)
     write_table(table, args.out)
     print(f"calibrated {table.n_rows} rows x {len(table.wavelengths)} wavelengths -> {args.out}")
 
 
 def to_rgb(args) -> None:
-    table = read_table(args.table)
+    with overridden_by(TRUST_UNITS_FLAG):
+        table = read_brdf_table(args.table, args.trust_units)
     if not table.is_spectral:
         raise InputError("already an RGB table; expected wavelength columns", path=args.table)
-    write_table(table.to_rgb(), args.out)
+    write = write_inplane_table if is_inplane_header(read_csv_header(args.table)) else write_table
+    write(table.to_rgb(), args.out)  # in the format it was read in
     print(f"linear sRGB table ({table.n_rows} rows) -> {args.out}")
 
 
@@ -75,7 +85,8 @@ def sample(args) -> None:
 
 
 def plot(args) -> None:
-    table = load_measurement(args.table, reference=args.reference)
+    with overridden_by(TRUST_UNITS_FLAG):
+        table = load_measurement(args.table, args.reference, args.trust_units)
     plot_inplane(table, args.out, theta_i_deg=args.theta_i or DEFAULT_THETA_I_DEG)
     print(f"plot -> {args.out}")
 
@@ -90,7 +101,7 @@ def demo(args) -> None:
     materials = args.material or STAND_INS
     for name in materials:
         if name not in STAND_INS:
-            raise InputError(f"unknown stand-in {name!r}; expected {', '.join(STAND_INS)}", column="--material")
+            raise InputError(f"unknown stand-in {name!r}; expected {', '.join(STAND_INS)}", key="--material")
     existing = [path.name for path in demo_outputs(out, materials) if path.exists() or path.is_symlink()]
     if existing and not args.overwrite:  # checked before any work: a rerun never replaces them silently
         raise InputError(f"already holds the demo's outputs ({', '.join(existing[:3])}{', ...' if len(existing) > 3 else ''}); "
@@ -139,7 +150,7 @@ def _counts(text: str, length: int, option: str) -> tuple[int, ...]:
     except ValueError:
         counts = ()
     if len(counts) != length or min(counts) < 1:
-        raise InputError(f"{option} {text!r}: expected {length} positive integers joined by 'x'", column=option)
+        raise InputError(f"{option} {text!r}: expected {length} positive integers joined by 'x'", key=option)
     return counts
 
 

@@ -4,18 +4,17 @@ its fast paths.
     neuralbrdf export --ckpt RUN.ckpt --out MODEL.onnx [--material NAME] [--fast] [--no-rgb-head]
     neuralbrdf export --model MODEL.onnx --out NEW.onnx [--fast] [--no-rgb-head]
 
-The checkpoint's kind (:mod:`neuralbrdf.kinds`; its ``neuralbrdf_kind`` entry, or the layout of
-older files) builds the model on directions; :func:`neuralbrdf.onnx_export.write_model` traces
-it, checks it against PyTorch with onnxruntime and writes it atomically.
-
-**Fast paths** (:mod:`neuralbrdf.lod.fast_paths`), distilled from the model and embedded in the
-same file: a spectral model gets its RGB head ``f_rgb`` (its linear sRGB, once per query: what
-the renderer uses in RGB variants) unless ``--no-rgb-head``; ``--fast`` adds ``f_fast``, a
-compact copy of any model (the renderer's ``--fast``).  Each distillation takes about a minute
-on one idle core; its error against the model and relative cost are printed and recorded in the
-file.  ``--model`` adds fast paths to a file that has none of those asked for, e.g. a spectral
-model exported elsewhere.  Settings: ``configs/lod/default.yaml``, section ``fast_paths``
-(``--config`` names another file).
+The export itself is :func:`neuralbrdf.exporting.export_model`, the path ``nb.export`` and
+``FitResult.export`` take too (same file, same printed checks, same defaults): the checkpoint's
+kind builds the model on directions, which is traced, checked against PyTorch with onnxruntime
+and written atomically, with its **fast paths** (:mod:`neuralbrdf.lod.fast_paths`) distilled
+from it and embedded in the same file: a spectral model gets its RGB head ``f_rgb`` (its linear
+sRGB, once per query: what the renderer uses in RGB variants) unless ``--no-rgb-head``;
+``--fast`` adds ``f_fast``, a compact copy of any model (the renderer's ``--fast``).  Each
+distillation takes several seconds on one idle core; its error against the model and counted
+relative cost are printed and recorded in the file.  ``--model`` adds fast paths to a file that
+has none of those asked for, e.g. a spectral model exported elsewhere.  Settings:
+``configs/lod/default.yaml``, section ``fast_paths`` (``--config`` names another file).
 
 Exit status (docs/robustness.md): 0 written; 2 bad input (unreadable or foreign checkpoint or
 model, unknown material, nothing to add: one line naming the file and key); 1 the exported graph
@@ -27,15 +26,11 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
-import warnings
-from pathlib import Path
 
 from neuralbrdf import kinds
-from neuralbrdf.atomic import check_outputs, command_inputs
 from neuralbrdf.errors import EXIT_FAILED, EXIT_OK, EnvironmentFailure, InputError, error_line, exit_status
-from neuralbrdf.onnx_contract import OUTPUT_FAST, OUTPUT_RGB
-from neuralbrdf.onnx_export import ExportValidationError, write_model
+from neuralbrdf.exporting import export_model
+from neuralbrdf.onnx_export import ExportValidationError
 
 
 def _kinds_help() -> str:
@@ -74,65 +69,13 @@ def build_parser(prog: str = "neuralbrdf export") -> argparse.ArgumentParser:
     return parser
 
 
-def _wanted(wavelength_range_nm, present, args) -> tuple[str, ...]:
-    """The fast paths to add to a model (of this wavelength range, ``None`` for RGB, with the fast
-    paths ``present``); a spectral model outside the colour conversion's range gets no RGB head,
-    with a warning (:func:`~neuralbrdf.lod.fast_paths.rgb_head_problem`)."""
-    from neuralbrdf.lod.fast_paths import rgb_head_problem
-
-    wanted = []
-    if wavelength_range_nm is not None and not args.no_rgb_head and OUTPUT_RGB not in present:
-        problem = rgb_head_problem(wavelength_range_nm)
-        if problem is None:
-            wanted.append(OUTPUT_RGB)
-        else:
-            warnings.warn(problem, stacklevel=2)
-    if args.fast:
-        wanted.append(OUTPUT_FAST)
-    return tuple(wanted)
-
-
-def _export(args) -> None:
-    """Write ``--out`` (module docstring); raises what :func:`main` turns into an exit status."""
-    from neuralbrdf.lod.config import load_lod_config
-    from neuralbrdf.lod.fast_paths import add_fast_paths
-
-    out = Path(args.out)
-    if args.model is not None:
-        if args.material is not None:
-            raise InputError("--material goes with --ckpt (a model file holds one material)", column="--material")
-        model = kinds.load_model(args.model)
-        wanted = _wanted(model.wavelength_range_nm, model.fast_paths, args)
-        if not wanted:
-            raise InputError("nothing to add: ask for --fast, or give a spectral model without an RGB head",
-                             path=args.model)
-    else:
-        exportable = kinds.load_exportable(args.ckpt, args.material)
-        wanted = _wanted(exportable.wavelength_range_nm, (), args)
-    check_outputs(out)  # after the inputs are read: an output may not be one of them
-    settings = load_lod_config(args.config).fast_paths if wanted else None
-    with tempfile.TemporaryDirectory(prefix="neuralbrdf-export-") as work:
-        source = Path(args.model) if args.model is not None else out if not wanted else Path(work) / out.name
-        if args.ckpt is not None:
-            report = write_model(exportable, source)
-            print(f"{'wrote ' + str(out) if source == out else 'exported'}: {report.kind} model of {report.material!r}; "
-                  f"onnxruntime vs PyTorch on {report.n_probes} probes: max error {report.max_abs_error:.2g} sr^-1, "
-                  f"{report.max_rel_error:.2g} relative")
-        if not wanted:
-            return
-        reports = add_fast_paths(source, out, wanted, settings, log=lambda line: print(f"  {line}"))
-    print(f"wrote {out} with fast paths: " + "; ".join(
-        f"{r.output} (log-cos RMSE {r.hemisphere_logcos_rmse:.4f} against the model, relative cost {r.relative_cost:.2f})"
-        for r in reports))
-
-
 def main(argv: list[str] | None = None, prog: str = "neuralbrdf export") -> int:
     args = build_parser(prog).parse_args(argv)
     from neuralbrdf.lod.fast_paths import FastPathError
 
     try:
-        with command_inputs():  # --out may not be the checkpoint or model it reads (neuralbrdf.atomic)
-            _export(args)
+        export_model(args.out, checkpoint=args.ckpt, model=args.model, material=args.material, fast=args.fast,
+                     rgb_head=not args.no_rgb_head, config=args.config)
     except (InputError, EnvironmentFailure) as error:
         print(error_line(prog, error), file=sys.stderr)
         return exit_status(error)

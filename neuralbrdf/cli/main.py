@@ -25,7 +25,8 @@ EPILOG = (
     "Conventions: angles in degrees. GCMS raw files hold signed in-plane angles theta_i, theta_r "
     "in [-90, 90] (wi = (sin ti, 0, cos ti), wo = (-sin tr, 0, cos tr); mirror at theta_r = theta_i) "
     "and the radiance factor beta at 390-730 nm every 10 nm. BRDF sample tables hold spherical "
-    "theta_i, phi_i, theta_o, phi_o (theta in [0, 90], phi in [0, 360)) and R,G,B (linear sRGB) "
+    "theta_i, phi_i, theta_o, phi_o (theta in [0, 90], phi in [0, 360)), or signed in-plane "
+    "theta_i_signed, theta_r_signed (in [-90, 90]), then R,G,B (linear sRGB) "
     "or one column per wavelength (nm), BRDF in 1/sr without cosine. Outputs: written whole or not at "
     "all; an output that is one of the command's inputs, a directory, device or FIFO is refused; a "
     "symbolic link is written through (the file it points to is replaced)."
@@ -101,6 +102,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("sample", help="GCMS raw CSV of the sample")
     p.add_argument("--reference", required=True, help="GCMS raw CSV of the Munsell N9 white")
     p.add_argument("--out", required=True, help="output BRDF table CSV")
+    _trust_units(p)
 
     p = add(
         "to-rgb",
@@ -109,8 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
         "Convert a spectral BRDF table to linear sRGB (report Eq. 2.4 without the factor 100: CIE 1931 2° "
         "observer, D65, normalised so a flat spectrum c maps to about (c, c, c); IEC 61966-2-1 matrix).",
     )
-    p.add_argument("table", help="spectral BRDF table CSV")
-    p.add_argument("--out", required=True, help="output RGB BRDF table CSV")
+    p.add_argument("table", help="spectral BRDF table CSV (spherical or signed in-plane)")
+    p.add_argument("--out", required=True, help="output RGB BRDF table CSV, in the input's format")
+    _trust_units(p)
 
     for name, help_text in (("sample", "sample a measured or virtual material on a plan"),
                             ("sample-nbrdf", "alias of sample (kept for NBRDF files)")):
@@ -134,10 +137,11 @@ def build_parser() -> argparse.ArgumentParser:
         "Plot a BRDF table (RGB or spectral; GCMS raw files need --reference) against the signed outgoing "
         "angle for a few incident angles, and the mirror-direction spectra of spectral tables.",
     )
-    p.add_argument("table", help="BRDF table CSV (or GCMS raw CSV with --reference)")
+    p.add_argument("table", help="BRDF table CSV, spherical or signed in-plane (or GCMS raw CSV with --reference)")
     p.add_argument("--reference", help="Munsell N9 GCMS raw CSV, when TABLE is a GCMS raw file")
     p.add_argument("--theta-i", type=float, nargs="+", help="incident angles to show (degrees, signed)")
     p.add_argument("--out", required=True, help="output figure: .png, .pdf or .svg")
+    _trust_units(p)
 
     p = add(
         "demo",
@@ -251,6 +255,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--out-dir", default=None, help="folder (default: the package's data/default)")
     return parser
+
+
+def _trust_units(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(commands.TRUST_UNITS_FLAG, action="store_true",
+                        help="read the measurement as it is where its numbers look like a unit slip (angles in "
+                        "radians, wavelengths in um or angstrom, values in percent or times a cosine; "
+                        "docs/robustness.md)")
 
 
 def _delegated(name: str):

@@ -353,16 +353,16 @@ def generate_materials(n_materials: int, seed: int, archetype_weights=DEFAULT_AR
     ``thin_film_probability``: share of the dielectric GGX/Beckmann lobes under a thin film.
     """
     if not 0.0 <= thin_film_probability <= 1.0:
-        raise InputError(f"must lie in [0, 1], got {thin_film_probability}", column="thin_film_probability")
+        raise InputError(f"must lie in [0, 1], got {thin_film_probability}", key="thin_film_probability")
     if not isinstance(n_materials, int) or n_materials < 1:
-        raise InputError(f"n_materials must be a positive integer, got {n_materials!r}", column="n_materials")
+        raise InputError(f"n_materials must be a positive integer, got {n_materials!r}", key="n_materials")
     weights = np.asarray(archetype_weights, dtype=np.float64)
     valid = weights.shape == (len(ARCHETYPES),) and np.all(np.isfinite(weights)) and np.all(weights >= 0)
     if not valid or weights.sum() <= 0:
         raise InputError(
             f"archetype_weights must be {len(ARCHETYPES)} non-negative numbers ({', '.join(ARCHETYPES)}) "
             f"with a positive sum, got {list(archetype_weights)}",
-            column="archetype_weights",
+            key="archetype_weights",
         )
     rng = np.random.default_rng(seed)
     m, slots = n_materials, MAX_LOBES
@@ -439,7 +439,7 @@ def sample_batch(
 ) -> CorpusBatch:
     """``size`` samples: materials uniform at random, directions by :meth:`~CorpusMaterials.sample_directions`."""
     if not 0.0 <= uniform_fraction <= 1.0:
-        raise InputError(f"uniform_fraction must lie in [0, 1], got {uniform_fraction}", column="uniform_fraction")
+        raise InputError(f"uniform_fraction must lie in [0, 1], got {uniform_fraction}", key="uniform_fraction")
     material = rng.integers(0, len(materials), size=size)
     wi, wo = materials.sample_directions(material, rng, uniform_fraction)
     return CorpusBatch(material, wi, wo, materials.evaluate(material, wi, wo))

@@ -65,5 +65,5 @@ def load_low2012_parameters(path: str | os.PathLike[str]) -> dict[str, AbcParame
                 eta=numbers["eta"],
             )
         except InputError as error:
-            raise InputError(error.reason, path=path, line=line, column=error.column) from None
+            raise InputError(error.reason, path=path, line=line, column=error.key) from None  # a parameter named as its column
     return fits

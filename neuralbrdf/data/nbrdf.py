@@ -212,19 +212,19 @@ def _read_architecture(json_path: Path) -> tuple[str, ...]:
 
     def field(obj, where: str, key: str):
         if not isinstance(obj, dict) or key not in obj:
-            raise InputError("missing key", path=json_path, column=f"{where}{key}")
+            raise InputError("missing key", path=json_path, key=f"{where}{key}")
         return obj[key]
 
     def expect(found, expected, key: str) -> None:
         if found != expected:
             raise InputError(
-                f"expected {expected!r}, found {found!r}", path=json_path, column=key
+                f"expected {expected!r}, found {found!r}", path=json_path, key=key
             )
 
     expect(field(model, "", "class_name"), "Sequential", "class_name")
     layers = field(field(model, "", "config"), "config.", "layers")
     if not isinstance(layers, list):
-        raise InputError("expected a list of layers", path=json_path, column="config.layers")
+        raise InputError("expected a list of layers", path=json_path, key="config.layers")
     classes = [field(layer, f"config.layers[{i}].", "class_name") for i, layer in enumerate(layers)]
     expect(classes, ["Dense"] * len(DENSE_LAYERS) + ["Lambda"], "config.layers")
 
@@ -239,11 +239,11 @@ def _read_architecture(json_path: Path) -> tuple[str, ...]:
         name = field(config, at, "name")
         if not isinstance(name, str) or not name:
             raise InputError(f"expected a layer name, found {name!r}", path=json_path,
-                             column=f"{at}name")
+                             key=f"{at}name")
         names.append(name)
     if not _lambda_calls_exp(field(configs[-1], where[-1], "function")):
         raise InputError("expected a Keras lambda computing exp(x) - 1", path=json_path,
-                         column=f"{where[-1]}function")
+                         key=f"{where[-1]}function")
     return tuple(names)
 
 
@@ -282,15 +282,15 @@ def _read_dataset(weights: h5py.File, h5_path: Path, key: str, shape: tuple[int,
     dataset = weights.get(key)
     if not isinstance(dataset, h5py.Dataset):
         raise InputError(f"missing dataset, expected a float array of shape {shape}",
-                         path=h5_path, column=key)
+                         path=h5_path, key=key)
     if dataset.shape != shape or dataset.dtype.kind != "f":
         raise InputError(
             f"expected a float array of shape {shape}, found {dataset.dtype} {dataset.shape}",
-            path=h5_path, column=key,
+            path=h5_path, key=key,
         )
     values = np.asarray(dataset[()], dtype=np.float64)
     if not np.all(np.isfinite(values)):
         raise InputError("weights must be finite, found NaN or infinity", path=h5_path,
-                         column=key)
+                         key=key)
     values.setflags(write=False)
     return values

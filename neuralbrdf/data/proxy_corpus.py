@@ -136,7 +136,7 @@ class ProxyMaterials:
         if n_blends and len(names) < 2:
             raise InputError(f"blends need two proxies or more, got {len(names)}", path=data_dir)
         if not 0.0 <= blend_fraction <= 1.0:
-            raise InputError(f"must lie in [0, 1], got {blend_fraction}", column="proxy_blend_fraction")
+            raise InputError(f"must lie in [0, 1], got {blend_fraction}", key="proxy_blend_fraction")
         self.names = tuple(names)
         self.networks = tuple(NbrdfNetwork.load(Path(data_dir) / f"{name}.h5") for name in self.names)
         # Every network's layers stacked, ``[materials, ...]``: one batched evaluation for all of them.

@@ -37,6 +37,8 @@ from neuralbrdf.geometry import in_plane_of_incidence, spherical_pair_to_vectors
 
 RGB_CHANNELS = ("R", "G", "B")
 ANGLE_COLUMNS = ("theta_i", "phi_i", "theta_o", "phi_o")
+#: The angles of the signed in-plane table (:mod:`neuralbrdf.data.inplane_table`).
+INPLANE_ANGLE_COLUMNS = ("theta_i_signed", "theta_r_signed")
 WEIGHT_COLUMN = "weight"
 
 #: Negative values down to ``-max(NEGATIVE_RTOL · max|value|, NEGATIVE_ATOL)`` count as noise.
@@ -82,9 +84,10 @@ def clip_negatives(values: np.ndarray, source: str, what: str) -> np.ndarray:
 PAIR_RESOLUTION_DEG = 1e-6
 
 
-def _conflicting_repeat(angles, values, weight, lines) -> CellProblem | None:
+def conflicting_repeat(angles, values, weight, lines, angle_columns=ANGLE_COLUMNS) -> CellProblem | None:
     """First row repeating an earlier row's geometry with different values or weight.
 
+    ``angles`` is ``[N, K]`` in the order of ``angle_columns`` (the geometry as the file writes it).
     Exact repeats are kept (they are the same measurement twice); conflicting ones are refused,
     as the GCMS reader refuses repeated geometries.
     """
@@ -100,13 +103,25 @@ def _conflicting_repeat(angles, values, weight, lines) -> CellProblem | None:
     earlier = f"row {first_of_row[r]}" if lines is None else f"line {lines[first_of_row[r]]}"
     geometry = ", ".join(f"{a:g}" for a in angles[r])
     return CellProblem(
-        r, None, f"repeated geometry (theta_i, phi_i, theta_o, phi_o) = ({geometry}) with different values than {earlier}"
+        r, None, f"repeated geometry ({', '.join(angle_columns)}) = ({geometry}) with different values than {earlier}"
     )
+
+
+def value_problem(values, channel_names, weight) -> CellProblem | None:
+    """First BRDF value below the noise tolerance, or negative weight (cells already finite)."""
+    problem = negative_value_problem(values, channel_names, lambda r, k: f"negative BRDF value {values[r, k]:g}")
+    if problem or weight is None:
+        return problem
+    return first_flagged_cell(weight[:, None] < 0, [WEIGHT_COLUMN], lambda r, k: f"negative weight {weight[r]:g}")
+
+
+#: Where a polar angle outside its range may come from (an angle that is not from the normal).
+THETA_RANGE_HINT = "polar angles are measured from the normal"
 
 
 def _table_cell_problem(angles, values, channel_names, weight, lines=None) -> CellProblem | None:
     """First non-finite cell, angle out of range, value below the noise tolerance, bad weight or
-    conflicting repeated geometry (:func:`_conflicting_repeat`).
+    conflicting repeated geometry (:func:`conflicting_repeat`).
 
     ``angles`` is ``[N, 4]`` in :data:`ANGLE_COLUMNS` order, ``values`` ``[N, C]``; ``lines`` (file
     line of each row), if given, locates the earlier row of a repeat.
@@ -127,21 +142,12 @@ def _table_cell_problem(angles, values, channel_names, weight, lines=None) -> Ce
         (angles < 0) | ~below_top,
         ANGLE_COLUMNS,
         lambda r, k: (
-            f"angle {angles[r, k]:g}° outside {'[0, 90]' if is_theta[k] else '[0, 360)'} degrees"
+            f"angle {angles[r, k]:g}° outside [0, 90] degrees ({THETA_RANGE_HINT}; signed in-plane angles go in "
+            f"an in-plane table: {', '.join(INPLANE_ANGLE_COLUMNS)})" if is_theta[k]
+            else f"angle {angles[r, k]:g}° outside [0, 360) degrees"
         ),
     )
-    if problem:
-        return problem
-    problem = negative_value_problem(values, channel_names, lambda r, k: f"negative BRDF value {values[r, k]:g}")
-    if problem:
-        return problem
-    if weight is not None:
-        problem = first_flagged_cell(
-            weight[:, None] < 0, [WEIGHT_COLUMN], lambda r, k: f"negative weight {weight[r]:g}"
-        )
-        if problem:
-            return problem
-    return _conflicting_repeat(angles, values, weight, lines)
+    return problem or value_problem(values, channel_names, weight) or conflicting_repeat(angles, values, weight, lines)
 
 
 # --------------------------------------------------------------------------- the table
@@ -292,23 +298,25 @@ class BrdfTable:
 
 # --------------------------------------------------------------------------- file I/O
 
-GCMS_HINT = " (a GCMS raw file? load it with load_measurement and its Munsell reference)"
+SIGNED_HINT = (f" (signed in-plane angles? an in-plane table names them {', '.join(INPLANE_ANGLE_COLUMNS)}; a GCMS raw "
+               "file starts theta_i, theta_r, 390, ..., 730)")
 
 
-def _value_columns(csv_file: NumericCsv) -> tuple[list[str], np.ndarray | None]:
-    """Names of the value columns in file order, and the wavelengths (``None`` for RGB)."""
+def value_columns(csv_file: NumericCsv, angle_columns=ANGLE_COLUMNS) -> tuple[list[str], np.ndarray | None]:
+    """Names of the value columns in file order, and the wavelengths (``None`` for RGB), of a
+    table whose geometry is in ``angle_columns``."""
     rgb, spectral = [], []
     for name in csv_file.header:
-        if name in ANGLE_COLUMNS or name == WEIGHT_COLUMN:
+        if name in angle_columns or name == WEIGHT_COLUMN:
             continue
         if name in RGB_CHANNELS:
             rgb.append(name)
         elif parse_wavelength(name) is not None:
             spectral.append(name)
         else:
-            hint = GCMS_HINT if name == "theta_r" else ""
+            hint = SIGNED_HINT if name in ("theta_r", *INPLANE_ANGLE_COLUMNS) else ""
             raise csv_file.header_error(
-                f"unknown column; expected {', '.join(ANGLE_COLUMNS)}, then R, G, B or wavelengths "
+                f"unknown column; expected {', '.join(angle_columns)}, then R, G, B or wavelengths "
                 f"in nm, and optionally {WEIGHT_COLUMN}{hint}",
                 column=name,
             )
@@ -334,6 +342,13 @@ def _value_columns(csv_file: NumericCsv) -> tuple[list[str], np.ndarray | None]:
     return spectral, wavelengths
 
 
+def required_columns(csv_file: NumericCsv, columns, what: str) -> None:
+    """Refuse a header without every one of ``columns`` (``what`` names the format)."""
+    for name in columns:
+        if name not in csv_file.header:
+            raise csv_file.header_error(f"missing required column; {what} starts {', '.join(columns)}", column=name)
+
+
 def read_table(path: str | os.PathLike[str]) -> BrdfTable:
     """Read a BRDF sample table (docs/formats.md#brdf-sample-table), rejecting any defect with file, line and column."""
     return table_from_csv(read_numeric_csv(path))
@@ -341,12 +356,8 @@ def read_table(path: str | os.PathLike[str]) -> BrdfTable:
 
 def table_from_csv(csv_file: NumericCsv) -> BrdfTable:
     """The BRDF sample table held by a parsed CSV file (see :func:`read_table`)."""
-    value_names, wavelengths = _value_columns(csv_file)
-    for name in ANGLE_COLUMNS:
-        if name not in csv_file.header:
-            raise csv_file.header_error(
-                f"missing required column; a table starts {', '.join(ANGLE_COLUMNS)}", column=name
-            )
+    value_names, wavelengths = value_columns(csv_file)
+    required_columns(csv_file, ANGLE_COLUMNS, "a table")
     weight = csv_file.column(WEIGHT_COLUMN) if WEIGHT_COLUMN in csv_file.header else None
     values = np.stack([csv_file.column(name) for name in value_names], axis=1)
     angles = np.stack([csv_file.column(name) for name in ANGLE_COLUMNS], axis=1)
@@ -359,8 +370,14 @@ def table_from_csv(csv_file: NumericCsv) -> BrdfTable:
 
 def write_table(table: BrdfTable, path: str | os.PathLike[str]) -> None:
     """Write ``table`` atomically in the canonical column order; numbers round-trip exactly."""
-    header = [*ANGLE_COLUMNS, *table.channel_names]
-    data = np.concatenate([table._angles(), table.values], axis=1)
+    write_with_geometry(table, ANGLE_COLUMNS, table._angles(), path)
+
+
+def write_with_geometry(table: BrdfTable, angle_columns, angles: np.ndarray, path: str | os.PathLike[str]) -> None:
+    """Write ``table`` atomically with its geometry as ``angles`` ``[N, K]`` under ``angle_columns``,
+    then its value columns and weight."""
+    header = [*angle_columns, *table.channel_names]
+    data = np.concatenate([angles, table.values], axis=1)
     if table.weight is not None:
         header.append(WEIGHT_COLUMN)
         data = np.concatenate([data, table.weight[:, None]], axis=1)

@@ -107,10 +107,10 @@ class AbcBounds:
             lo, hi = getattr(self, name)
             if not (0 < lo < hi and (math.isfinite(hi) or name == "C")):
                 rule = "0 < low < high (high may be .inf)" if name == "C" else "0 < low < high < inf"
-                raise InputError(f"bounds must satisfy {rule}, got {[lo, hi]}", column=f"model.bounds.{name}")
+                raise InputError(f"bounds must satisfy {rule}, got {[lo, hi]}", key=f"model.bounds.{name}")
         if not self.C[0] < GAUSSIAN_LIMIT_C:
             raise InputError(f"the lower bound of C must be below {GAUSSIAN_LIMIT_C:g}, the C of a Gaussian-limit "
-                             f"fit; got {self.C[0]:g}", column="model.bounds.C")
+                             f"fit; got {self.C[0]:g}", key="model.bounds.C")
 
     @classmethod
     def from_config(cls, bounds: dict | None) -> AbcBounds:
@@ -119,11 +119,11 @@ class AbcBounds:
         values = {}
         for key, pair in (bounds or {}).items():
             if key not in fields:
-                raise InputError(f"unknown bound; expected one of {', '.join(fields)}", column=f"model.bounds.{key}")
+                raise InputError(f"unknown bound; expected one of {', '.join(fields)}", key=f"model.bounds.{key}")
             try:
                 low, high = (float(v) for v in pair)
             except (TypeError, ValueError):
-                raise InputError(f"expected [low, high], got {pair!r}", column=f"model.bounds.{key}") from None
+                raise InputError(f"expected [low, high], got {pair!r}", key=f"model.bounds.{key}") from None
             values[key] = (low, high)
         return cls(**values)
 

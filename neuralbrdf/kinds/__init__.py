@@ -134,11 +134,11 @@ def names() -> list[str]:
     return sorted(_discover())
 
 
-def get(name: str, path: str | os.PathLike[str] | None = None, column: str | None = None) -> Kind:
+def get(name: str, path: str | os.PathLike[str] | None = None, key: str | None = None) -> Kind:
     """The kind called ``name``, else :class:`InputError` listing the registered ones."""
     kinds = _discover()
     if name not in kinds:
-        raise InputError(f"unknown model kind {name!r}; expected one of {names()}", path=path, column=column)
+        raise InputError(f"unknown model kind {name!r}; expected one of {names()}", path=path, key=key)
     return kinds[name]
 
 
@@ -176,7 +176,7 @@ def contract_metadata(
 
 
 def _kind_details(name: str, metadata: Mapping[str, str], path, is_spectral: bool) -> object:
-    kind = get(name, path=path, column=onnx_contract.KIND_KEY)
+    kind = get(name, path=path, key=onnx_contract.KIND_KEY)
     if kind.spectral_only and not is_spectral:
         raise InputError(f"a {kind.name} model must take a 'wavelength' input", path=path)
     return kind.read_metadata(metadata, path, is_spectral)
@@ -201,7 +201,7 @@ def checkpoint_kind(checkpoint: dict, path: str | os.PathLike[str]) -> Kind:
     if name is None or name not in {kind.name for kind in trained}:
         found = "no such key" if name is None else repr(name)
         raise InputError(
-            f"unknown checkpoint kind ({found}); expected one of {expected}", path=path, column=CHECKPOINT_KIND_KEY
+            f"unknown checkpoint kind ({found}); expected one of {expected}", path=path, key=CHECKPOINT_KIND_KEY
         )
     return get(name)
 
@@ -254,7 +254,7 @@ def load_exportable(ckpt: str | os.PathLike[str], material: str | None = None) -
         exportable = kind.from_checkpoint(checkpoint, path, material)
     except InputError as error:
         if error.path is None:  # raised by a constructor that does not know the file
-            raise InputError(error.reason, path=path, column=error.column) from None
+            raise InputError(error.reason, path=path, column=error.column, key=error.key) from None
         raise
     except (KeyError, TypeError, ValueError, RuntimeError, AttributeError) as error:
         # load_state_dict and friends on a checkpoint of the right kind but wrong content

@@ -72,15 +72,15 @@ def read_metadata(metadata: Mapping[str, str], path, is_spectral: bool) -> AbcMe
     if not is_spectral:
         for key, values in ((KD_KEY, kd), (A_KEY, A)):
             if len(values) != 3:
-                raise InputError(f"an RGB ABC model needs 3 values, found {len(values)}", path=path, column=key)
+                raise InputError(f"an RGB ABC model needs 3 values, found {len(values)}", path=path, key=key)
     if len(kd) != len(A):
-        raise InputError(f"ABC kd has {len(kd)} channels but A has {len(A)}", path=path, column=A_KEY)
+        raise InputError(f"ABC kd has {len(kd)} channels but A has {len(A)}", path=path, key=A_KEY)
     B = metadata_float(metadata, B_KEY, path)
     C = metadata_float(metadata, C_KEY, path)
     eta = metadata_float(metadata, ETA_KEY, path)
     for key, value, ok, rule in ((B_KEY, B, B >= 0.0, ">= 0"), (C_KEY, C, C >= 0.0, ">= 0"), (ETA_KEY, eta, eta > 0.0, "> 0")):
         if not ok:
-            raise InputError(f"metadata value {value!r} must be {rule}", path=path, column=key)
+            raise InputError(f"metadata value {value!r} must be {rule}", path=path, key=key)
     return AbcMetadata(kd=kd, A=A, B=B, C=C, eta=eta)
 
 
@@ -102,7 +102,7 @@ def exportable(parameters: AbcParameters, material: str, provenance_text: str) -
 def from_checkpoint(checkpoint: dict, path: Path, material: str | None):
     for key in ("abc_parameters", "material"):
         if key not in checkpoint:
-            raise InputError("ABC checkpoint lacks this key", path=path, column=key)
+            raise InputError("ABC checkpoint lacks this key", path=path, key=key)
     parameters = AbcParameters.from_dict(checkpoint["abc_parameters"], source=str(path))
     name = pick_material([str(checkpoint["material"])], material, path)
     return exportable(parameters, name, provenance(checkpoint, path))

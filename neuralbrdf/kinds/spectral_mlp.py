@@ -35,7 +35,7 @@ def from_checkpoint(checkpoint: dict, path: Path, material: str | None) -> Expor
 
     for key in ("state_dict", "hyper_parameters"):
         if key not in checkpoint:
-            raise InputError("spectral MLP checkpoint lacks this key", path=path, column=key)
+            raise InputError("spectral MLP checkpoint lacks this key", path=path, key=key)
     accepted = inspect.signature(SpectralMLP).parameters
     hparams = {k: v for k, v in dict(checkpoint["hyper_parameters"]).items() if k in accepted}
     state = checkpoint["state_dict"]

@@ -28,14 +28,14 @@ def read_nodes(metadata: Mapping[str, str], path, is_spectral: bool) -> tuple[in
     expected = 4 if is_spectral else 3
     text = metadata.get(NODES_KEY)
     if text is None:
-        raise InputError("a table model names its node counts", path=path, column=NODES_KEY)
+        raise InputError("a table model names its node counts", path=path, key=NODES_KEY)
     try:
         nodes = tuple(int(part) for part in text.split("x"))
     except ValueError:
         nodes = ()
     if len(nodes) != expected or min(nodes) < 2:
         raise InputError(f"expected {expected} node counts >= 2 like '32 x 16 x 8{' x 16' if is_spectral else ''}', "
-                         f"got {text!r}", path=path, column=NODES_KEY)
+                         f"got {text!r}", path=path, key=NODES_KEY)
     return nodes
 
 

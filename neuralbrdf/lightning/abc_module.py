@@ -44,7 +44,7 @@ class AbcFitModule(WritesKind, pl.LightningModule):
         super().__init__()
         for key, value, least in (("n_starts", n_starts, 1), ("max_evaluations", max_evaluations, 1), ("seed", seed, 0)):
             if isinstance(value, bool) or not isinstance(value, int) or value < least:
-                raise InputError(f"expected an integer >= {least}, got {value!r}", column=f"model.{key}")
+                raise InputError(f"expected an integer >= {least}, got {value!r}", key=f"model.{key}")
         self.save_hyperparameters()
         self.automatic_optimization = False
         self.bounds = AbcBounds.from_config(bounds)

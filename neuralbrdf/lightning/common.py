@@ -1,9 +1,14 @@
 """What the Lightning modules share: the optimiser factory, the kind written into checkpoints,
-and the collate function of data modules whose batches are whole materials."""
+the collate function of data modules whose batches are whole materials, and the option that reads
+a measurement whose numbers look like a unit slip as it is."""
 
 from __future__ import annotations
 
 from neuralbrdf.kinds import CHECKPOINT_KIND_KEY
+
+#: How a fit reads its ``data.path`` as it is (:mod:`neuralbrdf.data.units`): every data module
+#: that reads a measurement takes ``trust_units``.
+TRUST_UNITS_OPTION = "--data.trust_units true"
 
 
 def scheduled_optimizer(groups, optimizer, lr_scheduler, interval: str):

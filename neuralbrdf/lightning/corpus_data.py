@@ -91,7 +91,7 @@ def _whole_number(name: str, value, minimum: int = 1) -> None:
     """Refuse ``value`` unless it is an ``int`` (not a ``bool``) of at least ``minimum`` (1 or 0)."""
     if not isinstance(value, int) or isinstance(value, bool) or value < minimum:
         kind = "positive" if minimum == 1 else "non-negative"
-        raise InputError(f"must be a {kind} integer, got {value!r}", column=name)
+        raise InputError(f"must be a {kind} integer, got {value!r}", key=name)
 
 
 class CorpusDataModule(pl.LightningDataModule):
@@ -151,16 +151,16 @@ class CorpusDataModule(pl.LightningDataModule):
     ) -> None:
         super().__init__()
         if not isinstance(num_workers, int) or num_workers < 0:
-            raise InputError(f"must be a non-negative integer, got {num_workers!r}", column="num_workers")
+            raise InputError(f"must be a non-negative integer, got {num_workers!r}", key="num_workers")
         for name in ("n_analytic", "batch_size", "batches_per_epoch", "val_batches"):
             _whole_number(name, locals()[name])
         if not 0.0 <= uniform_fraction <= 1.0:
-            raise InputError(f"must lie in [0, 1], got {uniform_fraction}", column="uniform_fraction")
+            raise InputError(f"must lie in [0, 1], got {uniform_fraction}", key="uniform_fraction")
         if not 0.0 < proxy_fraction < 1.0:
-            raise InputError(f"must lie in (0, 1), got {proxy_fraction}", column="proxy_fraction")
+            raise InputError(f"must lie in (0, 1), got {proxy_fraction}", key="proxy_fraction")
         _whole_number("proxy_blends", proxy_blends, minimum=0)
         if proxy_blends and proxy_dir is None:
-            raise InputError("blends are made from measured proxies: set proxy_dir too, or proxy_blends: 0", column="proxy_blends")
+            raise InputError("blends are made from measured proxies: set proxy_dir too, or proxy_blends: 0", key="proxy_blends")
         self.save_hyperparameters()
         self.materials = generate_materials(n_analytic, seed, tuple(archetype_weights), thin_film_probability)
         self.proxies = None

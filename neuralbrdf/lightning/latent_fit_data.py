@@ -12,8 +12,10 @@
   ``plan`` key, else the data module's);
 * ``{merl: FILE.binary}`` — a MERL measurement, sampled on ``plan`` likewise.
 
-Each may carry ``name`` (default: the file stem or virtual material).  ``--data.path FILE``
-(with ``--data.reference``) drops a single measurement into any latent-fit config.
+Each may carry ``name`` (default: the file stem or virtual material), and a ``path`` may carry
+``trust_units: true`` (read as it is where its numbers look like a unit slip,
+:mod:`neuralbrdf.data.units`).  ``--data.path FILE`` (with ``--data.reference`` and
+``--data.trust_units``) drops a single measurement into any latent-fit config.
 
 Values are linear sRGB (spectral tables converted, docs/formats.md#spectral-to-linear-srgb) unless ``spectral`` is set (or
 automatic and every source has a spectrum): then every source must be spectral on one wavelength
@@ -38,7 +40,8 @@ from neuralbrdf.data.low2012 import load_low2012_parameters
 from neuralbrdf.data.plans import PLAN_NAMES
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
-from neuralbrdf.lightning.common import identity_collate
+from neuralbrdf.data.units import overridden_by
+from neuralbrdf.lightning.common import TRUST_UNITS_OPTION, identity_collate
 from neuralbrdf.sources import check_source, load_material, source_name
 
 
@@ -114,9 +117,10 @@ class LatentFitData(pl.LightningDataModule):
     ----------
     sources:
         One mapping per material, in the vocabulary of :mod:`neuralbrdf.sources`.
-    path, reference:
+    path, reference, trust_units:
         A single measurement to fit instead of ``sources`` (``--data.path FILE`` drops a user's
-        BRDF table, or GCMS raw file with its Munsell N9 ``reference``, into any config).
+        BRDF table, or GCMS raw file with its Munsell N9 ``reference``, into any config), read as
+        it is with ``trust_units``.
     plan:
         Sampling plan (docs/measure.md#sampling-plans) of NBRDF and MERL sources without their own ``plan``.
     eval_plan:
@@ -145,7 +149,7 @@ class LatentFitData(pl.LightningDataModule):
 
     def __init__(
         self,
-        sources: list[dict[str, str]] | None = None,
+        sources: list[dict[str, str | bool]] | None = None,
         path: str | None = None,
         reference: str | None = None,
         plan: str = "DS1",
@@ -156,25 +160,34 @@ class LatentFitData(pl.LightningDataModule):
         batch_values: int | None = None,
         seed: int = 0,
         spectral: bool | None = False,
+        trust_units: bool = False,
     ) -> None:
         super().__init__()
+        #: How a unit slip in each source is overridden (:mod:`neuralbrdf.data.units`).
+        self._override = [TRUST_UNITS_OPTION]
         if path is not None:
-            sources = [{"path": path} if reference is None else {"path": path, "reference": reference}]
+            sources = [{"path": path, **({} if reference is None else {"reference": reference}),
+                        **({"trust_units": True} if trust_units else {})}]
         elif reference is not None:
-            raise InputError("data.reference goes with a GCMS raw data.path", column="data.reference")
+            raise InputError("data.reference goes with a GCMS raw data.path", key="data.reference")
+        elif trust_units:
+            raise InputError("data.trust_units goes with data.path (in data.sources, a source's own trust_units)",
+                             key="data.trust_units")
         if not sources:
-            raise InputError("at least one source is needed", column="data.sources")
+            raise InputError("at least one source is needed", key="data.sources")
         for plan_name, key in ((plan, "data.plan"), (eval_plan, "data.eval_plan")):
             if plan_name is not None and plan_name not in PLAN_NAMES:
-                raise InputError(f"unknown plan {plan_name!r}; expected one of {', '.join(PLAN_NAMES)}", column=key)
+                raise InputError(f"unknown plan {plan_name!r}; expected one of {', '.join(PLAN_NAMES)}", key=key)
         if not isinstance(steps_per_epoch, int) or steps_per_epoch < 1:
-            raise InputError(f"must be a positive integer, got {steps_per_epoch!r}", column="data.steps_per_epoch")
+            raise InputError(f"must be a positive integer, got {steps_per_epoch!r}", key="data.steps_per_epoch")
         self.sources = [check_source(s, f"data.sources[{i}]") for i, s in enumerate(sources)]
+        if path is None:
+            self._override = [f"trust_units: true in data.sources[{i}]" for i in range(len(self.sources))]
         self.material_names = [source_name(s) for s in self.sources]
         duplicates = sorted({n for n in self.material_names if self.material_names.count(n) > 1})
         if duplicates:
             raise InputError(
-                f"material names must be unique, {duplicates} repeat (set 'name')", column="data.sources"
+                f"material names must be unique, {duplicates} repeat (set 'name')", key="data.sources"
             )
         if low2012_abc is not None and not os.path.isfile(low2012_abc):  # optional: said at once, then skipped
             warnings.warn(f"data.low2012_abc: {low2012_abc} not found; no comparison with Löw et al.'s ABC fits",
@@ -183,10 +196,10 @@ class LatentFitData(pl.LightningDataModule):
         self.plan, self.eval_plan, self.low2012_abc = plan, eval_plan, low2012_abc
         for key, value in (("batch_size", batch_size), ("batch_values", batch_values)):
             if value is not None and (not isinstance(value, int) or isinstance(value, bool) or value < 1):
-                raise InputError(f"must be a positive integer or null, got {value!r}", column=f"data.{key}")
+                raise InputError(f"must be a positive integer or null, got {value!r}", key=f"data.{key}")
         if batch_size is not None and batch_values is not None:
             raise InputError("give data.batch_size (pairs) or data.batch_values (values), not both",
-                             column="data.batch_values")
+                             key="data.batch_values")
         self.steps_per_epoch, self.batch_size, self.seed = steps_per_epoch, batch_size, seed
         self.batch_values = batch_values
         self.spectral = spectral
@@ -194,7 +207,7 @@ class LatentFitData(pl.LightningDataModule):
             rgb = [name for name, source in zip(self.material_names, self.sources) if "nbrdf" in source]
             if rgb:
                 raise InputError(f"NBRDF proxies are RGB and cannot enter a spectral fit: {rgb}; "
-                                 "fit them with data.spectral: false", column="data.sources")
+                                 "fit them with data.spectral: false", key="data.sources")
         #: The wavelength grid (nm) of a spectral fit, once set up; ``None`` for RGB.
         self.wavelengths_nm: np.ndarray | None = None
         self._steps: _Steps | None = None
@@ -202,16 +215,18 @@ class LatentFitData(pl.LightningDataModule):
         self.eval_sets: list[EvalSet] = []
 
     def _material(self, index: int, source: dict[str, str]):
-        return load_material(
-            path=source.get("path"),
-            reference=source.get("reference"),
-            nbrdf=source.get("nbrdf"),
-            merl=source.get("merl"),
-            virtual=source.get("virtual"),
-            plan=source.get("plan", self.plan),
-            eval_plan=self.eval_plan if "path" not in source else None,
-            name=self.material_names[index],
-        )
+        with overridden_by(self._override[index]):
+            return load_material(
+                path=source.get("path"),
+                reference=source.get("reference"),
+                nbrdf=source.get("nbrdf"),
+                merl=source.get("merl"),
+                virtual=source.get("virtual"),
+                plan=source.get("plan", self.plan),
+                eval_plan=self.eval_plan if "path" not in source else None,
+                name=self.material_names[index],
+                trust_units=source.get("trust_units", False),
+            )
 
     def _samples(self, index: int, source: dict[str, str], material, abc_fits) -> EvalSet:
         name = self.material_names[index]

@@ -154,11 +154,11 @@ class LatentFitModule(WritesKind, LatentOnlyFit):
         check_loss_domain(loss_domain, "model.loss_domain")
         check_fit_settings(init_candidates, init_starts, init_screen_steps, early_stop_patience, early_stop_tolerance)
         if init_candidates and latent_init is not None:
-            raise InputError("latent_init and init_candidates exclude each other", column="model.init_candidates")
+            raise InputError("latent_init and init_candidates exclude each other", key="model.init_candidates")
         check_weight(latent_prior_weight, "model.latent_prior_weight")
         if latent_prior_codes not in PRIOR_CODES:
             raise InputError(f"must be one of {', '.join(PRIOR_CODES)}, got {latent_prior_codes!r}",
-                             column="model.latent_prior_codes")
+                             key="model.latent_prior_codes")
         path = resolve_pretrained(checkpoint)
         if checkpoint is None and not path.is_file():
             raise InputError(f"the default pretrained NLB checkpoint is missing; make it with `{PRETRAIN_COMMAND}`, "

@@ -56,24 +56,24 @@ def check_fit_settings(init_candidates: int, init_starts: int, init_screen_steps
                        early_stop_patience: int | None, early_stop_tolerance: float) -> None:
     """:class:`InputError` naming the ``model.*`` key of the first invalid setting."""
     if not isinstance(init_candidates, int) or init_candidates < 0:
-        raise InputError(f"must be a non-negative integer, got {init_candidates!r}", column="model.init_candidates")
+        raise InputError(f"must be a non-negative integer, got {init_candidates!r}", key="model.init_candidates")
     for key, value in (("init_starts", init_starts), ("init_screen_steps", init_screen_steps)):
         if not isinstance(value, int) or value < 1:
-            raise InputError(f"must be a positive integer, got {value!r}", column=f"model.{key}")
+            raise InputError(f"must be a positive integer, got {value!r}", key=f"model.{key}")
     if init_starts > 1 and not init_candidates:
         raise InputError("several starts need start candidates (model.init_candidates > 0)",
-                         column="model.init_starts")
+                         key="model.init_starts")
     if early_stop_patience is not None and (not isinstance(early_stop_patience, int) or early_stop_patience < 1):
         raise InputError(f"must be a positive integer or null, got {early_stop_patience!r}",
-                         column="model.early_stop_patience")
+                         key="model.early_stop_patience")
     if not early_stop_tolerance >= 0:
-        raise InputError(f"must be non-negative, got {early_stop_tolerance}", column="model.early_stop_tolerance")
+        raise InputError(f"must be non-negative, got {early_stop_tolerance}", key="model.early_stop_tolerance")
 
 
 def check_weight(value, key: str) -> None:
     """:class:`InputError` unless ``value`` is a finite non-negative number (a loss weight)."""
     if isinstance(value, bool) or not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-        raise InputError(f"must be a finite non-negative number, got {value!r}", column=key)
+        raise InputError(f"must be a finite non-negative number, got {value!r}", key=key)
 
 
 class LatentOnlyFit(pl.LightningModule):
@@ -128,7 +128,7 @@ class LatentOnlyFit(pl.LightningModule):
         if not self.material_names:
             data = getattr(self.trainer, "datamodule", None)
             if data is None or not hasattr(data, "material_names"):
-                raise InputError("the latent fit needs a LatentFitData data module (data.class_path)", column="data")
+                raise InputError("the latent fit needs a LatentFitData data module (data.class_path)", key="data")
             self.build_codes(data.material_names)
             if self._candidates is not None:
                 self.choose_starts(data.train_samples)

@@ -5,7 +5,8 @@ from __future__ import annotations
 import pytorch_lightning as pl
 from torch.utils.data import DataLoader
 
-from neuralbrdf.lightning.common import identity_collate
+from neuralbrdf.data.units import overridden_by
+from neuralbrdf.lightning.common import TRUST_UNITS_OPTION, identity_collate
 from neuralbrdf.sources import MaterialData, load_material
 
 
@@ -32,6 +33,9 @@ class SingleMaterialData(pl.LightningDataModule):
         log-cosine RMSE); ``None``: no such evaluation.
     name:
         Material name (default: the file stem or the virtual material).
+    trust_units:
+        Read ``path`` as it is even where its numbers look like a unit slip
+        (:mod:`neuralbrdf.data.units`).
     """
 
     def __init__(
@@ -44,13 +48,14 @@ class SingleMaterialData(pl.LightningDataModule):
         plan: str = "DS1",
         eval_plan: str | None = "low",
         name: str | None = None,
+        trust_units: bool = False,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
         if path is None and nbrdf is None and merl is None and virtual is None:
             virtual = "gold"
         self._kwargs = dict(path=path, reference=reference, nbrdf=nbrdf, merl=merl, virtual=virtual, plan=plan,
-                            eval_plan=eval_plan, name=name)
+                            eval_plan=eval_plan, name=name, trust_units=trust_units)
         self.material: MaterialData | None = None
 
     def prepare_data(self) -> None:
@@ -59,7 +64,8 @@ class SingleMaterialData(pl.LightningDataModule):
 
     def setup(self, stage: str | None = None) -> None:
         if self.material is None:
-            self.material = load_material(**self._kwargs)
+            with overridden_by(TRUST_UNITS_OPTION):
+                self.material = load_material(**self._kwargs)
 
     def transfer_batch_to_device(self, batch, device, dataloader_idx):
         return batch  # a MaterialData of NumPy tables, used on the CPU as it is

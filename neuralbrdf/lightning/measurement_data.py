@@ -51,7 +51,8 @@ from neuralbrdf.sources import load_fit_measurement
 from neuralbrdf.data.plans import SPECTRAL_MLP_TEST_THETA_I, every_third_theta_i_split, spectral_mlp_split
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
-from neuralbrdf.lightning.common import identity_collate
+from neuralbrdf.data.units import overridden_by
+from neuralbrdf.lightning.common import TRUST_UNITS_OPTION, identity_collate
 from neuralbrdf.virtual.instrument import default_data_path
 from neuralbrdf.virtual.materials import REFERENCE_MATERIAL
 
@@ -127,13 +128,13 @@ class EpochOfBatches(Dataset):
         return [self.batches[indices] for indices in self.batch_sampler]
 
 
-def load_inplane_spectral(path, reference=None) -> tuple[BrdfTable, np.ndarray, np.ndarray]:
+def load_inplane_spectral(path, reference=None, trust_units: bool = False) -> tuple[BrdfTable, np.ndarray, np.ndarray]:
     """A spectral measurement and its signed in-plane angles ``(table, theta_i, theta_r)``.
 
-    ``path`` is a spectral BRDF table or a GCMS raw file (then ``reference`` is its Munsell N9
-    file, see :func:`~neuralbrdf.sources.load_fit_measurement`).
+    ``path`` is a spectral BRDF table (spherical or signed in-plane) or a GCMS raw file (then
+    ``reference`` is its Munsell N9 file, see :func:`~neuralbrdf.sources.load_fit_measurement`).
     """
-    table = load_fit_measurement(path, reference)
+    table = load_fit_measurement(path, reference, trust_units)
     if not table.is_spectral:
         raise InputError("is an RGB table; the spectral MLP needs one column per wavelength (nm)", path=path)
     out_of_plane = np.flatnonzero(~table.in_plane_mask())
@@ -187,6 +188,9 @@ class MeasurementDataModule(pl.LightningDataModule):
         sanity check still scores whole pairs); ``None``: the whole split in one batch.
     num_workers:
         DataLoader worker processes (0: load in the main process; the data is in memory).
+    trust_units:
+        Read ``path`` as it is even where its numbers look like a unit slip
+        (:mod:`neuralbrdf.data.units`).
     """
 
     def __init__(
@@ -198,6 +202,7 @@ class MeasurementDataModule(pl.LightningDataModule):
         batch_size: int = 512,
         eval_batch_size: int | None = None,
         num_workers: int = 0,
+        trust_units: bool = False,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()  # recorded in checkpoints: where the model's data came from
@@ -216,6 +221,7 @@ class MeasurementDataModule(pl.LightningDataModule):
         self.batch_size = batch_size
         self.eval_batch_size = eval_batch_size
         self.num_workers = num_workers
+        self.trust_units = trust_units
         self._measurement: tuple[BrdfTable, np.ndarray, np.ndarray] | None = None
         self.train_samples: SpectralSamples | None = None
         self.test_samples: SpectralSamples | None = None
@@ -224,7 +230,8 @@ class MeasurementDataModule(pl.LightningDataModule):
     def measurement(self) -> tuple[BrdfTable, np.ndarray, np.ndarray]:
         """The table and its signed in-plane angles, read once (:func:`load_inplane_spectral`)."""
         if self._measurement is None:
-            self._measurement = load_inplane_spectral(self.path, self.reference)
+            with overridden_by(TRUST_UNITS_OPTION):
+                self._measurement = load_inplane_spectral(self.path, self.reference, self.trust_units)
         return self._measurement
 
     def prepare_data(self) -> None:

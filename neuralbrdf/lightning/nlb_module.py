@@ -68,7 +68,7 @@ class AutoDecoderPretraining(pl.LightningModule):
             raise InputError(
                 f"the model has {len(self.latents)} latents but the corpus has {corpus_size} materials "
                 "(analytic + measured proxies and their blends); set model.n_materials to that",
-                column="model.n_materials",
+                key="model.n_materials",
             )
         self.material_names = list(getattr(data, "material_names", ()))
         if self.hparams.warm_start and stage == "fit":
@@ -150,7 +150,7 @@ class NlbPretrainModule(AutoDecoderPretraining):
         super().__init__(optimizer, lr_scheduler)
         check_loss_domain(loss_domain)
         if not latent_lr_scale > 0:
-            raise InputError(f"must be positive, got {latent_lr_scale}", column="latent_lr_scale")
+            raise InputError(f"must be positive, got {latent_lr_scale}", key="latent_lr_scale")
         self.save_hyperparameters(ignore=["optimizer", "lr_scheduler"])
         self.network = NlbNetwork(latent_dim, width, depth, residual, half_vector)
         self.latents = LatentTable(n_materials, latent_dim, latent_init)

@@ -73,7 +73,7 @@ def wavelength_nodes(wavelengths_nm: np.ndarray, step_nm: float) -> np.ndarray:
     """Nodes at most ``step_nm`` apart, evenly spaced from the first to the last wavelength (nm)."""
     low, high = float(np.min(wavelengths_nm)), float(np.max(wavelengths_nm))
     if high <= low:
-        raise InputError(f"a spectral fit needs a wavelength range, got {low:g}..{high:g} nm", column="data")
+        raise InputError(f"a spectral fit needs a wavelength range, got {low:g}..{high:g} nm", key="data")
     return np.linspace(low, high, int(math.ceil((high - low) / step_nm - 1e-9)) + 1)
 
 
@@ -130,7 +130,7 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
             check_weight(locals()[key], f"model.{key}")
         if isinstance(node_step_nm, bool) or not (isinstance(node_step_nm, (int, float)) and node_step_nm > 0
                                                   and math.isfinite(node_step_nm)):
-            raise InputError(f"must be a positive number of nm, got {node_step_nm!r}", column="model.node_step_nm")
+            raise InputError(f"must be a positive number of nm, got {node_step_nm!r}", key="model.node_step_nm")
         path = resolve_pretrained(checkpoint, SPECTRAL_DEFAULT)
         self.save_hyperparameters(ignore=["optimizer", "lr_scheduler"])
         pretrained = load_spectral_pretrained(path)
@@ -176,7 +176,7 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
         if not self.material_names:
             data = getattr(self.trainer, "datamodule", None)
             if data is None or not hasattr(data, "material_names"):
-                raise InputError("the latent fit needs a LatentFitData data module (data.class_path)", column="data")
+                raise InputError("the latent fit needs a LatentFitData data module (data.class_path)", key="data")
             self.set_channels(data.wavelengths_nm)
             self._set_channel_scale(data.train_samples, len(data.material_names))
             if self._init_candidates:

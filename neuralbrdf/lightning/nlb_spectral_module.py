@@ -78,7 +78,7 @@ class SpectralNlbPretrainModule(AutoDecoderPretraining):
         super().__init__(optimizer, lr_scheduler)
         check_loss_domain(loss_domain)
         if not latent_lr_scale > 0:
-            raise InputError(f"must be positive, got {latent_lr_scale}", column="latent_lr_scale")
+            raise InputError(f"must be positive, got {latent_lr_scale}", key="latent_lr_scale")
         self.save_hyperparameters(ignore=["optimizer", "lr_scheduler"])
         self.network = SpectralNlbNetwork(shared_dim, channel_dim, width, depth, channel_layer, half_vector)
         self.latents = SpectralLatentTable(n_materials, shared_dim, channel_dim, CORPUS_CHANNELS, latent_init)
@@ -134,7 +134,7 @@ def load_spectral_pretrained(path: str | os.PathLike[str]) -> PretrainedSpectral
     except KeyError as exc:
         raise InputError(f"not a spectral NLB pretraining checkpoint: missing {exc.args[0]!r}", path=path) from None
     except InputError as error:
-        raise InputError(f"invalid architecture: {error.reason}", path=path, column=error.column) from None
+        raise InputError(f"invalid architecture: {error.reason}", path=path, column=error.column, key=error.key) from None
     prefix = "network."
     check_weights_match(lambda: SpectralNlbNetwork(**asdict(config)), state, path, prefix)
     if shared.ndim != 2 or channels.ndim != 3 or len(shared) != len(channels) \

@@ -129,7 +129,7 @@ class SpectralMlpModule(WritesKind, pl.LightningModule):
             )
         for name, value in (("gamma", gamma), ("rel_rmse_floor", rel_rmse_floor)):
             if not (np.isfinite(value) and value >= 0):
-                raise InputError(f"model.{name} must be a finite number >= 0, got {value}", column=name)
+                raise InputError(f"model.{name} must be a finite number >= 0, got {value}", key=f"model.{name}")
 
     def prepare_data(self) -> None:
         # the data module has read its measurement; nothing of the run is written yet

@@ -57,24 +57,24 @@ def load_lod_config(name: str | os.PathLike[str] = DEFAULT_CONFIG) -> LodConfig:
                 for name, cls in SECTIONS.items()}
     unknown = sorted(set(raw) - set(SECTIONS)) if isinstance(raw, dict) else []
     if unknown:
-        raise InputError(f"unknown section; expected {', '.join(SECTIONS)}", path=path, column=unknown[0])
+        raise InputError(f"unknown section; expected {', '.join(SECTIONS)}", path=path, key=unknown[0])
     return LodConfig(Path(path), **sections)
 
 
 def _build(cls, mapping, key: str, path):
     """An instance of dataclass ``cls`` from ``mapping`` (checked keys and types)."""
     if not isinstance(mapping, dict):
-        raise InputError(f"expected a mapping, got {type(mapping).__name__}", path=path, column=key)
+        raise InputError(f"expected a mapping, got {type(mapping).__name__}", path=path, key=key)
     fields = {f.name: f for f in dataclasses.fields(cls)}
     hints = typing.get_type_hints(cls)
     for name in mapping:
         if name not in fields:
-            raise InputError(f"unknown key; expected one of {', '.join(fields)}", path=path, column=f"{key}.{name}")
+            raise InputError(f"unknown key; expected one of {', '.join(fields)}", path=path, key=f"{key}.{name}")
     values = {}
     for name, field in fields.items():
         if name not in mapping:
             if field.default is dataclasses.MISSING and field.default_factory is dataclasses.MISSING:
-                raise InputError("missing", path=path, column=f"{key}.{name}")
+                raise InputError("missing", path=path, key=f"{key}.{name}")
             continue
         values[name] = _value(hints[name], mapping[name], f"{key}.{name}", path)
     return cls(**values)
@@ -92,11 +92,11 @@ def _value(hint, value, key: str, path):
         return _value(inner, value, key, path)
     if origin is tuple:
         if not isinstance(value, list):
-            raise InputError(f"expected a list, got {value!r}", path=path, column=key)
+            raise InputError(f"expected a list, got {value!r}", path=path, key=key)
         if len(args) == 2 and args[1] is Ellipsis:
             return tuple(_value(args[0], item, f"{key}[{i}]", path) for i, item in enumerate(value))
         if len(value) != len(args):
-            raise InputError(f"expected a list of {len(args)}, got {value!r}", path=path, column=key)
+            raise InputError(f"expected a list of {len(args)}, got {value!r}", path=path, key=key)
         return tuple(_value(a, item, f"{key}[{i}]", path) for i, (a, item) in enumerate(zip(args, value)))
     if isinstance(value, bool):  # YAML's true/false: a number field refuses it
         if hint is bool:
@@ -107,4 +107,4 @@ def _value(hint, value, key: str, path):
         return float(value)
     elif hint is str and isinstance(value, str):
         return value
-    raise InputError(f"expected {getattr(hint, '__name__', hint)}, got {value!r}", path=path, column=key)
+    raise InputError(f"expected {getattr(hint, '__name__', hint)}, got {value!r}", path=path, key=key)

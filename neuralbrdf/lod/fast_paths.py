@@ -23,11 +23,14 @@ model (:func:`~neuralbrdf.lod.distill.distill_student`; the teacher's samples of
 ``neuralbrdf.<output>.*`` of docs/formats.md#onnx-model-files) what it approximates, its error against its teacher —
 ``hemisphere_logcos_rmse`` (docs/evaluate.md#metrics) on the hemisphere pairs of
 :func:`~neuralbrdf.evaluation.scores.hemisphere_scores`, the student in float64 — and its
-relative cost: the student's Dr.Jit nanoseconds per query over the model's
-(:func:`~neuralbrdf.lod.ladder.drjit_costs`, one process, interleaved), for ``f_rgb`` over the
-model's cost times the wavelength count of the plugin's default sRGB rule (the evaluations
-per query the head replaces).  A student whose error exceeds ``max_hemisphere_logcos_rmse`` is
-not embedded: :class:`FastPathError` says so, and ``neuralbrdf export`` writes nothing.
+relative cost: the operations of the student's Dr.Jit kernel over the model's
+(:func:`~neuralbrdf.study.cost.drjit_operation_count`), for ``f_rgb`` over the model's times the
+wavelength count of the plugin's default sRGB rule (the evaluations per query the head
+replaces).  The cost is counted, not timed, and the distillation is seeded, so exporting one
+checkpoint twice writes the same bytes (a timed cost varied 0.10–0.14 between runs of one
+export; ``neuralbrdf ladder`` times its rungs).  A student whose error exceeds
+``max_hemisphere_logcos_rmse`` is not embedded: :class:`FastPathError` says so, and
+``neuralbrdf export`` writes nothing.
 
 The settings are ``configs/lod/default.yaml``, section ``fast_paths`` (:mod:`neuralbrdf.lod.config`).
 """
@@ -101,8 +104,6 @@ class FastPathSettings:
     distill: DistillSettings
     #: A student with a larger error against its teacher is refused (:class:`FastPathError`).
     max_hemisphere_logcos_rmse: float
-    cost_batches: tuple[int, int]
-    cost_rounds: int
     #: ``(cos θ, φ)`` strata of the hemisphere pairs of the recorded error (docs/evaluate.md#metrics by default).
     error_strata: tuple[int, int] = HEMISPHERE_STRATA
 
@@ -117,8 +118,8 @@ def _student(parent: OnnxEvaluator, output: str, settings: FastPathSettings) -> 
     module = distill_student(samples, shape.hidden, shape.hidden_layers, shape.activation, settings.distill, range_nm)
     error = float(hemisphere_scores(TorchEvaluator(module, teacher.is_spectral), teacher, strata=settings.error_strata)
                   ["hemisphere_logcos_rmse"])
-    what = "linear sRGB (31-wavelength integral, docs/formats.md#spectral-to-linear-srgb)" if output == OUTPUT_RGB else "f"
-    describes = f"{module.describe()} distilled from {settings.distill.n_pairs} samples of {model.path.name}'s {what}"
+    what = "linear sRGB of f (31-wavelength integral, docs/formats.md#spectral-to-linear-srgb)" if output == OUTPUT_RGB else "f"
+    describes = f"{module.describe()} distilled from {settings.distill.n_pairs} samples of the {what}"
     if not error <= settings.max_hemisphere_logcos_rmse:
         raise FastPathError(f"the {output} student's error against the model, hemisphere log-cos RMSE {error:.3g}, "
                             f"is above the bound {settings.max_hemisphere_logcos_rmse:g} (fast_paths."
@@ -135,14 +136,26 @@ def _rgb_rule_size(parent: OnnxEvaluator) -> int:
     return fit_rgb_rule(parent.model, parent.session, DEFAULT_RMS_TOLERANCE).size
 
 
+#: Queries of the evaluation whose Dr.Jit kernel is counted (the count does not depend on it).
+COUNTED_QUERIES = 1024
+
+
+def operation_counts(protos: dict[str, onnx.ModelProto], spectral: bool) -> dict[str, int]:
+    """Operations of the Dr.Jit kernel that evaluates each graph's output (spectral graphs: one
+    wavelength per query), :func:`~neuralbrdf.study.cost.drjit_operation_count`."""
+    from neuralbrdf.render.drjit_onnx import DrJitGraph
+    from neuralbrdf.study.cost import drjit_inputs, drjit_operation_count, probe_inputs
+
+    inputs = drjit_inputs(probe_inputs(COUNTED_QUERIES, spectral), spectral)
+    return {name: drjit_operation_count(DrJitGraph(proto), inputs) for name, proto in protos.items()}
+
+
 def add_fast_paths(model_path: str | Path, out: str | Path, outputs: tuple[str, ...], settings: FastPathSettings,
                    log=print) -> list[FastPath]:
     """Write ``out``: the model file ``model_path`` with the fast paths ``outputs`` (``f_rgb``,
     ``f_fast``) added (module docstring), atomically and only after the contract check accepted
     it; nothing is written on failure (:class:`FastPathError`, :class:`ExportValidationError`,
     :class:`~neuralbrdf.errors.InputError`)."""
-    from neuralbrdf.lod.ladder import drjit_costs
-
     model_path = Path(model_path)
     parent = OnnxEvaluator(model_path)
     model = parent.model
@@ -163,9 +176,7 @@ def add_fast_paths(model_path: str | Path, out: str | Path, outputs: tuple[str, 
         traced[output] = proto
         entries[output] = (describes, error)
         log(f"{output}: {describes}; log-cos RMSE {error:.4f}")
-    protos = {OUTPUT_F: model.proto, **traced}
-    # one wavelength per query for spectral graphs (an RGB graph ignores it)
-    costs = drjit_costs(protos, model.is_spectral, settings.cost_batches, settings.cost_rounds)
+    costs = operation_counts({OUTPUT_F: model.proto, **traced}, model.is_spectral)
     per_query = {OUTPUT_FAST: costs[OUTPUT_F]}
     if OUTPUT_RGB in traced:
         per_query[OUTPUT_RGB] = costs[OUTPUT_F] * _rgb_rule_size(parent)

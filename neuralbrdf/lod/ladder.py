@@ -28,7 +28,8 @@ colour variants and the sampler render it unchanged:
 * ``fast`` — a parent with a fast path ``f_fast`` (``neuralbrdf export --fast``,
   :mod:`neuralbrdf.lod.fast_paths`): the parent file itself with the plugin property ``fast``, its
   error and cost measured like a rung file's.  A model file without a ladder folder still offers
-  this rung to ``neuralbrdf select`` (:func:`embedded_ladder`, numbers from its metadata).
+  this rung to ``neuralbrdf select`` (:func:`embedded_ladder`, numbers from its metadata: the
+  cost there is counted in Dr.Jit operations, not timed, :mod:`neuralbrdf.lod.fast_paths`).
 
 Each rung records in its ``metadata_props`` (keys :data:`RUNG_KEY` …) what it approximates (the
 parent's file name and SHA-256), its error against the parent — ``hemisphere_logcos_rmse``
@@ -368,7 +369,7 @@ def read_ladder(folder: str | Path) -> Ladder:
     except (json.JSONDecodeError, UnicodeDecodeError) as error:
         raise InputError(f"not JSON: {error}", path=path) from None
     if not isinstance(document, dict) or document.get("format") != LADDER_FORMAT:
-        raise InputError(f"not a ladder file (format must be {LADDER_FORMAT!r})", path=path, column="format")
+        raise InputError(f"not a ladder file (format must be {LADDER_FORMAT!r})", path=path, key="format")
     try:
         parent = document["parent"]
         rungs = []
@@ -387,7 +388,7 @@ def read_ladder(folder: str | Path) -> Ladder:
     except (KeyError, TypeError, ValueError) as error:
         raise InputError(f"malformed ladder entry ({type(error).__name__}: {error})", path=path) from None
     if not ladder.rungs or ladder.rungs[0].name != FULL_RUNG:
-        raise InputError("a ladder lists its full model as rung 'full'", path=path, column="rungs")
+        raise InputError("a ladder lists its full model as rung 'full'", path=path, key="rungs")
     return ladder
 
 

@@ -75,11 +75,11 @@ class SpectralNlbConfig:
         for name in ("shared_dim", "channel_dim", "width", "depth"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-                raise InputError(f"must be a positive integer, got {value!r}", column=name)
+                raise InputError(f"must be a positive integer, got {value!r}", key=name)
         layer = self.channel_layer
         if not isinstance(layer, int) or isinstance(layer, bool) or not 0 <= layer < self.depth:
             raise InputError(f"must be an integer in [0, depth - 1 = {self.depth - 1}], got {layer!r}",
-                             column="channel_layer")
+                             key="channel_layer")
 
     @property
     def direction_features(self) -> int:

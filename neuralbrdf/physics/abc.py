@@ -173,11 +173,11 @@ class AbcParameters:
             try:
                 value = np.asarray(getattr(self, name), dtype=np.float64)
             except (TypeError, ValueError):
-                raise InputError(f"expected a list of numbers, got {getattr(self, name)!r}", column=name) from None
+                raise InputError(f"expected a list of numbers, got {getattr(self, name)!r}", key=name) from None
             if value.ndim != 1 or value.size == 0:
-                raise InputError(f"expected a non-empty 1-D list, got shape {value.shape}", column=name)
+                raise InputError(f"expected a non-empty 1-D list, got shape {value.shape}", key=name)
             if not np.all(np.isfinite(value)):
-                raise InputError("non-finite value", column=name)
+                raise InputError("non-finite value", key=name)
             return value
 
         def scalar(name, minimum, inclusive):
@@ -185,18 +185,18 @@ class AbcParameters:
             try:
                 value = float(value)
             except (TypeError, ValueError):
-                raise InputError(f"expected a number, got {value!r}", column=name) from None
+                raise InputError(f"expected a number, got {value!r}", key=name) from None
             if not math.isfinite(value) or value < minimum or (not inclusive and value == minimum):
                 bound = f">= {minimum:g}" if inclusive else f"> {minimum:g}"
-                raise InputError(f"expected a finite number {bound}, got {value!r}", column=name)
+                raise InputError(f"expected a finite number {bound}, got {value!r}", key=name)
             return value
 
         kd, A = vector("kd"), vector("A")
         if A.shape != kd.shape:
-            raise InputError(f"A has {A.size} channels but kd has {kd.size}", column="A")
+            raise InputError(f"A has {A.size} channels but kd has {kd.size}", key="A")
         for name, value in (("kd", kd), ("A", A)):
             if np.any(value < 0):
-                raise InputError(f"negative value {value.min():g}; expected >= 0", column=name)
+                raise InputError(f"negative value {value.min():g}; expected >= 0", key=name)
         object.__setattr__(self, "kd", kd)
         object.__setattr__(self, "A", A)
         object.__setattr__(self, "B", scalar("B", 0.0, True))
@@ -205,10 +205,10 @@ class AbcParameters:
         if self.wavelengths is not None:
             wavelengths = vector("wavelengths")
             if wavelengths.shape != kd.shape:
-                raise InputError(f"{wavelengths.size} wavelengths for {kd.size} channels", column="wavelengths")
+                raise InputError(f"{wavelengths.size} wavelengths for {kd.size} channels", key="wavelengths")
             object.__setattr__(self, "wavelengths", wavelengths)
         elif kd.size != 3:
-            raise InputError(f"{kd.size} channels without wavelengths; RGB parameters have 3", column="kd")
+            raise InputError(f"{kd.size} channels without wavelengths; RGB parameters have 3", key="kd")
 
     @property
     def n_channels(self) -> int:
@@ -240,11 +240,11 @@ class AbcParameters:
         required = ("kd", "A", "B", "C", "eta")
         for key in required:
             if key not in mapping:
-                raise InputError("missing ABC parameter", path=source, column=key)
+                raise InputError("missing ABC parameter", path=source, key=key)
         for key in mapping:
             if key not in (*required, "wavelengths"):
-                raise InputError(f"unknown key; expected {', '.join(required)}, wavelengths", path=source, column=key)
+                raise InputError(f"unknown key; expected {', '.join(required)}, wavelengths", path=source, key=key)
         try:
             return cls(**{key: mapping[key] for key in (*required, "wavelengths") if key in mapping})
         except InputError as error:
-            raise InputError(error.reason, path=source, column=error.column) from None
+            raise InputError(error.reason, path=source, column=error.column, key=error.key) from None

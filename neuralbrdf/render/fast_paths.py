@@ -38,7 +38,7 @@ def flag(props, name: str, default: bool) -> bool:
         return value
     text = str(value).strip().lower()
     if text not in ("true", "false"):
-        raise InputError(f"expected true or false, got {value!r}", column=name)
+        raise InputError(f"expected true or false, got {value!r}", key=name)
     return text == "true"
 
 
@@ -51,5 +51,5 @@ def chosen_output(model: OnnxModel, spectral_variant: bool, fast: bool, rgb_head
         return OUTPUT_F
     if OUTPUT_FAST not in model.fast_paths:
         raise InputError(f"property '{FAST_PROPERTY}' asks for a fast path and the model has none; add one with "
-                         f"'{ADD_COMMAND}'", path=model.path, column=FAST_PROPERTY)
+                         f"'{ADD_COMMAND}'", path=model.path, key=FAST_PROPERTY)
     return OUTPUT_FAST

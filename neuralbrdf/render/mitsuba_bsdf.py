@@ -490,13 +490,13 @@ def _read_properties(props: mi.Properties) -> tuple[Path, str, float]:
     backend = str(props.get("backend", DEFAULT_BACKEND))
     if backend not in BACKENDS:
         raise InputError(
-            f"unknown backend {backend!r}; expected one of {list(BACKENDS)}", column="backend"
+            f"unknown backend {backend!r}; expected one of {list(BACKENDS)}", key="backend"
         )
     rgb_tolerance = float(props.get("rgb_tolerance", DEFAULT_RMS_TOLERANCE))
     if not 0.0 <= rgb_tolerance < 1.0:
         raise InputError(
             f"rgb_tolerance must be in [0, 1) (0: all 31 wavelengths), got {rgb_tolerance}",
-            column="rgb_tolerance",
+            key="rgb_tolerance",
         )
     return Path(str(mi.file_resolver().resolve(filename))), backend, rgb_tolerance
 
@@ -507,7 +507,7 @@ def _proposal_path(props: mi.Properties) -> Path | None:
         return None
     path = Path(str(mi.file_resolver().resolve(str(props.get("proposal")))))
     if not path.is_file():
-        raise InputError("no such model file for the 'proposal' property", path=path, column="proposal")
+        raise InputError("no such model file for the 'proposal' property", path=path, key="proposal")
     return path
 
 

@@ -125,8 +125,8 @@ def write_data(spec: dict, out: Path) -> Path:
 # --------------------------------------------------------------------------- fit
 
 
-def _data_args(method: str, table: Path) -> list[str]:
-    return ["--data.path", str(table)]
+def _data_args(material: dict, table: Path) -> list[str]:
+    return ["--data.path", str(table), *(["--data.trust_units", "true"] if material.get("trust_units") else [])]
 
 
 def _non_finite_logged_loss(run_dir: Path) -> bool:
@@ -146,7 +146,7 @@ def fit_arguments(spec: dict, table: Path, run_dir: Path) -> list[str]:
     from neuralbrdf.study.cells import seed_args
 
     variant, cell = spec["variant"], spec["cell"]
-    return ["fit", "--config", variant["config"], *variant["args"], *_data_args(variant["method"], table),
+    return ["fit", "--config", variant["config"], *variant["args"], *_data_args(spec["material"], table),
             "--run_dir", str(run_dir), "--seed_everything", str(cell["seed"]),
             *seed_args(variant["method"], cell["seed"]), "--trainer.enable_progress_bar", "false"]
 

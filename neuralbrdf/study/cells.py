@@ -173,6 +173,8 @@ def cell_settings(cell: Cell, profile: Profile) -> dict:
         "variant": {"method": variant.method, "config": file_digest(variant.config), "args": list(variant.args),
                     "render_variant": variant.render_variant},
     }
+    if material.trust_units:  # only then, likewise: the keys of other materials stay what they were
+        settings["material"]["trust_units"] = True
     overlays = overlay_digests(variant)
     if overlays:  # only then: the keys of variants without overlays stay what they were
         settings["variant"]["overlays"] = overlays

@@ -43,7 +43,7 @@ def run(args) -> int:
         print(f"-> {rebuild(args.out)}")
         return
     if args.profile is None:
-        raise InputError("--profile is required (or --report-only to redraw an existing study)", column="--profile")
+        raise InputError("--profile is required (or --report-only to redraw an existing study)", key="--profile")
     if args.jobs < 1:
         raise InputError(f"--jobs must be >= 1, got {args.jobs}")
     allow = " --allow-failures" if args.allow_failures else ""

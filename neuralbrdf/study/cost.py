@@ -9,6 +9,8 @@ and ``benchmarks/run.py``).
   Dr.Jit (:class:`~neuralbrdf.render.drjit_onnx.DrJitGraph`) and, given the torch module, PyTorch;
   warm-up call timed apart, then the median of ``repeats`` calls; optionally the Dr.Jit kernel's
   own run time (:func:`drjit_kernel_seconds`);
+* :func:`drjit_operation_count` — the operations of the Dr.Jit kernel that evaluates a graph: a
+  cost counted, not timed;
 * :func:`parameter_count` — float weights stored in the ``.onnx`` file and the fitted scalars its
   kind keeps as constants (:attr:`neuralbrdf.kinds.Kind.scalar_parameters`);
 * :func:`machine` — CPU, cores, versions and thread counts, recorded beside every figure.
@@ -112,9 +114,9 @@ def drjit_evaluate(graph, inputs: tuple) -> None:
     dr.sync_thread()
 
 
-def drjit_kernel_seconds(graph, inputs: tuple) -> float:
-    """Seconds the Dr.Jit kernels of one evaluation of ``graph`` (:func:`drjit_evaluate`) ran, from
-    Dr.Jit's kernel history: the fused kernel alone, its tracing and compilation excluded."""
+def _jit_kernels(graph, inputs: tuple) -> list[dict]:
+    """Dr.Jit's kernel history entries of the JIT kernels of one evaluation of ``graph``
+    (:func:`drjit_evaluate`)."""
     import drjit as dr
 
     saved = dr.flag(dr.JitFlag.KernelHistory)
@@ -125,7 +127,20 @@ def drjit_kernel_seconds(graph, inputs: tuple) -> float:
         history = dr.kernel_history()
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, saved)
-    return sum(entry["execution_time"] for entry in history if entry["type"] == dr.KernelType.JIT) / 1e3
+    return [entry for entry in history if entry["type"] == dr.KernelType.JIT]
+
+
+def drjit_kernel_seconds(graph, inputs: tuple) -> float:
+    """Seconds the Dr.Jit kernels of one evaluation of ``graph`` (:func:`drjit_evaluate`) ran, from
+    Dr.Jit's kernel history: the fused kernel alone, its tracing and compilation excluded."""
+    return sum(entry["execution_time"] for entry in _jit_kernels(graph, inputs)) / 1e3
+
+
+def drjit_operation_count(graph, inputs: tuple) -> int:
+    """Operations of the Dr.Jit kernels of one evaluation of ``graph`` (their IR, from Dr.Jit's
+    kernel history): what every query of a render runs, counted rather than timed, so the same on
+    every run and machine (for one Dr.Jit version)."""
+    return sum(int(entry["operation_count"]) for entry in _jit_kernels(graph, inputs))
 
 
 def bench_throughput(proto, spectral: bool, batch: int, repeats: int, module=None, kernel_time: bool = False) -> dict:

@@ -11,6 +11,8 @@ A profile is a YAML file (``configs/study/quick.yaml``, ``full.yaml``, or a user
       - {name: nylon, truth: merl-nbrdf/nylon.h5}                  # NBRDF proxy sampled on the plan
       - {name: alum, truth: merl/alum-bronze.binary}                # MERL measurement sampled on the plan
       - {name: mine, table: my_measurement.csv, truth: mine_truth.onnx}   # a user's measured table
+                                               # (spherical or signed in-plane; trust_units: true reads it
+                                               # as it is where its numbers look like a unit slip)
     variants:                                  # every model variant: a config file + CLI overrides
       - {name: spectral_mlp, method: spectral_mlp, config: configs/spectral_mlp.yaml,
          args: [--trainer.max_epochs, "5"], group: "γ / angle unit", label: "γ=3 rad"}
@@ -77,11 +79,12 @@ class CostSpec:
 @dataclass(frozen=True)
 class MaterialSpec:
     """``truth``: ``virtual:NAME``, an NBRDF ``.h5``, a MERL ``.binary`` or a reference ``.onnx``; ``table``: a user's own
-    measurement (then plan and noise sweeps do not apply to it)."""
+    measurement (then plan and noise sweeps do not apply to it), read as it is with ``trust_units``."""
 
     name: str
     truth: str
     table: str | None = None
+    trust_units: bool = False
 
     @property
     def is_virtual(self) -> bool:
@@ -91,9 +94,9 @@ class MaterialSpec:
     def is_spectral(self) -> bool:
         """Whether its samples are spectral (virtual instrument, or a user's table with wavelengths)."""
         if self.table is not None:
-            from neuralbrdf.data.table import read_table
+            from neuralbrdf.data.loading import read_brdf_table
 
-            return read_table(self.table).is_spectral
+            return read_brdf_table(self.table, self.trust_units).is_spectral
         return self.is_virtual
 
 
@@ -148,7 +151,7 @@ class _Reader:
         self.path = path
 
     def fail(self, key: str, message: str):
-        raise InputError(message, path=self.path, column=key)
+        raise InputError(message, path=self.path, key=key)
 
     def mapping(self, value, key: str, allowed: tuple[str, ...], required: tuple[str, ...] = ()) -> dict:
         if not isinstance(value, dict):
@@ -189,6 +192,23 @@ class _Reader:
                 self.fail(key, f"is a {kind!r} model; a truth is a ground truth of kind {REFERENCE_KIND!r} "
                                "(neuralbrdf export-truth), not a fitted model")
         return truth
+
+    def table(self, entry: dict, key: str) -> str:
+        """A material's measured table (spherical or signed in-plane), read now: a file that is no
+        BRDF table, or whose numbers look like a unit slip (unless ``trust_units``), fails here."""
+        from neuralbrdf.data.loading import read_brdf_table
+        from neuralbrdf.data.units import overridden_by
+
+        table = self.file(entry["table"], f"{key}.table")
+        trust_units = entry.get("trust_units", False)
+        if not isinstance(trust_units, bool):
+            self.fail(f"{key}.trust_units", f"expected true or false, got {trust_units!r}")
+        try:
+            with overridden_by(f"trust_units: true in {key}"):
+                read_brdf_table(table, trust_units)
+        except InputError as error:
+            self.fail(f"{key}.table", str(error))
+        return table
 
     def string(self, value, key: str) -> str:
         if not isinstance(value, str) or not value.strip():
@@ -238,12 +258,13 @@ def load_profile(name_or_path: str) -> Profile:
     materials = []
     for i, entry in enumerate(r.sequence(raw["materials"], "materials")):
         key = f"materials[{i}]"
-        entry = r.mapping(entry, key, ("name", "truth", "table"), ("name", "truth"))
+        entry = r.mapping(entry, key, ("name", "truth", "table", "trust_units"), ("name", "truth"))
         truth = r.truth(entry["truth"], f"{key}.truth")
         if Path(truth).suffix == ".onnx" and "table" not in entry:
             r.fail(f"{key}.table", "a truth given as .onnx needs the measured table to fit")
-        table = r.file(entry["table"], f"{key}.table") if "table" in entry else None
-        materials.append(MaterialSpec(r.string(entry["name"], f"{key}.name"), truth, table))
+        table = r.table(entry, key) if "table" in entry else None
+        materials.append(MaterialSpec(r.string(entry["name"], f"{key}.name"), truth, table,
+                                      entry.get("trust_units", False)))
     variants = []
     for i, entry in enumerate(r.sequence(raw["variants"], "variants")):
         key = f"variants[{i}]"

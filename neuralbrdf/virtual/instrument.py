@@ -109,7 +109,7 @@ def _inplane_angles(theta_i, theta_r) -> tuple[np.ndarray, np.ndarray]:
             raise InputError(
                 f"{name}[{bad[0]}] = {angles[bad[0]]!r}: signed in-plane angles must lie in "
                 f"(-90, 90) degrees",
-                column=name,
+                key=name,
             )
     return theta_i, theta_r
 
@@ -130,9 +130,9 @@ class VirtualGoniospectrophotometer:
     def __init__(self, noise_rel: float = 0.0, noise_abs: float = 0.0, seed: int = 0) -> None:
         for name, value in (("noise_rel", noise_rel), ("noise_abs", noise_abs)):
             if not (math.isfinite(value) and value >= 0.0):
-                raise InputError(f"{name} must be a finite number >= 0, got {value!r}", column=name)
+                raise InputError(f"{name} must be a finite number >= 0, got {value!r}", key=name)
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-            raise InputError(f"seed must be a non-negative integer, got {seed!r}", column="seed")
+            raise InputError(f"seed must be a non-negative integer, got {seed!r}", key="seed")
         self.noise_rel = float(noise_rel)
         self.noise_abs = float(noise_abs)
         self.seed = int(seed)
