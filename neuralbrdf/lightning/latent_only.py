@@ -10,8 +10,9 @@ code and channel codes (:class:`~neuralbrdf.lightning.nlb_spectral_fit.SpectralL
   loss on its own fitting samples; with ``init_starts`` S > 1 the first candidate (the
   centroid) and the S − 1 best others are each optimised for ``init_screen_steps`` steps, all
   materials and starts at once, and each material continues from the start with the lowest
-  loss after them (on at most :attr:`LatentOnlyFit.screen_samples` of its samples).  Selection
-  uses the fitting samples only, never the truth;
+  loss after them.  Candidates and starts are compared on the samples of
+  :meth:`LatentOnlyFit.screening_samples`; selection uses the fitting samples only, never the
+  truth;
 * **loss**: each material's data loss (the mean of its samples' errors) plus its prior term —
   the same criterion in screening and in training, where each sample carries its material's
   prior term so that every material keeps its own minimum whatever the plans' sizes;
@@ -43,7 +44,7 @@ from neuralbrdf.lightning.common import scheduled_optimizer
 from neuralbrdf.lightning.latent_fit_data import EvalSet, FitSamples
 
 #: At most this many of the fitting samples (a fixed random subset) take part in the screening of
-#: starts (:attr:`LatentOnlyFit.screen_samples`, unless a subclass says otherwise).
+#: several starts (:meth:`LatentOnlyFit.screening_samples`, unless a subclass says otherwise).
 SCREEN_SAMPLES = 65536
 
 
@@ -82,9 +83,6 @@ class LatentOnlyFit(pl.LightningModule):
     ``init_screen_steps``, ``early_stop_patience`` and ``early_stop_tolerance`` among them, and
     set ``self._candidates`` (a list of tensors ``[K, ...]``, one per code tensor, candidate 0 the
     centroid) or ``None``."""
-
-    #: Direction pairs (a fixed random subset of the fitting samples) the screening of starts uses at most.
-    screen_samples: int = SCREEN_SAMPLES
 
     def __init__(self, optimizer: OptimizerCallable, lr_scheduler: LRSchedulerCallable | None) -> None:
         super().__init__()
@@ -141,14 +139,19 @@ class LatentOnlyFit(pl.LightningModule):
         data = torch.zeros(len(errors), n).index_add_(1, samples.material, errors) / counts
         return data + self.prior_terms(codes)
 
+    def screening_samples(self, samples: FitSamples) -> FitSamples:
+        """The fitting samples the starts are chosen on: with several starts and very large plans,
+        a fixed random subset of :data:`SCREEN_SAMPLES` of them; else all."""
+        if self.hparams.init_starts > 1 and len(samples.f) > SCREEN_SAMPLES:
+            keep = torch.randperm(len(samples.f), generator=torch.Generator().manual_seed(0))[:SCREEN_SAMPLES]
+            return FitSamples(*(column[keep] for column in samples))
+        return samples
+
     def choose_starts(self, samples: FitSamples) -> None:
         """Set each material's codes to its best start (module docstring)."""
         n = len(self.material_names)
         candidates = self._candidates
-        if self.hparams.init_starts > 1 and len(samples.f) > self.screen_samples:
-            # very large plans: the screening of several starts sees a fixed random subset
-            keep = torch.randperm(len(samples.f), generator=torch.Generator().manual_seed(0))[: self.screen_samples]
-            samples = FitSamples(*(column[keep] for column in samples))
+        samples = self.screening_samples(samples)
         with torch.no_grad():
             losses = torch.cat([self.material_losses(samples, [c[k].expand(1, n, *c.shape[1:]) for c in candidates])
                                 for k in range(len(candidates[0]))])
