@@ -278,6 +278,33 @@ def test_spectral_fit_recovers_a_material_made_from_the_network_and_beats_its_st
     assert relative < 0.05
 
 
+def test_a_small_fit_is_one_lbfgs_run_on_the_full_batch_and_recovers_its_material(tmp_path):
+    """Data within data.full_batch_values are served whole at every step, and with
+    model.full_batch_iterations the fit is one L-BFGS step (with its line search) that finds the
+    codes of a material made from the network; larger data keep random batches and the configured
+    optimiser."""
+    network = random_network(seed=4)
+    checkpoint = pretrained_file(tmp_path, network)
+    generator = torch.Generator().manual_seed(9)
+    shared, nodes = 0.5 * torch.randn(4, generator=generator), 0.5 * torch.randn(4, 3, generator=generator)
+    table = network_table(network, shared, nodes, [400.0, 500.0, 600.0, 700.0], "DS2", tmp_path / "m.csv")
+    values = 185 * len(WAVELENGTHS)  # DS2's pairs x bands
+    for limit, full in ((values, True), (values - 1, False)):
+        data = LatentFitData(path=str(table), spectral=True, eval_plan=None, batch_values=310, full_batch_values=limit)
+        data.setup()
+        assert data.full_batch is full and len(next(iter(data.train_dataloader())).f) == (185 if full else 10)
+    run = tmp_path / "run"
+    run_train("--config", str(CONFIGS / "nlb_spectral.yaml"), "--run_dir", str(run), "--model.checkpoint", str(checkpoint),
+              "--data.path", str(table), "--data.eval_plan", "null", "--data.full_batch_values", str(values),
+              "--model.full_batch_iterations", "60", "--model.node_step_nm", "100", "--model.init_screen_steps", "5",
+              "--trainer.enable_progress_bar", "false")
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["status"] == "ok" and metrics["fit/fit_logcos_rmse/m"] < 2e-3
+    saved = torch.load(run / "checkpoints" / "fitted.ckpt", weights_only=False)
+    assert saved["global_step"] == 1 and type(saved["optimizer_states"][0]["state"]) is dict
+    assert "history_size" in saved["optimizer_states"][0]["param_groups"][0]  # L-BFGS's
+
+
 def test_channel_normalisation_divides_each_channel_by_its_mean_log_cosine(tmp_path):
     network = random_network()
     checkpoint = pretrained_file(tmp_path, network)

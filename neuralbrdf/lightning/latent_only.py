@@ -18,6 +18,12 @@ code and channel codes (:class:`~neuralbrdf.lightning.nlb_spectral_fit.SpectralL
   prior term so that every material keeps its own minimum whatever the plans' sizes;
 * **early stopping** (``early_stop_patience``): stop when the training loss has not improved
   by a relative ``early_stop_tolerance`` for that many steps;
+* **small fits by L-BFGS** (``full_batch_iterations``, where a subclass offers it): when every
+  step sees every sample, the codes are optimised by L-BFGS (Nocedal 1980; strong-Wolfe line
+  search) on that full batch — one run of at most ``full_batch_iterations`` iterations in one
+  step, and the screening of starts one run of ``init_screen_steps`` iterations — instead of the
+  configured optimiser's hundreds of noisy steps; larger fits (random batches) keep the configured
+  optimiser and schedule;
 * **the fit's last step is always evaluated** (:class:`ValidateFinalStep`), and the metrics of
   the last validation are the fitted model's: per material the fit's log-cosine RMSE on its
   fitting samples, against a truth where there is one, and the shared metric names of SPEC §9;
@@ -42,6 +48,9 @@ from neuralbrdf import metrics
 from neuralbrdf.errors import InputError
 from neuralbrdf.lightning.common import scheduled_optimizer
 from neuralbrdf.lightning.latent_fit_data import EvalSet, FitSamples
+
+#: Correction pairs L-BFGS keeps (``torch.optim.LBFGS`` ``history_size``; :func:`lbfgs`).
+LBFGS_HISTORY = 10
 
 #: At most this many of the fitting samples (a fixed random subset) take part in the screening of
 #: several starts (:meth:`LatentOnlyFit.screening_samples`, unless a subclass says otherwise).
@@ -71,6 +80,13 @@ def check_fit_settings(init_candidates: int, init_starts: int, init_screen_steps
         raise InputError(f"must be non-negative, got {early_stop_tolerance}", column="model.early_stop_tolerance")
 
 
+def lbfgs(codes: list[torch.Tensor], iterations: int) -> torch.optim.LBFGS:
+    """L-BFGS over ``codes`` for at most ``iterations`` iterations per ``step(closure)``, with a
+    strong-Wolfe line search (unit initial step)."""
+    return torch.optim.LBFGS(codes, lr=1.0, max_iter=iterations, history_size=LBFGS_HISTORY,
+                             line_search_fn="strong_wolfe")
+
+
 def check_weight(value, key: str) -> None:
     """:class:`InputError` unless ``value`` is a finite non-negative number (a loss weight)."""
     if isinstance(value, bool) or not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
@@ -92,6 +108,7 @@ class LatentOnlyFit(pl.LightningModule):
         self._candidates: list[torch.Tensor] | None = None
         self._best_loss = math.inf
         self._steps_since_best = 0
+        self._full_batch = False
 
     # ------------------------------------------------------------------ what a subclass provides
 
@@ -127,6 +144,7 @@ class LatentOnlyFit(pl.LightningModule):
             data = getattr(self.trainer, "datamodule", None)
             if data is None or not hasattr(data, "material_names"):
                 raise InputError("the latent fit needs a LatentFitData data module (data.class_path)", column="data")
+            self._full_batch = bool(getattr(data, "full_batch", False))
             self.build_codes(data.material_names)
             if self._candidates is not None:
                 self.choose_starts(data.train_samples)
@@ -165,16 +183,28 @@ class LatentOnlyFit(pl.LightningModule):
         best_others = 1 + losses[1:].argsort(0)[: starts - 1]
         shortlist = torch.cat([torch.zeros(1, n, dtype=torch.long), best_others])
         codes = [c[shortlist].clone().requires_grad_(True) for c in candidates]
-        optimizer = self.optimizer_factory(codes)
+        by_lbfgs = self.uses_lbfgs
+        optimizer = lbfgs(codes, self.hparams.init_screen_steps) if by_lbfgs else self.optimizer_factory(codes)
+
+        def closure() -> torch.Tensor:  # a closure: optimisers that evaluate several times (L-BFGS) need one
+            optimizer.zero_grad()
+            loss = self.material_losses(samples, codes).sum()
+            loss.backward()
+            return loss
+
         with torch.enable_grad():
-            for _ in range(self.hparams.init_screen_steps):
-                optimizer.zero_grad()
-                self.material_losses(samples, codes).sum().backward()
-                optimizer.step()
+            for _ in range(1 if by_lbfgs else self.hparams.init_screen_steps):
+                optimizer.step(closure)
         with torch.no_grad():
             best = self.material_losses(samples, codes).argmin(0)
             for parameter, c in zip(self.code_parameters(), codes):
                 parameter.copy_(c[best, torch.arange(n)])
+
+    @property
+    def uses_lbfgs(self) -> bool:
+        """Optimised by L-BFGS (module docstring): a subclass's ``full_batch_iterations`` is set and
+        every step sees every sample."""
+        return self.hparams.get("full_batch_iterations") is not None and self._full_batch
 
     def configure_callbacks(self):
         return [ValidateFinalStep()]
@@ -189,7 +219,10 @@ class LatentOnlyFit(pl.LightningModule):
             # samples in the batch: the same minimum per material as in screening.
             loss = loss + prior[batch.material].mean()
         self.log("train/loss", loss, on_step=False, on_epoch=True, batch_size=len(batch.f))
-        self._track_convergence(float(loss.detach()))
+        if self.uses_lbfgs:  # one L-BFGS run is the whole fit (it calls this once per evaluation)
+            self.trainer.should_stop = True
+        else:
+            self._track_convergence(float(loss.detach()))
         return loss
 
     def _track_convergence(self, loss: float) -> None:
@@ -256,6 +289,8 @@ class LatentOnlyFit(pl.LightningModule):
                 raise RuntimeError(f"frozen network weight {key} changed during the latent fit")
 
     def configure_optimizers(self):
+        if self.uses_lbfgs:
+            return lbfgs(self.code_parameters(), self.hparams.full_batch_iterations)
         groups = [(self.code_parameters(), 1.0)]
         return scheduled_optimizer(groups, self.optimizer_factory, self.lr_scheduler_factory, "step")
 

@@ -97,6 +97,9 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
     init_screen_pairs:
         Direction pairs of each material (all its channels) on which the candidates and starts
         are compared (:meth:`screening_samples`); ``None``: all.
+    full_batch_iterations:
+        When every step sees every sample, the fit is one L-BFGS run of at most this many
+        iterations (:mod:`neuralbrdf.lightning.latent_only`); ``None``: the configured optimiser.
     shared_prior_weight, channel_prior_weight, smoothness_weight:
         Weights of the priors (module docstring); 0: none.
     optimizer, lr_scheduler:
@@ -115,6 +118,7 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
         init_starts: int = 4,
         init_screen_steps: int = 100,
         init_screen_pairs: int | None = None,
+        full_batch_iterations: int | None = None,
         early_stop_patience: int | None = 50,
         early_stop_tolerance: float = 1e-3,
         shared_prior_weight: float = 0.01,
@@ -126,10 +130,9 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
         super().__init__(optimizer, lr_scheduler)
         check_loss_domain(loss_domain, "model.loss_domain")
         check_fit_settings(init_candidates, init_starts, init_screen_steps, early_stop_patience, early_stop_tolerance)
-        if init_screen_pairs is not None and (isinstance(init_screen_pairs, bool) or not isinstance(init_screen_pairs, int)
-                                              or init_screen_pairs < 1):
-            raise InputError(f"must be a positive integer or null, got {init_screen_pairs!r}",
-                             column="model.init_screen_pairs")
+        for key, value in (("init_screen_pairs", init_screen_pairs), ("full_batch_iterations", full_batch_iterations)):
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+                raise InputError(f"must be a positive integer or null, got {value!r}", column=f"model.{key}")
         for key in ("shared_prior_weight", "channel_prior_weight", "smoothness_weight"):
             check_weight(locals()[key], f"model.{key}")
         if isinstance(node_step_nm, bool) or not (isinstance(node_step_nm, (int, float)) and node_step_nm > 0

@@ -26,6 +26,14 @@ model's cost times the wavelength count of the plugin's default sRGB rule (the e
 per query the head replaces).  A student whose error exceeds ``max_hemisphere_logcos_rmse`` is
 not embedded: :class:`FastPathError` says so, and ``neuralbrdf export`` writes nothing.
 
+**Where users look.**  Each fast path is also rendered against ``f`` (:func:`image_errors`): the
+material-preview scene through the fast path and through ``f`` at the same seed — both outputs of
+one file, so both trace the same paths and the difference is the fast path's own error — in
+``llvm_ad_spectral`` for a spectral ``f_fast``, in ``llvm_ad_rgb`` otherwise (``f_rgb`` against
+``f`` integrated by the plugin's sRGB rule).  The mean CIEDE2000 and the render's settings are
+recorded (``image_delta_e2000_mean``, ``image_check``), and a fast path whose mean exceeds
+``image_check.max_delta_e2000_mean`` is refused like one beyond the hemisphere bound.
+
 The settings are ``configs/lod/default.yaml``, section ``fast_paths`` (:mod:`neuralbrdf.lod.config`).
 """
 
@@ -59,6 +67,17 @@ class StudentShape:
 
 
 @dataclass(frozen=True)
+class ImageCheck:
+    """The renders that measure a fast path's image error against ``f`` (module docstring)."""
+
+    resolution: int
+    spp: int
+    seed: int
+    #: A fast path whose mean CIEDE2000 against ``f`` exceeds this is refused (:class:`FastPathError`).
+    max_delta_e2000_mean: float
+
+
+@dataclass(frozen=True)
 class FastPathSettings:
     """How the fast paths are made (values: ``configs/lod/default.yaml``, section ``fast_paths``)."""
 
@@ -69,6 +88,7 @@ class FastPathSettings:
     max_hemisphere_logcos_rmse: float
     cost_batches: tuple[int, int]
     cost_rounds: int
+    image_check: ImageCheck
     #: ``(cos θ, φ)`` strata of the hemisphere pairs of the recorded error (SPEC §9 by default).
     error_strata: tuple[int, int] = HEMISPHERE_STRATA
 
@@ -140,7 +160,6 @@ def add_fast_paths(model_path: str | Path, out: str | Path, outputs: tuple[str, 
         metadata.update({fast_path_key(output, "approximates"): describes,
                          fast_path_key(output, "hemisphere_logcos_rmse"): repr(error),
                          fast_path_key(output, "relative_cost"): repr(relative)})
-        reports.append(FastPath(output, describes, error, relative))
     combined = with_fast_paths(parent.file.proto, traced, metadata)
     out = Path(out)
     with atomic_path(out) as tmp:
@@ -149,4 +168,40 @@ def add_fast_paths(model_path: str | Path, out: str | Path, outputs: tuple[str, 
             load_model(tmp)
         except InputError as error:
             raise ExportValidationError(f"the file with fast paths fails the ONNX contract check: {error.reason}") from None
+        check = settings.image_check
+        for output, (delta_e, where) in image_errors(tmp, outputs, check).items():
+            log(f"{output}: image ΔE2000 mean {delta_e:.3f} against f ({where})")
+            if not delta_e <= check.max_delta_e2000_mean:
+                raise FastPathError(f"the {output} student renders ΔE2000 {delta_e:.3g} (mean) away from the model, "
+                                    f"above the bound {check.max_delta_e2000_mean:g} (fast_paths.image_check."
+                                    "max_delta_e2000_mean)")
+            entries[output] += (delta_e, where)
+            metadata.update({fast_path_key(output, "image_delta_e2000_mean"): repr(delta_e),
+                             fast_path_key(output, "image_check"): where})
+        onnx.save(with_fast_paths(parent.file.proto, traced, metadata), str(tmp))
+        for output, (describes, error, delta_e, where) in entries.items():
+            reports.append(FastPath(output, describes, error, float(metadata[fast_path_key(output, "relative_cost")]),
+                                    delta_e, where))
     return reports
+
+
+def image_errors(path: Path, outputs: tuple[str, ...], check: ImageCheck) -> dict[str, tuple[float, str]]:
+    """Per fast path of the file ``path``: the mean CIEDE2000 of the preview scene rendered through
+    it against the render of ``f`` (same seed, same paths), and where (module docstring)."""
+    from neuralbrdf.evaluation.images import image_scores
+    from neuralbrdf.render.preview import Material, render
+
+    spectral = load_model(path).is_spectral
+    found, f_images = {}, {}
+    for output in outputs:
+        variant = "llvm_ad_spectral" if output == OUTPUT_FAST and spectral else "llvm_ad_rgb"
+        if variant not in f_images:
+            f_images[variant] = render(Material(model=path, rgb_head=False), variant, check.spp, check.resolution,
+                                       check.seed)
+        image = render(Material(model=path, fast=output == OUTPUT_FAST, rgb_head=output == OUTPUT_RGB), variant,
+                       check.spp, check.resolution, check.seed)
+        metrics, _ = image_scores(image, f_images[variant])
+        found[output] = (metrics["image_delta_e2000_mean"],
+                         f"material-preview scene, {variant}, {check.resolution} px, {check.spp} spp, seed {check.seed}, "
+                         "the same paths as f")
+    return found
