@@ -564,3 +564,26 @@ def test_any_spectral_file_gets_its_fast_paths_the_spectral_nlb_too(tmp_path, ca
     model = load_model(out)
     assert model.kind == "nlb_spectral" and set(model.fast_paths) == {OUTPUT_RGB, OUTPUT_FAST}
     assert model.output_view(OUTPUT_FAST).is_spectral and not model.output_view(OUTPUT_RGB).is_spectral
+    # unasked, the spectral NLB gets its fast path too (its full network is the costliest to render)
+    for flags, expected in (([], {OUTPUT_RGB, OUTPUT_FAST}), (["--no-fast"], {OUTPUT_RGB})):
+        again = tmp_path / f"again{len(flags)}.onnx"
+        assert export_command.main(["--model", str(source), "--out", str(again), *flags,
+                                    "--config", str(tiny_config(tmp_path))]) == 0
+        assert set(load_model(again).fast_paths) == expected
+
+
+def test_a_fast_path_alone_is_a_model_file_whose_f_is_that_output(distilled, tmp_path):
+    """What a study's ``fast`` variant scores: the fast path cut out of its file (its only output
+    ``f``, no fast-path metadata, the provenance saying which output it was)."""
+    from neuralbrdf.lod.fast_paths import write_fast_path_alone
+
+    _, with_paths, _ = distilled
+    for output, spectral in ((OUTPUT_FAST, True), (OUTPUT_RGB, False)):
+        out = write_fast_path_alone(with_paths, output, tmp_path / f"{output}.onnx")
+        alone = load_model(out)
+        assert alone.kind == load_model(with_paths).kind and alone.fast_paths == {} and alone.is_spectral is spectral
+        assert f"its fast path {output}" in alone.metadata["neuralbrdf.provenance"]
+        wi, wo = np.array([[0.2, 0.1, 0.97], [0.5, -0.3, 0.81]]), np.array([[-0.3, 0.0, 0.95], [0.1, 0.6, 0.79]])
+        nm = np.array([480.0, 610.0])
+        assert OnnxEvaluator(out).values(wi, wo, nm if spectral else None) == pytest.approx(
+            OnnxEvaluator(with_paths, output).values(wi, wo, nm if spectral else None), rel=1e-6)

@@ -278,31 +278,36 @@ def test_spectral_fit_recovers_a_material_made_from_the_network_and_beats_its_st
     assert relative < 0.05
 
 
-def test_a_small_fit_is_one_lbfgs_run_on_the_full_batch_and_recovers_its_material(tmp_path):
+def test_a_small_fit_is_one_lbfgs_run_per_material_on_the_full_batch_and_recovers_them(tmp_path, monkeypatch):
     """Data within data.full_batch_values are served whole at every step, and with
-    model.full_batch_iterations the fit is one L-BFGS step (with its line search) that finds the
-    codes of a material made from the network; larger data keep random batches and the configured
-    optimiser."""
+    model.full_batch_iterations the fit is one step: one L-BFGS run (with its line search) per
+    material, each on its own samples, which finds the codes of materials made from the network;
+    larger data keep random batches and the configured optimiser."""
+    from neuralbrdf.lightning import latent_only
+
     network = random_network(seed=4)
     checkpoint = pretrained_file(tmp_path, network)
     generator = torch.Generator().manual_seed(9)
-    shared, nodes = 0.5 * torch.randn(4, generator=generator), 0.5 * torch.randn(4, 3, generator=generator)
-    table = network_table(network, shared, nodes, [400.0, 500.0, 600.0, 700.0], "DS2", tmp_path / "m.csv")
-    values = 185 * len(WAVELENGTHS)  # DS2's pairs x bands
+    tables = [network_table(network, 0.5 * torch.randn(4, generator=generator), 0.5 * torch.randn(4, 3, generator=generator),
+                            [400.0, 500.0, 600.0, 700.0], "DS2", tmp_path / f"m{k}.csv") for k in range(2)]
+    values = 2 * 185 * len(WAVELENGTHS)  # two materials: DS2's pairs x bands each
+    sources = [{"path": str(t)} for t in tables]
     for limit, full in ((values, True), (values - 1, False)):
-        data = LatentFitData(path=str(table), spectral=True, eval_plan=None, batch_values=310, full_batch_values=limit)
+        data = LatentFitData(sources=sources, spectral=True, eval_plan=None, batch_values=310, full_batch_values=limit)
         data.setup()
-        assert data.full_batch is full and len(next(iter(data.train_dataloader())).f) == (185 if full else 10)
+        assert data.full_batch is full and len(next(iter(data.train_dataloader())).f) == (370 if full else 10)
+    runs = []
+    monkeypatch.setattr(latent_only, "lbfgs", lambda codes, iterations: runs.append(iterations) or torch.optim.LBFGS(
+        codes, lr=1.0, max_iter=iterations, history_size=latent_only.LBFGS_HISTORY, line_search_fn="strong_wolfe"))
     run = tmp_path / "run"
     run_train("--config", str(CONFIGS / "nlb_spectral.yaml"), "--run_dir", str(run), "--model.checkpoint", str(checkpoint),
-              "--data.path", str(table), "--data.eval_plan", "null", "--data.full_batch_values", str(values),
+              "--data.sources", json.dumps(sources), "--data.eval_plan", "null", "--data.full_batch_values", str(values),
               "--model.full_batch_iterations", "60", "--model.node_step_nm", "100", "--model.init_screen_steps", "5",
               "--trainer.enable_progress_bar", "false")
     metrics = json.loads((run / "metrics.json").read_text())
-    assert metrics["status"] == "ok" and metrics["fit/fit_logcos_rmse/m"] < 2e-3
-    saved = torch.load(run / "checkpoints" / "fitted.ckpt", weights_only=False)
-    assert saved["global_step"] == 1 and type(saved["optimizer_states"][0]["state"]) is dict
-    assert "history_size" in saved["optimizer_states"][0]["param_groups"][0]  # L-BFGS's
+    assert runs == [60, 60] and metrics["status"] == "ok"
+    assert metrics["fit/fit_logcos_rmse/m0"] < 2e-3 and metrics["fit/fit_logcos_rmse/m1"] < 2e-3
+    assert torch.load(run / "checkpoints" / "fitted.ckpt", weights_only=False)["global_step"] <= 1
 
 
 def test_channel_normalisation_divides_each_channel_by_its_mean_log_cosine(tmp_path):
@@ -441,17 +446,24 @@ def test_fit_time_counts_the_screening_of_starts(tmp_path, monkeypatch):
     assert 1000.0 <= json.loads((tmp_path / "run" / "metrics.json").read_text())["fit/wall_time_s"] < 1600.0
 
 
-def test_screening_sees_at_most_init_screen_pairs_of_each_material(tmp_path):
+def test_screening_sees_at_most_init_screen_values_of_each_material_and_of_all(tmp_path, monkeypatch):
+    from neuralbrdf.lightning import nlb_spectral_fit
+
     network = random_network()
-    module = fit_module(pretrained_file(tmp_path, network), init_screen_pairs=7)
+    module = fit_module(pretrained_file(tmp_path, network), init_screen_values=21)  # 7 pairs of 3 channels
     material = torch.tensor([0] * 20 + [1] * 5 + [2] * 9)
     wi, wo = unit_pairs(len(material))
-    samples = module.screening_samples(FitSamples(material, wi, wo, torch.rand(len(material), 3)))
-    assert torch.bincount(samples.material).tolist() == [7, 5, 7]
-    assert len(set(map(tuple, samples.wi.tolist()))) == 19  # distinct samples, each once
+    samples = FitSamples(material, wi, wo, torch.rand(len(material), 3))
+    chosen = module.screening_samples(samples)
+    assert torch.bincount(chosen.material).tolist() == [7, 5, 7]
+    assert len(set(map(tuple, chosen.wi.tolist()))) == 19  # distinct samples, each once
+    monkeypatch.setattr(nlb_spectral_fit, "SCREEN_VALUES", 36)  # a large fit: 12 values, 4 pairs each
+    assert torch.bincount(module.screening_samples(samples).material).tolist() == [4, 4, 4]
+    module._full_batch = True  # a small fit: init_screen_values alone
+    assert torch.bincount(module.screening_samples(samples).material).tolist() == [7, 5, 7]
     assert fit_module(pretrained_file(tmp_path, network)).screening_samples(samples) is samples  # None: all
-    with pytest.raises(InputError, match="init_screen_pairs"):
-        fit_module(pretrained_file(tmp_path, network), init_screen_pairs=0)
+    with pytest.raises(InputError, match="init_screen_values"):
+        fit_module(pretrained_file(tmp_path, network), init_screen_values=0)
 
 
 def test_spectral_fit_refuses_rgb_sources_and_mixed_wavelength_grids(tmp_path):

@@ -93,6 +93,29 @@ def test_sweep_only_variants_are_neither_rendered_nor_timed(tmp_path):
         load_profile(str(_write(tmp_path, text.replace("speed_accuracy: false", "speed_accuracy: no-ish"))))
 
 
+def test_a_fast_variant_studies_the_models_fast_path(tmp_path, monkeypatch):
+    """``fast: true`` keys its cells apart (the fast-path settings' file included) and exports the
+    fitted model's ``f_fast`` as the cell's model (a model file of its own)."""
+    from neuralbrdf.study import cell as cell_module
+
+    text = BASE + "  - {name: abc_fast, method: abc, config: configs/abc.yaml, fast: true}\n"
+    profile = load_profile(str(_write(tmp_path, text)))
+    assert profile.variant("abc_fast").fast and not profile.variant("abc").fast
+    plain, fast = Cell("gold", "abc", "DS1", 0.0, 0), Cell("gold", "abc_fast", "DS1", 0.0, 0)
+    assert "fast" in cell_settings(fast, profile)["variant"] and "fast" not in cell_settings(plain, profile)["variant"]
+    with pytest.raises(InputError, match=r"variants\[1\].fast"):
+        load_profile(str(_write(tmp_path, text.replace("fast: true", "fast: quickly"))))
+    calls = []
+    monkeypatch.setattr("neuralbrdf.onnx_export.export_checkpoint", lambda ckpt, out: calls.append(("export", out)))
+    monkeypatch.setattr("neuralbrdf.lod.fast_paths.add_fast_paths", lambda model, out, outputs, *a, **k: calls.append(
+        ("add", outputs)))
+    monkeypatch.setattr("neuralbrdf.lod.fast_paths.write_fast_path_alone",
+                        lambda model, output, out: calls.append(("alone", output, out)))
+    out = tmp_path / "model.onnx"
+    assert cell_module.export({"variant": {"method": "abc", "fast": True}}, tmp_path / "run", out) == out
+    assert [c[0] for c in calls] == ["export", "add", "alone"] and calls[1][1] == ("f_fast",) and calls[2][2] == out
+
+
 def test_a_variant_fits_only_the_materials_it_names(tmp_path):
     text = BASE.replace("variants:", '  - {name: cyan, truth: "virtual:cyan"}\nvariants:') + (
         "  - {name: mlp, method: spectral_mlp, config: configs/spectral_mlp.yaml, materials: [cyan]}\n")

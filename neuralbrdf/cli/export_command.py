@@ -1,8 +1,8 @@
 """``neuralbrdf export`` (and ``export/to_onnx.py``): a checkpoint to the ONNX file of SPEC §6, with
 its fast paths.
 
-    neuralbrdf export --ckpt RUN.ckpt --out MODEL.onnx [--material NAME] [--fast] [--no-rgb-head]
-    neuralbrdf export --model MODEL.onnx --out NEW.onnx [--fast] [--no-rgb-head]
+    neuralbrdf export --ckpt RUN.ckpt --out MODEL.onnx [--material NAME] [--fast | --no-fast] [--no-rgb-head]
+    neuralbrdf export --model MODEL.onnx --out NEW.onnx [--fast | --no-fast] [--no-rgb-head]
 
 The checkpoint's kind (:mod:`neuralbrdf.kinds`; its ``neuralbrdf_kind`` entry, or the layout of
 older files) builds the model on directions; :func:`neuralbrdf.onnx_export.write_model` traces
@@ -11,8 +11,9 @@ it, checks it against PyTorch with onnxruntime and writes it atomically.
 **Fast paths** (:mod:`neuralbrdf.lod.fast_paths`), distilled from the model and embedded in the
 same file: a spectral model gets its RGB head ``f_rgb`` (its linear sRGB, once per query: what
 the renderer uses in RGB variants) unless ``--no-rgb-head``; ``--fast`` adds ``f_fast``, a
-compact copy of any model (the renderer's ``--fast``).  Each distillation takes about a minute
-on one idle core; its error against the model and relative cost are printed and recorded in the
+compact copy of any model (the renderer's ``--fast``), which a spectral NLB model gets unless
+``--no-fast`` (:attr:`neuralbrdf.kinds.Kind.fast_by_default`).  Each distillation takes about half
+a minute on one idle core; its error against the model and relative cost are printed and recorded in the
 file.  ``--model`` adds fast paths to a file that has none of those asked for, e.g. a spectral
 model exported elsewhere.  Settings: ``configs/lod/default.yaml``, section ``fast_paths``
 (``--config`` names another file).
@@ -62,7 +63,9 @@ def build_parser(prog: str = "neuralbrdf export") -> argparse.ArgumentParser:
         "--material", default=None, help="material to export (required when the checkpoint holds several)"
     )
     parser.add_argument("--fast", action="store_true",
-                        help="add f_fast: a compact network distilled from the model (render it with --fast)")
+                        help="add f_fast: a compact network distilled from the model (render it with --fast); "
+                        "spectral NLB models get it unless --no-fast")
+    parser.add_argument("--no-fast", action="store_true", help="no f_fast, even for a kind that gets one by default")
     parser.add_argument("--no-rgb-head", action="store_true",
                         help="spectral models: no f_rgb (RGB renders then integrate the spectrum, several "
                         "evaluations per query)")
@@ -71,12 +74,12 @@ def build_parser(prog: str = "neuralbrdf export") -> argparse.ArgumentParser:
     return parser
 
 
-def _wanted(is_spectral: bool, present, args) -> tuple[str, ...]:
-    """The fast paths to add to a model (spectral or not, with the fast paths ``present``)."""
+def _wanted(kind: str, is_spectral: bool, present, args) -> tuple[str, ...]:
+    """The fast paths to add to a model of ``kind`` (spectral or not, with the fast paths ``present``)."""
     wanted = []
     if is_spectral and not args.no_rgb_head and OUTPUT_RGB not in present:
         wanted.append(OUTPUT_RGB)
-    if args.fast:
+    if args.fast or (kinds.get(kind).fast_by_default and not args.no_fast and OUTPUT_FAST not in present):
         wanted.append(OUTPUT_FAST)
     return tuple(wanted)
 
@@ -91,13 +94,13 @@ def _export(args) -> None:
         if args.material is not None:
             raise InputError("--material goes with --ckpt (a model file holds one material)", column="--material")
         model = kinds.load_model(args.model)
-        wanted = _wanted(model.is_spectral, model.fast_paths, args)
+        wanted = _wanted(model.kind, model.is_spectral, model.fast_paths, args)
         if not wanted:
             raise InputError("nothing to add: ask for --fast, or give a spectral model without an RGB head",
                              path=args.model)
     else:
         exportable = kinds.load_exportable(args.ckpt, args.material)
-        wanted = _wanted(exportable.is_spectral, (), args)
+        wanted = _wanted(exportable.kind, exportable.is_spectral, (), args)
     check_outputs(out)  # after the inputs are read: an output may not be one of them
     settings = load_lod_config(args.config).fast_paths if wanted else None
     with tempfile.TemporaryDirectory(prefix="neuralbrdf-export-") as work:

@@ -63,6 +63,10 @@ from neuralbrdf.shipped import SPECTRAL_DEFAULT, resolve_pretrained
 RGB_CODE_WAVELENGTHS_NM = (465.0, 550.0, 610.0)
 #: Floor of a channel's mean ``ln(1 + f cos θi)`` when it normalises that channel's errors.
 CHANNEL_SCALE_FLOOR = 1e-4
+#: Values (pairs × channels) the screening of starts compares at most over all the materials of
+#: a large fit (random batches; :meth:`SpectralLatentFitModule.screening_samples`): a batch of many
+#: materials screens each on its share, so that screening stays a fraction of the fit.
+SCREEN_VALUES = 8192
 
 
 def wavelength_nodes(wavelengths_nm: np.ndarray, step_nm: float) -> np.ndarray:
@@ -94,9 +98,9 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
         Divide each channel's errors by its mean ``ln(1 + f cos θi)`` (module docstring).
     init_candidates, init_starts, init_screen_steps, early_stop_patience, early_stop_tolerance:
         Starts and stopping (:mod:`neuralbrdf.lightning.latent_only`).
-    init_screen_pairs:
-        Direction pairs of each material (all its channels) on which the candidates and starts
-        are compared (:meth:`screening_samples`); ``None``: all.
+    init_screen_values:
+        Values (pairs × channels) of each material on which the candidates and starts are
+        compared, at most (:meth:`screening_samples`); ``None``: all the samples.
     full_batch_iterations:
         When every step sees every sample, the fit is one L-BFGS run of at most this many
         iterations (:mod:`neuralbrdf.lightning.latent_only`); ``None``: the configured optimiser.
@@ -117,7 +121,7 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
         init_candidates: int = 64,
         init_starts: int = 4,
         init_screen_steps: int = 100,
-        init_screen_pairs: int | None = None,
+        init_screen_values: int | None = None,
         full_batch_iterations: int | None = None,
         early_stop_patience: int | None = 50,
         early_stop_tolerance: float = 1e-3,
@@ -130,7 +134,7 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
         super().__init__(optimizer, lr_scheduler)
         check_loss_domain(loss_domain, "model.loss_domain")
         check_fit_settings(init_candidates, init_starts, init_screen_steps, early_stop_patience, early_stop_tolerance)
-        for key, value in (("init_screen_pairs", init_screen_pairs), ("full_batch_iterations", full_batch_iterations)):
+        for key, value in (("init_screen_values", init_screen_values), ("full_batch_iterations", full_batch_iterations)):
             if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
                 raise InputError(f"must be a positive integer or null, got {value!r}", column=f"model.{key}")
         for key in ("shared_prior_weight", "channel_prior_weight", "smoothness_weight"):
@@ -172,11 +176,16 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
         return self._interpolation.shape[1]
 
     def screening_samples(self, samples: FitSamples) -> FitSamples:
-        """At most ``init_screen_pairs`` of each material's fitting samples (a fixed random subset,
-        every channel): the candidates and starts are compared on these."""
-        limit = self.hparams.init_screen_pairs
-        if limit is None:
+        """A fixed random subset of each material's fitting samples (every channel) that holds at
+        most ``init_screen_values`` values — in a large fit (random batches) at most its share of
+        :data:`SCREEN_VALUES` —: the candidates and starts are compared on these."""
+        if self.hparams.init_screen_values is None:
             return samples
+        n_materials, channels = int(samples.material.max()) + 1, samples.f.shape[1]
+        values = self.hparams.init_screen_values
+        if not self._full_batch:
+            values = min(values, SCREEN_VALUES // n_materials)
+        limit = max(values // channels, 1)
         order = torch.randperm(len(samples.f), generator=torch.Generator().manual_seed(0))
         material = samples.material[order]
         rank = torch.zeros_like(material)  # position of each sample among its material's, in random order

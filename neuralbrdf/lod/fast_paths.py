@@ -49,7 +49,17 @@ from neuralbrdf.errors import InputError
 from neuralbrdf.evaluation.scores import HEMISPHERE_STRATA, OnnxEvaluator, TorchEvaluator, hemisphere_scores
 from neuralbrdf.kinds import Exportable, load_model
 from neuralbrdf.lod.distill import DistillSettings, distill_student, rgb_teacher, teacher_samples
-from neuralbrdf.onnx_contract import OUTPUT_F, OUTPUT_FAST, OUTPUT_RGB, FastPath, fast_path_key
+from neuralbrdf.onnx_contract import (
+    FAST_PATH_OUTPUTS,
+    OUTPUT_F,
+    OUTPUT_FAST,
+    OUTPUT_RGB,
+    PROVENANCE_KEY,
+    WAVELENGTH_MAX_KEY,
+    WAVELENGTH_MIN_KEY,
+    FastPath,
+    fast_path_key,
+)
 from neuralbrdf.onnx_export import ExportValidationError, trace, validate, with_fast_paths
 
 
@@ -205,3 +215,27 @@ def image_errors(path: Path, outputs: tuple[str, ...], check: ImageCheck) -> dic
                          f"material-preview scene, {variant}, {check.resolution} px, {check.spp} spp, seed {check.seed}, "
                          "the same paths as f")
     return found
+
+
+def write_fast_path_alone(model_path: str | Path, output: str, out: str | Path) -> Path:
+    """Write ``out``: the fast path ``output`` of the file ``model_path`` as a model file of its own
+    (its only output ``f``; the file's metadata without its fast paths' entries, the provenance
+    saying which output it is), checked by the contract like any model file."""
+    from onnx import helper
+
+    model = load_model(model_path)
+    recorded, view = model.fast_paths[output], model.output_view(output)
+    dropped = () if view.is_spectral else (WAVELENGTH_MIN_KEY, WAVELENGTH_MAX_KEY)  # f_rgb: an RGB model
+    metadata = {key: value for key, value in model.metadata.items() if key not in dropped
+                and not (key.startswith("neuralbrdf.") and key.split(".")[1] in FAST_PATH_OUTPUTS)}
+    metadata[PROVENANCE_KEY] = f"{metadata[PROVENANCE_KEY]}; its fast path {output}: {recorded.approximates}"
+    proto = view.proto
+    helper.set_model_props(proto, metadata)
+    out = Path(out)
+    with atomic_path(out) as tmp:
+        onnx.save(proto, str(tmp))
+        try:
+            load_model(tmp)
+        except InputError as error:
+            raise ExportValidationError(f"{output} alone fails the ONNX contract check: {error.reason}") from None
+    return out

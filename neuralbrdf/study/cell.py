@@ -196,14 +196,24 @@ def fit(spec: dict, table: Path, run_dir: Path) -> tuple[float, dict]:
 
 
 def export(spec: dict, run_dir: Path, out: Path) -> Path:
-    """Export the fitted checkpoint (step 3) through its kind; :class:`CellFailure` when refused."""
+    """Export the fitted checkpoint (step 3) through its kind — for a ``fast`` variant its fast
+    path ``f_fast`` as a model of its own — ; :class:`CellFailure` when refused."""
     from neuralbrdf.errors import InputError
+    from neuralbrdf.lod.config import load_lod_config
+    from neuralbrdf.lod.fast_paths import FastPathError, add_fast_paths, write_fast_path_alone
+    from neuralbrdf.onnx_contract import OUTPUT_FAST
     from neuralbrdf.onnx_export import ExportValidationError, export_checkpoint
 
     checkpoint = run_dir / "checkpoints" / CHECKPOINTS[spec["variant"]["method"]]
     try:
-        export_checkpoint(checkpoint, out)
-    except (InputError, ExportValidationError) as error:
+        if not spec["variant"].get("fast"):
+            export_checkpoint(checkpoint, out)
+            return out
+        full, with_fast = out.with_name(f"{out.stem}_full.onnx"), out.with_name(f"{out.stem}_with_fast.onnx")
+        export_checkpoint(checkpoint, full)
+        add_fast_paths(full, with_fast, (OUTPUT_FAST,), load_lod_config().fast_paths, log=lambda _: None)
+        write_fast_path_alone(with_fast, OUTPUT_FAST, out)
+    except (InputError, ExportValidationError, FastPathError) as error:
         raise CellFailure("export_refused", f"{type(error).__name__}: {error}"[:300]) from None
     return out
 

@@ -179,6 +179,10 @@ def cell_settings(cell: Cell, profile: Profile) -> dict:
     seeded = seed_args(variant.method, cell.seed)
     if seeded:  # likewise: only the methods whose fit takes the seed as an option
         settings["variant"]["seed_args"] = seeded
+    if variant.fast:  # only then: the keys of the other variants stay what they were
+        from neuralbrdf.lod.config import load_lod_config
+
+        settings["variant"]["fast"] = file_digest(str(load_lod_config().path))
     if variant.method in NETWORK_DEFAULTS:  # a retrained network changes every NLB result
         network = resolve_pretrained(pretrained_network(variant), NETWORK_DEFAULTS[variant.method])
         settings["variant"]["pretrained"] = file_digest(str(network))
