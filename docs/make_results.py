@@ -685,7 +685,8 @@ def validation_sweep_lines(data: dict) -> list[str]:
     groups = list(dict.fromkeys(g for sweep in data["sweeps"].values() for g in sweep["groups"]))
     rows = []
     for name, sweep in data["sweeps"].items():
-        row = [f"`{name}`", f"`{' '.join(sweep['spectral_args'])}`" if sweep["spectral_args"] else "defaults"]
+        settings = f"`{' '.join(sweep['spectral_args'])}`" if sweep["spectral_args"] else "defaults"
+        row = [f"`{name}`", f"{settings} ({sweep['note']})" if sweep.get("note") else settings]
         for group in groups:
             block = sweep["groups"].get(group)
             if block is None:
