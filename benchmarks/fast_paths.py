@@ -78,46 +78,39 @@ def nlb_models(work: Path, quick: bool) -> dict[str, Path]:
     sources = [{"virtual": name} for name in VIRTUAL]
     merl = [name for name in REPORT_MERL if (MERL / f"{name}.h5").is_file()]
     sources += [{"nbrdf": str(MERL / f"{name}.h5")} for name in merl]
-    run = work / "runs" / "nlb"
-    checkpoint = run / "checkpoints" / "fitted.ckpt"
-    if not checkpoint.is_file():
-        _run([sys.executable, "train.py", "fit", "--config", "configs/nlb_latent.yaml", "--data.sources",
-              json.dumps(sources), "--data.plan", "DS1", "--run_dir", str(run), "--overwrite",
-              "--trainer.enable_progress_bar", "false", *(["--trainer.max_epochs", "1"] if quick else [])],
-             work / "fit_nlb.log")
-    out = {}
-    for name in (*VIRTUAL, *merl):
-        model = work / f"nlb_{name}.onnx"
-        if not model.is_file():
-            _run([sys.executable, "-m", "neuralbrdf", "export", "--ckpt", str(checkpoint), "--material", name,
-                  "--out", str(model), "--fast", *_config(work, quick)], work / f"export_nlb_{name}.log")
-        out[name] = model
-    return out
+    return fitted_models(work, "nlb_latent.yaml", "nlb", sources, [*VIRTUAL, *merl], quick)
 
 
 def spectral_nlb_models(work: Path, quick: bool) -> dict[str, Path]:
     """The spectral NLB's fits of the virtual (spectral) and, when present, the report's MERL (RGB)
     materials, each exported with its fast paths (module docstring, 1)."""
     merl = [name for name in REPORT_MERL if (MERL / f"{name}.h5").is_file()]
-    batches = {"virtual": ([{"virtual": name} for name in VIRTUAL], list(VIRTUAL)),
-               "merl": ([{"nbrdf": str(MERL / f"{name}.h5")} for name in merl], merl)}
+    models = fitted_models(work, "nlb_spectral.yaml", "nlb_spectral_virtual", [{"virtual": name} for name in VIRTUAL],
+                           list(VIRTUAL), quick, ["--data.eval_plan", "null"])
+    if merl:
+        models |= fitted_models(work, "nlb_spectral.yaml", "nlb_spectral_merl",
+                                [{"nbrdf": str(MERL / f"{name}.h5")} for name in merl], merl, quick,
+                                ["--data.eval_plan", "null"])
+    return models
+
+
+def fitted_models(work: Path, config: str, label: str, sources: list[dict], names: list[str], quick: bool,
+                  fit_args: list[str] = ()) -> dict[str, Path]:
+    """One latent fit (``configs/CONFIG``, DS1) of ``sources`` in ``work/runs/LABEL`` and each of ``names``
+    exported with its fast paths (``neuralbrdf export --fast``) to ``work/LABEL_NAME.onnx``."""
+    run = work / "runs" / label
+    checkpoint = run / "checkpoints" / "fitted.ckpt"
+    if not checkpoint.is_file():
+        _run([sys.executable, "train.py", "fit", "--config", f"configs/{config}", "--data.sources", json.dumps(sources),
+              "--data.plan", "DS1", *fit_args, "--run_dir", str(run), "--overwrite", "--trainer.enable_progress_bar",
+              "false", *(["--trainer.max_epochs", "1"] if quick else [])], work / f"fit_{label}.log")
     out = {}
-    for label, (sources, names) in batches.items():
-        if not names:
-            continue
-        run = work / "runs" / f"nlb_spectral_{label}"
-        checkpoint = run / "checkpoints" / "fitted.ckpt"
-        if not checkpoint.is_file():
-            _run([sys.executable, "train.py", "fit", "--config", "configs/nlb_spectral.yaml", "--data.sources",
-                  json.dumps(sources), "--data.plan", "DS1", "--data.eval_plan", "null", "--run_dir", str(run),
-                  "--overwrite", "--trainer.enable_progress_bar", "false",
-                  *(["--trainer.max_epochs", "1"] if quick else [])], work / f"fit_nlb_spectral_{label}.log")
-        for name in names:
-            model = work / f"nlb_spectral_{name}.onnx"
-            if not model.is_file():
-                _run([sys.executable, "-m", "neuralbrdf", "export", "--ckpt", str(checkpoint), "--material", name,
-                      "--out", str(model), "--fast", *_config(work, quick)], work / f"export_nlb_spectral_{name}.log")
-            out[name] = model
+    for name in names:
+        model = work / f"{label}_{name}.onnx"
+        if not model.is_file():
+            _run([sys.executable, "-m", "neuralbrdf", "export", "--ckpt", str(checkpoint), "--material", name,
+                  "--out", str(model), "--fast", *_config(work, quick)], work / f"export_{label}_{name}.log")
+        out[name] = model
     return out
 
 

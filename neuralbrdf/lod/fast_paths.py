@@ -173,11 +173,7 @@ def add_fast_paths(model_path: str | Path, out: str | Path, outputs: tuple[str, 
     combined = with_fast_paths(parent.file.proto, traced, metadata)
     out = Path(out)
     with atomic_path(out) as tmp:
-        onnx.save(combined, str(tmp))
-        try:
-            load_model(tmp)
-        except InputError as error:
-            raise ExportValidationError(f"the file with fast paths fails the ONNX contract check: {error.reason}") from None
+        _save_checked(combined, tmp, "the file with fast paths")
         check = settings.image_check
         for output, (delta_e, where) in image_errors(tmp, outputs, check).items():
             log(f"{output}: image ΔE2000 mean {delta_e:.3f} against f ({where})")
@@ -233,9 +229,15 @@ def write_fast_path_alone(model_path: str | Path, output: str, out: str | Path) 
     helper.set_model_props(proto, metadata)
     out = Path(out)
     with atomic_path(out) as tmp:
-        onnx.save(proto, str(tmp))
-        try:
-            load_model(tmp)
-        except InputError as error:
-            raise ExportValidationError(f"{output} alone fails the ONNX contract check: {error.reason}") from None
+        _save_checked(proto, tmp, f"{output} alone")
     return out
+
+
+def _save_checked(proto: onnx.ModelProto, path: Path, what: str) -> None:
+    """Save ``proto`` at ``path`` and check it as the renderer will (:func:`~neuralbrdf.kinds.load_model`);
+    :class:`ExportValidationError` naming ``what`` otherwise."""
+    onnx.save(proto, str(path))
+    try:
+        load_model(path)
+    except InputError as error:
+        raise ExportValidationError(f"{what} fails the ONNX contract check: {error.reason}") from None
