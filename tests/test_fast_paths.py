@@ -575,11 +575,11 @@ def test_any_spectral_file_gets_its_fast_paths_the_spectral_nlb_too(tmp_path, ca
 def test_a_fast_path_alone_is_a_model_file_whose_f_is_that_output(distilled, tmp_path):
     """What a study's ``fast`` variant scores: the fast path cut out of its file (its only output
     ``f``, no fast-path metadata, the provenance saying which output it was)."""
-    from neuralbrdf.lod.fast_paths import write_fast_path_alone
+    from neuralbrdf.study.cell import fast_path_alone
 
     _, with_paths, _ = distilled
     for output, spectral in ((OUTPUT_FAST, True), (OUTPUT_RGB, False)):
-        out = write_fast_path_alone(with_paths, output, tmp_path / f"{output}.onnx")
+        out = fast_path_alone(with_paths, output, tmp_path / f"{output}.onnx")
         alone = load_model(out)
         assert alone.kind == load_model(with_paths).kind and alone.fast_paths == {} and alone.is_spectral is spectral
         assert f"its fast path {output}" in alone.metadata["neuralbrdf.provenance"]

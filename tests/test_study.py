@@ -107,13 +107,17 @@ def test_a_fast_variant_studies_the_models_fast_path(tmp_path, monkeypatch):
         load_profile(str(_write(tmp_path, text.replace("fast: true", "fast: quickly"))))
     calls = []
     monkeypatch.setattr("neuralbrdf.onnx_export.export_checkpoint", lambda ckpt, out: calls.append(("export", out)))
-    monkeypatch.setattr("neuralbrdf.lod.fast_paths.add_fast_paths", lambda model, out, outputs, *a, **k: calls.append(
-        ("add", outputs)))
-    monkeypatch.setattr("neuralbrdf.lod.fast_paths.write_fast_path_alone",
-                        lambda model, output, out: calls.append(("alone", output, out)))
+    monkeypatch.setattr(cell_module.subprocess, "run", lambda command, **kwargs: calls.append(("add", command)) or
+                        subprocess.CompletedProcess(command, 0, "", ""))
+    monkeypatch.setattr(cell_module, "fast_path_alone", lambda model, output, out: calls.append(("alone", output, out)))
     out = tmp_path / "model.onnx"
     assert cell_module.export({"variant": {"method": "abc", "fast": True}}, tmp_path / "run", out) == out
-    assert [c[0] for c in calls] == ["export", "add", "alone"] and calls[1][1] == ("f_fast",) and calls[2][2] == out
+    assert [c[0] for c in calls] == ["export", "add", "alone"] and calls[2][1:] == ("f_fast", out)
+    assert calls[1][1][2:4] == ["neuralbrdf", "export"] and "--fast" in calls[1][1]  # neuralbrdf export --fast
+    monkeypatch.setattr(cell_module.subprocess, "run", lambda command, **kwargs: subprocess.CompletedProcess(
+        command, 1, "", "error: x.onnx not written: the f_fast student renders ΔE2000 0.9 away"))
+    with pytest.raises(cell_module.CellFailure, match="not written"):
+        cell_module.export({"variant": {"method": "abc", "fast": True}}, tmp_path / "run", out)
 
 
 def test_a_variant_fits_only_the_materials_it_names(tmp_path):

@@ -49,18 +49,8 @@ from neuralbrdf.errors import InputError
 from neuralbrdf.evaluation.scores import HEMISPHERE_STRATA, OnnxEvaluator, TorchEvaluator, hemisphere_scores
 from neuralbrdf.kinds import Exportable, load_model
 from neuralbrdf.lod.distill import DistillSettings, distill_student, rgb_teacher, teacher_samples
-from neuralbrdf.onnx_contract import (
-    FAST_PATH_OUTPUTS,
-    OUTPUT_F,
-    OUTPUT_FAST,
-    OUTPUT_RGB,
-    PROVENANCE_KEY,
-    WAVELENGTH_MAX_KEY,
-    WAVELENGTH_MIN_KEY,
-    FastPath,
-    fast_path_key,
-)
-from neuralbrdf.onnx_export import ExportValidationError, trace, validate, with_fast_paths
+from neuralbrdf.onnx_contract import OUTPUT_F, OUTPUT_FAST, OUTPUT_RGB, FastPath, fast_path_key
+from neuralbrdf.onnx_export import save_checked, trace, validate, with_fast_paths
 
 
 class FastPathError(ValueError):
@@ -135,7 +125,8 @@ def add_fast_paths(model_path: str | Path, out: str | Path, outputs: tuple[str, 
                    log=print) -> list[FastPath]:
     """Write ``out``: the model file ``model_path`` with the fast paths ``outputs`` (``f_rgb``,
     ``f_fast``) added (module docstring), atomically and only after the contract check accepted
-    it; nothing is written on failure (:class:`FastPathError`, :class:`ExportValidationError`,
+    it; nothing is written on failure (:class:`FastPathError`,
+    :class:`~neuralbrdf.onnx_export.ExportValidationError`,
     :class:`~neuralbrdf.errors.InputError`)."""
     from neuralbrdf.lod.ladder import drjit_costs
 
@@ -173,7 +164,7 @@ def add_fast_paths(model_path: str | Path, out: str | Path, outputs: tuple[str, 
     combined = with_fast_paths(parent.file.proto, traced, metadata)
     out = Path(out)
     with atomic_path(out) as tmp:
-        _save_checked(combined, tmp, "the file with fast paths")
+        save_checked(combined, tmp, "the file with fast paths")
         check = settings.image_check
         for output, (delta_e, where) in image_errors(tmp, outputs, check).items():
             log(f"{output}: image ΔE2000 mean {delta_e:.3f} against f ({where})")
@@ -212,32 +203,3 @@ def image_errors(path: Path, outputs: tuple[str, ...], check: ImageCheck) -> dic
                          "the same paths as f")
     return found
 
-
-def write_fast_path_alone(model_path: str | Path, output: str, out: str | Path) -> Path:
-    """Write ``out``: the fast path ``output`` of the file ``model_path`` as a model file of its own
-    (its only output ``f``; the file's metadata without its fast paths' entries, the provenance
-    saying which output it is), checked by the contract like any model file."""
-    from onnx import helper
-
-    model = load_model(model_path)
-    recorded, view = model.fast_paths[output], model.output_view(output)
-    dropped = () if view.is_spectral else (WAVELENGTH_MIN_KEY, WAVELENGTH_MAX_KEY)  # f_rgb: an RGB model
-    metadata = {key: value for key, value in model.metadata.items() if key not in dropped
-                and not (key.startswith("neuralbrdf.") and key.split(".")[1] in FAST_PATH_OUTPUTS)}
-    metadata[PROVENANCE_KEY] = f"{metadata[PROVENANCE_KEY]}; its fast path {output}: {recorded.approximates}"
-    proto = view.proto
-    helper.set_model_props(proto, metadata)
-    out = Path(out)
-    with atomic_path(out) as tmp:
-        _save_checked(proto, tmp, f"{output} alone")
-    return out
-
-
-def _save_checked(proto: onnx.ModelProto, path: Path, what: str) -> None:
-    """Save ``proto`` at ``path`` and check it as the renderer will (:func:`~neuralbrdf.kinds.load_model`);
-    :class:`ExportValidationError` naming ``what`` otherwise."""
-    onnx.save(proto, str(path))
-    try:
-        load_model(path)
-    except InputError as error:
-        raise ExportValidationError(f"{what} fails the ONNX contract check: {error.reason}") from None
