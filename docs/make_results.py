@@ -659,7 +659,8 @@ def spectral_nlb_section() -> list[str]:
 
 def spectral_timing_lines(data: dict) -> list[str]:
     """The fit times of ``benchmarks/spectral_nlb_timing.json`` against their targets."""
-    lines = ["### Fit time", "", "`fit/wall_time_s` of `neuralbrdf train fit` (the fit proper, not the Python start-up), "
+    lines = ["### Fit time", "", "`fit/wall_time_s` of `neuralbrdf train fit` (the fit proper, its screening of starts included; "
+             "not the Python start-up or the loading of the tables), "
              "per material, the spectral NLB beside the RGB NLB on the same tables in the same run (virtual "
              "materials measured on DS1 with 1 % noise, as spectra or converted to sRGB).", ""]
     lines += source_lines(SPECTRAL_NLB_TIMING, data["command"])
