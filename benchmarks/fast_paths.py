@@ -10,17 +10,24 @@
    * one NLB latent fit (``configs/nlb_latent.yaml``, DS1) of the four virtual materials and the
      report's five MERL materials (NBRDF proxies in ``../shared/data/merl-nbrdf``; left out, and
      said so, when that folder is missing), each exported with its fast path (``neuralbrdf export
-     --fast``).
+     --fast``);
+   * the spectral NLB's fits (``configs/nlb_spectral.yaml``) of the same materials: the four
+     virtual ones from their shipped spectral DS1 measurements in one batch, the five MERL ones
+     (RGB) from DS1 in another, each exported with ``neuralbrdf export --fast`` (a spectral model
+     gets its RGB head too).
 2. **Images.**  The material-preview scene at ``--resolution`` and ``--spp``, seed 0: the RGB head
    against the spectral integration (``rgb_head`` off: the plugin's sRGB rule) in
    ``llvm_ad_rgb``; the NLB's fast path against the full NLB in ``llvm_ad_rgb`` and
-   ``llvm_ad_spectral``.  A fast path is an output of its parent's own file, so both sample the
-   same paths and the difference is the fast path's error, not Monte Carlo noise.  Mean and p95
+   ``llvm_ad_spectral``; the spectral NLB rendered the way ``--fast`` renders it against its full
+   network (``rgb_head`` off) in both variants — its ``f_fast``, or for a spectral model in
+   ``llvm_ad_rgb`` its RGB head.  A fast path is an output of its parent's own file, so both sample
+   the same paths and the difference is the fast path's error, not Monte Carlo noise.  Mean and p95
    CIEDE2000 per material, and the fast path's recorded error (its cost: ``benchmarks/run.py``).
 3. Writes ``--out`` (strict JSON) and, beside it, ``fast_paths_<fast path>_<variant>.png``: per material the
    parent, the fast path and their ΔE2000 map (colour scale 0–2).
 
-Target quoted (not asserted): mean ΔE2000 ≤ 0.5 for the RGB head, ≤ 1.0 for the NLB fast path.
+Target quoted (not asserted): mean ΔE2000 ≤ 0.5 for the RGB head and the spectral NLB's fast
+path, ≤ 1.0 for the NLB fast path.
 """
 
 from __future__ import annotations
@@ -38,7 +45,7 @@ ROOT = Path(__file__).resolve().parents[1]
 MERL = ROOT.parent / "shared" / "data" / "merl-nbrdf"
 VIRTUAL = ("gold", "gonio", "cyan", "magenta")
 REPORT_MERL = ("tungsten-carbide", "nylon", "brass", "blue-acrylic", "specular-black-phenolic")
-TARGETS = {"rgb head": 0.5, "nlb fast path": 1.0}
+TARGETS = {"rgb head": 0.5, "nlb fast path": 1.0, "nlb_spectral fast path": 0.5}
 #: ΔE2000 of the maps' full colour scale.
 MAP_MAX_DELTA_E = 2.0
 
@@ -71,19 +78,38 @@ def nlb_models(work: Path, quick: bool) -> dict[str, Path]:
     sources = [{"virtual": name} for name in VIRTUAL]
     merl = [name for name in REPORT_MERL if (MERL / f"{name}.h5").is_file()]
     sources += [{"nbrdf": str(MERL / f"{name}.h5")} for name in merl]
-    run = work / "runs" / "nlb"
+    return fitted_models(work, "nlb_latent.yaml", "nlb", sources, [*VIRTUAL, *merl], quick)
+
+
+def spectral_nlb_models(work: Path, quick: bool) -> dict[str, Path]:
+    """The spectral NLB's fits of the virtual (spectral) and, when present, the report's MERL (RGB)
+    materials, each exported with its fast paths (module docstring, 1)."""
+    merl = [name for name in REPORT_MERL if (MERL / f"{name}.h5").is_file()]
+    models = fitted_models(work, "nlb_spectral.yaml", "nlb_spectral_virtual", [{"virtual": name} for name in VIRTUAL],
+                           list(VIRTUAL), quick, ["--data.eval_plan", "null"])
+    if merl:
+        models |= fitted_models(work, "nlb_spectral.yaml", "nlb_spectral_merl",
+                                [{"nbrdf": str(MERL / f"{name}.h5")} for name in merl], merl, quick,
+                                ["--data.eval_plan", "null"])
+    return models
+
+
+def fitted_models(work: Path, config: str, label: str, sources: list[dict], names: list[str], quick: bool,
+                  fit_args: list[str] = ()) -> dict[str, Path]:
+    """One latent fit (``configs/CONFIG``, DS1) of ``sources`` in ``work/runs/LABEL`` and each of ``names``
+    exported with its fast paths (``neuralbrdf export --fast``) to ``work/LABEL_NAME.onnx``."""
+    run = work / "runs" / label
     checkpoint = run / "checkpoints" / "fitted.ckpt"
     if not checkpoint.is_file():
-        _run([sys.executable, "train.py", "fit", "--config", "configs/nlb_latent.yaml", "--data.sources",
-              json.dumps(sources), "--data.plan", "DS1", "--run_dir", str(run), "--overwrite",
-              "--trainer.enable_progress_bar", "false", *(["--trainer.max_epochs", "1"] if quick else [])],
-             work / "fit_nlb.log")
+        _run([sys.executable, "train.py", "fit", "--config", f"configs/{config}", "--data.sources", json.dumps(sources),
+              "--data.plan", "DS1", *fit_args, "--run_dir", str(run), "--overwrite", "--trainer.enable_progress_bar",
+              "false", *(["--trainer.max_epochs", "1"] if quick else [])], work / f"fit_{label}.log")
     out = {}
-    for name in (*VIRTUAL, *merl):
-        model = work / f"nlb_{name}.onnx"
+    for name in names:
+        model = work / f"{label}_{name}.onnx"
         if not model.is_file():
             _run([sys.executable, "-m", "neuralbrdf", "export", "--ckpt", str(checkpoint), "--material", name,
-                  "--out", str(model), "--fast", *_config(work, quick)], work / f"export_nlb_{name}.log")
+                  "--out", str(model), "--fast", *_config(work, quick)], work / f"export_{label}_{name}.log")
         out[name] = model
     return out
 
@@ -99,6 +125,7 @@ def _config(work: Path, quick: bool) -> list[str]:
     raw = yaml.safe_load(load_lod_config().path.read_text())
     raw["fast_paths"]["distill"].update(steps=200, n_pairs=4096, batch=1024)
     raw["fast_paths"].update(max_hemisphere_logcos_rmse=1.0)
+    raw["fast_paths"]["image_check"].update(resolution=32, spp=4, max_delta_e2000_mean=100.0)
     path = work / "quick_lod.yaml"
     path.write_text(yaml.safe_dump(raw))
     return ["--config", str(path)]
@@ -151,6 +178,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.quick:
         args.resolution, args.spp = 32, 4
     from neuralbrdf.atomic import atomic_write
+    from neuralbrdf.evaluation.fast_paths import rendered_output
     from neuralbrdf.kinds import load_model
     from neuralbrdf.study.cost import machine
 
@@ -161,12 +189,17 @@ def main(argv: list[str] | None = None) -> int:
     nlb = nlb_models(work, args.quick)
     cases += [("nlb fast path", name, path, variant, True) for variant in ("llvm_ad_rgb", "llvm_ad_spectral")
               for name, path in nlb.items()]
+    cases += [("nlb_spectral fast path", name, path, variant, True) for variant in ("llvm_ad_rgb", "llvm_ad_spectral")
+              for name, path in spectral_nlb_models(work, args.quick).items()]
     results, pictures = [], {}
     for what, name, path, variant, fast in cases:
         metrics, parent, stand_in = compare(path, variant, args.resolution, args.spp, fast)
-        recorded = load_model(path).fast_paths["f_fast" if fast else "f_rgb"]
-        results.append({"fast_path": what, "material": name, "variant": variant, **metrics,
-                        "recorded_hemisphere_logcos_rmse": recorded.hemisphere_logcos_rmse})
+        file = load_model(path)
+        output = rendered_output(file, variant, fast)
+        recorded = file.fast_paths[output]
+        results.append({"fast_path": what, "material": name, "variant": variant, "output": output, **metrics,
+                        "recorded_hemisphere_logcos_rmse": recorded.hemisphere_logcos_rmse,
+                        "recorded_image_delta_e2000_mean": recorded.image_delta_e2000_mean})
         pictures.setdefault((what, variant), []).append((name, parent, stand_in))
         print(f"{what:<14} {name:<24} {variant:<17} ΔE2000 mean {metrics['image_delta_e2000_mean']:.3f} "
               f"p95 {metrics['image_delta_e2000_p95']:.3f}  (recorded log-cos RMSE {recorded.hemisphere_logcos_rmse:.4f})",

@@ -10,6 +10,10 @@
      with its RGB head ``f_rgb`` (``neuralbrdf export``; :mod:`neuralbrdf.lod.fast_paths`);
    * ``nlb`` — the default NLB network (``nlb_latent32_blends``) with the latent of its pretraining
      material :data:`NLB_MATERIAL`, exported with its fast path ``f_fast`` (``neuralbrdf export --fast``);
+   * ``nlb_spectral`` — the spectral NLB fitted to the shipped virtual gold measurement
+     (``configs/nlb_spectral.yaml``, spectral, one material), exported as ``neuralbrdf export --fast``
+     does: ``f`` without the units the material never fires, its RGB head ``f_rgb`` and its fast path
+     ``f_fast``;
    * ``abc`` — an ABC model with fixed parameters (:data:`ABC_BENCH_PARAMETERS`);
    * ``flat`` — a nearly free spectral model (:class:`FlatSpectrum`): the plugin's own cost.
 
@@ -19,8 +23,11 @@
    scene of ``export/render.py`` is rendered with each configuration of :func:`render_configs`:
    Mitsuba's ``roughconductor`` (GGX gold, α = 0.2) in symbolic and wavefront mode, every model
    through the ``drjit`` backend (symbolic mode; the spectral MLP also through ``onnxruntime``, in
-   wavefront mode), the NLB full and through its fast path, and — RGB variant — the spectral MLP
-   integrated to sRGB by the plugin's rule (``rgb_head`` off: what the RGB head replaces).  The
+   wavefront mode), the NLB full and through its fast path, the spectral NLB through ``drjit`` and
+   ``onnxruntime`` (its ``f`` in the spectral variant, its RGB head in the RGB one) and through its fast
+   path (spectral variant; in RGB variants the RGB head is its fast path), and — RGB variant — the
+   spectral MLP and the spectral NLB integrated to sRGB by the plugin's rule (``rgb_head`` off: what
+   the RGB head replaces).  The
    first render of each (tracing and compilation) is timed apart; then ``repeats`` renders are
    taken round-robin over the configurations (each scene reloaded, one scene alive at a time), so
    that load from other processes hits all alike; median and shortest are reported, and the
@@ -28,8 +35,9 @@
    for both.  Every configuration uses the same pass split.
 3. **Fast-path image error.**  A fast path and its parent are the same file, so they sample the
    same paths: their first renders (same seed) differ by the fast path's own error: mean and p95
-   CIEDE2000 of the RGB head against the spectral integration (RGB variant) and of the NLB's fast
-   path against the full NLB (both variants).
+   CIEDE2000 of each RGB head against the spectral integration (RGB variant), of the NLB's fast
+   path against the full NLB (both variants) and of the spectral NLB's fast path against its full
+   network (spectral variant).
 4. **Throughput.**  Raw model evaluation, queries per second at one batch size (10⁶; one query is
    one ``(wi, wo[, λ])``), for PyTorch (where the module is at hand), onnxruntime (the exported
    output), Dr.Jit (:class:`~neuralbrdf.render.drjit_onnx.DrJitGraph` on ``drjit.llvm`` arrays,
@@ -88,10 +96,18 @@ TARGETS = {
     "llvm_ad_rgb/spectral_mlp/onnxruntime": "<= 1.4",
     "llvm_ad_rgb/spectral_mlp rgb head image dE2000 mean": "<= 0.5",
     "llvm_ad_spectral/spectral_mlp/drjit": "<= 1.05",
-    "llvm_ad_rgb/nlb_fast/drjit": "<= 1.3",
-    "llvm_ad_spectral/nlb_fast/drjit": "<= 1.3",
+    "llvm_ad_rgb/abc/drjit": "<= 1.2",
+    "llvm_ad_spectral/abc/drjit": "<= 1.2",
+    "llvm_ad_rgb/nlb_fast/drjit": "<= 1.2",
+    "llvm_ad_spectral/nlb_fast/drjit": "<= 1.2",
     "nlb fast path image dE2000 mean": "<= 1.0",
+    "llvm_ad_rgb/nlb_spectral/drjit": "<= 1.2",
+    "llvm_ad_spectral/nlb_spectral_fast/drjit": "<= 1.2",
+    "llvm_ad_spectral/nlb_spectral/drjit": "<= 1.5",
+    "nlb_spectral fast path and rgb head image dE2000 mean": "<= 0.5",
 }
+#: The material the benchmark's spectral NLB is fitted to (its shipped DS1 measurement).
+NLB_SPECTRAL_MATERIAL = "gold"
 
 
 @dataclass(frozen=True)
@@ -122,6 +138,10 @@ def render_configs() -> tuple[RenderConfig, ...]:
         RenderConfig("abc/drjit", "abc"),
         RenderConfig("nlb/drjit", "nlb"),
         RenderConfig("nlb_fast/drjit", "nlb", fast=True),
+        RenderConfig("nlb_spectral/drjit", "nlb_spectral"),
+        RenderConfig("nlb_spectral/onnxruntime", "nlb_spectral", backend="onnxruntime", wavefront=True),
+        RenderConfig("nlb_spectral_integrated/drjit", "nlb_spectral", rgb_head=False, variants=("llvm_ad_rgb",)),
+        RenderConfig("nlb_spectral_fast/drjit", "nlb_spectral", fast=True, variants=("llvm_ad_spectral",)),
         RenderConfig("flat_model/drjit", "flat"),
     )
 
@@ -130,6 +150,8 @@ def render_configs() -> tuple[RenderConfig, ...]:
 IMAGE_PAIRS = (
     ("spectral_mlp/drjit", "spectral_mlp_integrated/drjit", ("llvm_ad_rgb",)),
     ("nlb_fast/drjit", "nlb/drjit", VARIANTS),
+    ("nlb_spectral/drjit", "nlb_spectral_integrated/drjit", ("llvm_ad_rgb",)),
+    ("nlb_spectral_fast/drjit", "nlb_spectral/drjit", ("llvm_ad_spectral",)),
 )
 
 
@@ -164,19 +186,43 @@ def _fast_path_settings(settings: Settings):
     if settings.distill_steps is None:
         return config
     small = dataclasses.replace(config.distill, steps=settings.distill_steps, n_pairs=8192, batch=1024)
+    image = dataclasses.replace(config.image_check, resolution=32, spp=4, max_delta_e2000_mean=math.inf)
     return dataclasses.replace(config, distill=small, error_strata=(8, 10),
-                               max_hemisphere_logcos_rmse=math.inf)
+                               max_hemisphere_logcos_rmse=math.inf, image_check=image)
 
 
-def with_fast_path(model: Path, output: str, settings: Settings) -> tuple[Path, dict]:
-    """``model`` with its fast path ``output`` added (as ``neuralbrdf export`` does); the new file
-    and what the fast path recorded."""
+def with_fast_paths(model: Path, outputs: tuple[str, ...], settings: Settings) -> tuple[Path, dict]:
+    """``model`` with its fast paths ``outputs`` added (as ``neuralbrdf export`` does); the new file
+    and, per fast path, what it recorded (``build_s``: all of them together)."""
     from neuralbrdf.lod.fast_paths import add_fast_paths
 
-    out = model.with_name(f"{model.stem}_{output}.onnx")
+    out = model.with_name(f"{model.stem}_{'_'.join(outputs)}.onnx")
     start = time.perf_counter()
-    (report,) = add_fast_paths(model, out, (output,), _fast_path_settings(settings), log=lambda _: None)
-    return out, {**dataclasses.asdict(report), "build_s": time.perf_counter() - start}
+    reports = add_fast_paths(model, out, outputs, _fast_path_settings(settings), log=lambda _: None)
+    build_s = time.perf_counter() - start
+    return out, {report.output: {**dataclasses.asdict(report), "build_s": build_s} for report in reports}
+
+
+def fit_spectral_nlb(settings: Settings, workdir: Path) -> dict:
+    """The spectral NLB fitted to :data:`NLB_SPECTRAL_MATERIAL`'s shipped measurement
+    (``neuralbrdf train fit --config nlb_spectral``) and exported; paths, fit and export times."""
+    run_dir = workdir / "nlb_spectral_run"
+    command = [
+        sys.executable, "-m", "neuralbrdf", "train", "fit", "--config", str(ROOT / "configs" / "nlb_spectral.yaml"),
+        "--data.sources", json.dumps([{"virtual": NLB_SPECTRAL_MATERIAL}]), "--data.eval_plan", "null",
+        "--run_dir", str(run_dir), "--trainer.enable_progress_bar", "false",
+        *(["--trainer.max_epochs", "1", "--data.steps_per_epoch", "20"] if settings.distill_steps is not None else []),
+    ]
+    train_s = _timed(lambda: subprocess.run(command, cwd=ROOT, check=True, capture_output=True, text=True))
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    checkpoint = run_dir / "checkpoints" / "fitted.ckpt"
+    model = workdir / f"{NLB_SPECTRAL_MATERIAL}_nlb_spectral.onnx"
+    start = time.perf_counter()
+    report = onnx_export.export_checkpoint(checkpoint, model)
+    return {"path": str(model), "checkpoint": str(checkpoint), "material": NLB_SPECTRAL_MATERIAL,
+            "train_command_s": train_s, "fit_wall_time_s": metrics.get("fit/wall_time_s"),
+            "hidden_units": kinds.load_model(model).metadata.get("neuralbrdf.nlb_spectral.hidden_units"),
+            "export_s": time.perf_counter() - start, "export_max_rel_error": report.max_rel_error}
 
 
 def train_spectral_mlp(settings: Settings, workdir: Path) -> dict:
@@ -309,7 +355,9 @@ def bench_models_throughput(models: dict[str, Path], modules: dict[str, torch.nn
     """Throughput of every model's ``f`` and of each fast path (module docstring, 4)."""
     out = {}
     cases = (("spectral_mlp", "spectral_mlp", OUTPUT_F), ("spectral_mlp rgb head", "spectral_mlp", OUTPUT_RGB),
-             ("nlb", "nlb", OUTPUT_F), ("nlb fast path", "nlb", OUTPUT_FAST), ("abc", "abc", OUTPUT_F))
+             ("nlb", "nlb", OUTPUT_F), ("nlb fast path", "nlb", OUTPUT_FAST), ("abc", "abc", OUTPUT_F),
+             ("nlb_spectral", "nlb_spectral", OUTPUT_F), ("nlb_spectral rgb head", "nlb_spectral", OUTPUT_RGB),
+             ("nlb_spectral fast path", "nlb_spectral", OUTPUT_FAST))
     for name, model, output in cases:
         view = kinds.load_model(models[model]).output_view(output)
         module = modules.get(model) if output == OUTPUT_F else None
@@ -331,10 +379,14 @@ def _table(results: dict) -> str:
         f"{results['settings']['spp']} spp, {results['settings']['repeats']} renders each, round-robin",
         f"spectral MLP: {results['models']['spectral_mlp']['epochs']} epochs, val glossy rel. RMSE "
         f"{results['models']['spectral_mlp']['val_rel_rmse_glossy_median']:.3g}",
+        f"spectral NLB: {results['models']['nlb_spectral']['material']}, fitted in "
+        f"{results['models']['nlb_spectral']['fit_wall_time_s']:.1f} s, hidden units "
+        f"{results['models']['nlb_spectral']['hidden_units']}",
     ]
     for output, fast in results["fast_paths"].items():
         lines.append(f"{output}: {fast['approximates']}; log-cos RMSE {fast['hemisphere_logcos_rmse']:.4f}, "
-                     f"relative cost {fast['relative_cost']:.2f} (built in {fast['build_s']:.0f} s)")
+                     f"image dE2000 {fast['image_delta_e2000_mean']:.3f} (export check), relative cost "
+                     f"{fast['relative_cost']:.2f} (built in {fast['build_s']:.0f} s)")
     lines += ["", f"{'variant':<18}{'configuration':<32}{'output':<8}{'first s':>9}{'median s':>10}{'short s':>9}"
                   f"{'x rc median':>12}{'x rc short':>11}  target"]
     for variant, entry in results["render"].items():
@@ -377,16 +429,22 @@ def run(quick: bool, out: Path, repeats: int | None = None) -> dict:
         nlb_path = onnx_export.write_model(nlb, workdir / "nlb.onnx").path
         abc = abc_kind.exportable(ABC_BENCH_PARAMETERS, "benchmark", "benchmarks/run.py")
         abc_path = onnx_export.write_model(abc, workdir / "abc.onnx").path
-        spectral_path, rgb_head = with_fast_path(Path(spectral["path"]), OUTPUT_RGB, settings)
-        nlb_fast_path, nlb_fast = with_fast_path(nlb_path, OUTPUT_FAST, settings)
+        spectral_nlb = fit_spectral_nlb(settings, workdir)
+        spectral_path, spectral_paths = with_fast_paths(Path(spectral["path"]), (OUTPUT_RGB,), settings)
+        nlb_fast_path, nlb_paths = with_fast_paths(nlb_path, (OUTPUT_FAST,), settings)
+        spectral_nlb_path, spectral_nlb_paths = with_fast_paths(Path(spectral_nlb["path"]), (OUTPUT_RGB, OUTPUT_FAST),
+                                                                settings)
         results["models"] = {"spectral_mlp": spectral, "nlb": {"network": PRETRAINED_DEFAULT.name, "latent": NLB_MATERIAL},
-                             "abc": ABC_BENCH_PARAMETERS.to_dict()}
-        results["fast_paths"] = {"spectral_mlp " + OUTPUT_RGB: rgb_head, "nlb " + OUTPUT_FAST: nlb_fast}
+                             "abc": ABC_BENCH_PARAMETERS.to_dict(), "nlb_spectral": spectral_nlb}
+        results["fast_paths"] = {f"{model} {output}": entry
+                                 for model, paths in (("spectral_mlp", spectral_paths), ("nlb", nlb_paths),
+                                                      ("nlb_spectral", spectral_nlb_paths))
+                                 for output, entry in paths.items()}
         models = {"spectral_mlp": spectral_path, "nlb": nlb_fast_path, "abc": abc_path,
-                  "flat": write_flat_model(workdir / "flat.onnx")}
+                  "nlb_spectral": spectral_nlb_path, "flat": write_flat_model(workdir / "flat.onnx")}
         results["render"] = {variant: bench_renders(models, variant, settings) for variant in VARIANTS}
         modules = {"spectral_mlp": kinds.load_exportable(spectral["checkpoint"]).module, "nlb": nlb.module,
-                   "abc": abc.module}
+                   "abc": abc.module, "nlb_spectral": kinds.load_exportable(spectral_nlb["checkpoint"]).module}
         results["throughput"] = bench_models_throughput(models, modules, settings)
     results["load_average"]["after"] = list(os.getloadavg())
     results["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024

@@ -14,8 +14,8 @@ NLB, the baseline measured in the same run), through ``neuralbrdf train fit`` as
 * **single, RGB** and **batched, RGB**: the same tables in linear sRGB (what the RGB NLB reads;
   the spectral NLB fits them per channel).
 
-Reported: ``fit/wall_time_s`` of each run (the latent fit proper: data set-up and the optimiser,
-not the Python start-up), per material, and the spectral NLB over the RGB NLB.  The tables are
+Reported: ``fit/wall_time_s`` of each run (the latent fit proper: the screening of starts and the
+optimiser, not the Python start-up or the loading of the tables), per material, and the spectral NLB over the RGB NLB.  The tables are
 kept in ``--work``; the runs are redone every time.
 """
 

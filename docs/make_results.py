@@ -397,7 +397,10 @@ def speed_section() -> list[str]:
              f"Material-preview scene, {settings.get('resolution')}² at {settings.get('spp')} spp, path depth 5, "
              f"{settings.get('repeats')} renders per configuration taken round-robin; the spectral MLP trained on the "
              f"virtual gold ({settings.get('epochs')} epochs, seed {data.get('seed')}), the default NLB network with "
-             "one pretraining material's latent, an ABC model. Render time over Mitsuba's `roughconductor` (GGX gold, "
+             "one pretraining material's latent, an ABC model, the spectral NLB fitted to the virtual gold's "
+             "measurement (`nlb_spectral`: its `f` in spectral variants, its RGB head in RGB ones; "
+             "`nlb_spectral_integrated`: its `f` through the plugin's sRGB rule; `nlb_spectral_fast`: its fast path). "
+             "Render time over Mitsuba's `roughconductor` (GGX gold, "
              "α = 0.2) in the same variant and mode, same process (median of the renders, and shortest over "
              "shortest). Where the time goes: [design.md](design.md#rendering-speed).", ""]
     lines += source_lines(relative, data.get("command", "python benchmarks/run.py"), data.get("machine"))
@@ -442,7 +445,8 @@ def _speed_measured(data: dict, key: str, target: str) -> list[str]:
     try:
         relation, bound = target.split()[0], float(target.split()[1])
         if key.endswith("image dE2000 mean"):
-            pair = "spectral_mlp/drjit vs" if "rgb head" in key else "nlb_fast/drjit vs"
+            pair = ("nlb_spectral" if key.startswith("nlb_spectral") else "spectral_mlp/drjit vs" if "rgb head" in key
+                    else "nlb_fast/drjit vs")
             values = [m["image_delta_e2000_mean"] for block in data["render"].values()
                       for name, m in block.get("image_errors", {}).items() if name.startswith(pair)]
             value = max(values)
@@ -465,9 +469,10 @@ def fast_paths_section() -> list[str]:
     lines = ["### Fast paths against their parents", "",
              f"Each fast path rendered against its parent in the preview scene ({data['resolution']} px, "
              f"{data['spp']} spp, seed 0, matched paths: the difference is the fast path's own error): the spectral "
-             "MLPs' RGB heads against the sRGB integration, and the NLB fits' compact copies against the full NLB "
-             "(the four virtual materials and the report's five MERL materials, DS1). Mosaics: "
-             "`benchmarks/fast_paths_*.png`.", ""]
+             "MLPs' RGB heads against the sRGB integration, the NLB fits' compact copies against the full NLB, and "
+             "the spectral NLB's fits rendered as `--fast` renders them (its `f_fast`; for a spectral fit in "
+             "`llvm_ad_rgb` its RGB head) against their full network (the four virtual materials and the report's "
+             "five MERL materials, DS1). Mosaics: `benchmarks/fast_paths_*.png`.", ""]
     lines += source_lines(relative, data["command"], data.get("machine"))
     rows = [[r["fast_path"], r["material"], f"`{r['variant']}`", num(r["image_delta_e2000_mean"], 3),
              num(r["image_delta_e2000_p95"], 3), num(r["recorded_hemisphere_logcos_rmse"])] for r in data["results"]]
@@ -663,7 +668,8 @@ def spectral_nlb_section() -> list[str]:
 
 def spectral_timing_lines(data: dict) -> list[str]:
     """The fit times of ``benchmarks/spectral_nlb_timing.json`` against their targets."""
-    lines = ["### Fit time", "", "`fit/wall_time_s` of `neuralbrdf train fit` (the fit proper, not the Python start-up), "
+    lines = ["### Fit time", "", "`fit/wall_time_s` of `neuralbrdf train fit` (the fit proper, its screening of starts included; "
+             "not the Python start-up or the loading of the tables), "
              "per material, the spectral NLB beside the RGB NLB on the same tables in the same run (virtual "
              "materials measured on DS1 with 1 % noise, as spectra or converted to sRGB).", ""]
     lines += source_lines(SPECTRAL_NLB_TIMING, data["command"])
@@ -689,7 +695,8 @@ def validation_sweep_lines(data: dict) -> list[str]:
     groups = list(dict.fromkeys(g for sweep in data["sweeps"].values() for g in sweep["groups"]))
     rows = []
     for name, sweep in data["sweeps"].items():
-        row = [f"`{name}`", f"`{' '.join(sweep['spectral_args'])}`" if sweep["spectral_args"] else "defaults"]
+        settings = f"`{' '.join(sweep['spectral_args'])}`" if sweep["spectral_args"] else "defaults"
+        row = [f"`{name}`", f"{settings} ({sweep['note']})" if sweep.get("note") else settings]
         for group in groups:
             block = sweep["groups"].get(group)
             if block is None:

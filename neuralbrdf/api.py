@@ -180,7 +180,7 @@ class FitResult:
     checkpoint: Path
     metrics: dict[str, Any] = field(repr=False)
 
-    def export(self, out: PathLike, material: str | None = None, *, fast: bool = False, rgb_head: bool = True,
+    def export(self, out: PathLike, material: str | None = None, *, fast: bool | None = None, rgb_head: bool = True,
                config: str = "default") -> Model:
         """:func:`export` of this fit's checkpoint (the same file, checks and defaults)."""
         return export(self.checkpoint, out, material, fast=fast, rgb_head=rgb_head, config=config)
@@ -351,12 +351,13 @@ def load(path: PathLike) -> Model:
     return Model(_path(path, "path", "a model file (.onnx) path"))
 
 
-def export(checkpoint: PathLike, out: PathLike, material: str | None = None, *, fast: bool = False,
+def export(checkpoint: PathLike, out: PathLike, material: str | None = None, *, fast: bool | None = None,
            rgb_head: bool = True, config: str = "default") -> Model:
     """Export a trained checkpoint (spectral MLP, ABC, or an NLB or spectral NLB latent fit;
     ``material`` when it holds several) to one ``.onnx`` file, validated against PyTorch before it
     is written — exactly what ``neuralbrdf export`` writes and prints: a spectral model gets its
-    RGB head ``f_rgb`` unless ``rgb_head=False``; ``fast=True`` adds the compact copy ``f_fast``;
+    RGB head ``f_rgb`` unless ``rgb_head=False``; ``fast=True`` adds the compact copy ``f_fast``,
+    which a spectral NLB model gets unless ``fast=False``;
     ``config`` names the fast paths' settings (docs/export-render.md).  The same checkpoint and
     options give the same bytes.
 

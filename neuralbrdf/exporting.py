@@ -16,7 +16,9 @@ Defaults, the same at every door (docs/export-render.md):
   says why it gets none): RGB renders then evaluate one small network per query instead of the model at every
   wavelength of the sRGB rule — the file's renders in RGB variants are that head's (its recorded
   error against the model's sRGB is printed and checked against a bound);
-* no compact copy ``f_fast`` (``fast=True``, ``--fast``);
+* a compact copy ``f_fast`` for the kinds that render much slower than an analytic model without
+  one — the spectral NLB (:attr:`~neuralbrdf.kinds.Kind.fast_by_default`; ``fast=False``,
+  ``--no-fast`` to leave it out) — and for any model with ``fast=True`` (``--fast``);
 * fast-path settings from the shipped ``configs/lod/default.yaml`` (``config``).
 
 Every step is deterministic — seeded distillation, costs counted rather than timed, metadata that
@@ -51,10 +53,12 @@ class Exported:
     fast_paths: tuple[FastPath, ...]
 
 
-def fast_paths_wanted(wavelength_range_nm, present, fast: bool, rgb_head: bool) -> tuple[str, ...]:
-    """The fast paths to add to a model (of this wavelength range, ``None`` for RGB, with the fast
-    paths ``present``); a spectral model outside the colour conversion's range gets no RGB head,
-    with a warning (:func:`~neuralbrdf.lod.fast_paths.rgb_head_problem`)."""
+def fast_paths_wanted(kind: str, wavelength_range_nm, present, fast: bool | None, rgb_head: bool) -> tuple[str, ...]:
+    """The fast paths to add to a model of ``kind`` (of this wavelength range, ``None`` for RGB, with
+    the fast paths ``present``); ``fast`` ``None``: ``f_fast`` when the kind gets it by default
+    (:attr:`~neuralbrdf.kinds.Kind.fast_by_default`).  A spectral model outside the colour
+    conversion's range gets no RGB head, with a warning
+    (:func:`~neuralbrdf.lod.fast_paths.rgb_head_problem`)."""
     from neuralbrdf.lod.fast_paths import rgb_head_problem
 
     wanted = []
@@ -64,7 +68,7 @@ def fast_paths_wanted(wavelength_range_nm, present, fast: bool, rgb_head: bool) 
             wanted.append(OUTPUT_RGB)
         else:
             warnings.warn(problem, stacklevel=3)
-    if fast:
+    if fast or (fast is None and kinds.get(kind).fast_by_default and OUTPUT_FAST not in present):
         wanted.append(OUTPUT_FAST)
     return tuple(wanted)
 
@@ -84,7 +88,7 @@ def fast_paths_line(out: Path, reports) -> str:
 
 
 def export_model(out: PathLike, *, checkpoint: PathLike | None = None, model: PathLike | None = None,
-                 material: str | None = None, fast: bool = False, rgb_head: bool = True, config: str = "default",
+                 material: str | None = None, fast: bool | None = None, rgb_head: bool = True, config: str = "default",
                  log=print) -> Exported:
     """Export ``checkpoint`` — or add fast paths to the model file ``model`` — to ``out`` (module
     docstring); ``material`` picks one of a latent fit's materials; ``log`` gets each printed line.
@@ -105,12 +109,12 @@ def export_model(out: PathLike, *, checkpoint: PathLike | None = None, model: Pa
                 raise InputError("a material goes with a checkpoint (a model file holds one material)",
                                  key="--material")
             parent = kinds.load_model(model)
-            wanted = fast_paths_wanted(parent.wavelength_range_nm, parent.fast_paths, fast, rgb_head)
+            wanted = fast_paths_wanted(parent.kind, parent.wavelength_range_nm, parent.fast_paths, fast, rgb_head)
             if not wanted:
                 raise InputError("nothing to add: ask for fast, or give a spectral model without an RGB head", path=model)
         else:
             exportable = kinds.load_exportable(checkpoint, material)
-            wanted = fast_paths_wanted(exportable.wavelength_range_nm, (), fast, rgb_head)
+            wanted = fast_paths_wanted(exportable.kind, exportable.wavelength_range_nm, (), fast, rgb_head)
         check_outputs(out)  # after the inputs are read: an output may not be one of them
         settings = load_lod_config(config).fast_paths if wanted else None
         # the model alone goes to a working folder under out's own name, so no temporary name reaches the file

@@ -39,7 +39,10 @@ key                                value
 ``neuralbrdf.<output>.*``          one fast path's entries (``f_rgb``, ``f_fast``): ``approximates``
                                    (free text), ``hemisphere_logcos_rmse`` (error against ``f``,
                                    its linear sRGB for ``f_rgb``; >= 0), ``relative_cost``
-                                   (Dr.Jit cost per query over ``f``'s; > 0)
+                                   (Dr.Jit cost per query over ``f``'s; > 0); optionally
+                                   ``image_delta_e2000_mean`` (mean CIEDE2000 of a render through
+                                   it against one of ``f`` on the same paths; >= 0) and
+                                   ``image_check`` (free text: that render's scene and settings)
 =================================  ===========================================================
 
 Spectral models are those with a ``wavelength`` input.  Exporters build the metadata with
@@ -104,6 +107,8 @@ FAST_PATH_OUTPUTS = (OUTPUT_RGB, OUTPUT_FAST)
 SHARED_NAMESPACES = ("ladder",)
 #: Metadata fields of a fast path, ``neuralbrdf.<output>.<field>`` (:func:`fast_path_key`).
 FAST_PATH_KEYS = ("approximates", "hemisphere_logcos_rmse", "relative_cost")
+#: Optional metadata fields of a fast path: its image error against ``f`` and where it was measured.
+FAST_PATH_IMAGE_KEYS = ("image_delta_e2000_mean", "image_check")
 
 
 def fast_path_key(output: str, field: str) -> str:
@@ -119,10 +124,17 @@ class FastPath:
     approximates: str
     hemisphere_logcos_rmse: float
     relative_cost: float
+    #: Mean CIEDE2000 of a render through the fast path against ``f`` (``None``: not measured) ...
+    image_delta_e2000_mean: float | None = None
+    #: ... in this render (scene, variant, size, samples).
+    image_check: str | None = None
 
     def describe(self) -> str:
+        image = ("" if self.image_delta_e2000_mean is None else
+                 f", image ΔE2000 {self.image_delta_e2000_mean:.2g} against f ({self.image_check})")
         return (f"{self.output}: {self.approximates} (log-cos RMSE {self.hemisphere_logcos_rmse:.2g} against "
-                f"{'the sRGB integral of f' if self.output == OUTPUT_RGB else 'f'}, cost {self.relative_cost:.2f} of f)")
+                f"{'the sRGB integral of f' if self.output == OUTPUT_RGB else 'f'}, cost {self.relative_cost:.2f} of f"
+                f"{image})")
 
 
 @dataclass(frozen=True)
@@ -414,7 +426,12 @@ def _fast_paths(metadata: Mapping[str, str], outputs: Sequence[str], path) -> di
                                        ("relative_cost", cost, cost > 0, "> 0")):
             if not ok:
                 raise InputError(f"metadata value {value!r} must be {rule}", path=path, key=fast_path_key(output, field))
-        found[output] = FastPath(output, metadata[fast_path_key(output, "approximates")], error, cost)
+        image_key = fast_path_key(output, FAST_PATH_IMAGE_KEYS[0])
+        image = metadata_float(metadata, image_key, path) if image_key in metadata else None
+        if image is not None and not image >= 0:
+            raise InputError(f"metadata value {image!r} must be >= 0", path=path, key=image_key)
+        found[output] = FastPath(output, metadata[fast_path_key(output, "approximates")], error, cost, image,
+                                 metadata.get(fast_path_key(output, FAST_PATH_IMAGE_KEYS[1])))
     return found
 
 

@@ -262,12 +262,18 @@ def write_model(exportable: Exportable, out: str | Path) -> ExportReport:
     n_probes, max_abs, max_rel = validate(proto, exportable)
     out = Path(out)
     with atomic_path(out) as tmp:
-        onnx.save(proto, str(tmp))
-        try:
-            load_model(tmp)  # the contract check the renderer runs at scene load
-        except InputError as error:
-            raise ExportValidationError(f"the graph fails the ONNX contract check: {error.reason}") from None
+        save_checked(proto, tmp, "the graph")
     return ExportReport(out, exportable.kind, exportable.material, n_probes, max_abs, max_rel)
+
+
+def save_checked(proto: onnx.ModelProto, path: Path, what: str) -> None:
+    """Save ``proto`` at ``path`` and run the contract check the renderer runs at scene load;
+    :class:`ExportValidationError` naming ``what`` when the file fails it."""
+    onnx.save(proto, str(path))
+    try:
+        load_model(path)
+    except InputError as error:
+        raise ExportValidationError(f"{what} fails the ONNX contract check: {error.reason}") from None
 
 
 # --------------------------------------------------------------------------- fast paths

@@ -16,7 +16,10 @@ ROOT = Path(__file__).resolve().parents[1]
 RGB_CONFIGS = {
     "roughconductor/symbolic", "roughconductor/wavefront", "spectral_mlp/drjit", "spectral_mlp/onnxruntime",
     "spectral_mlp_integrated/drjit", "abc/drjit", "nlb/drjit", "nlb_fast/drjit", "flat_model/drjit",
+    "nlb_spectral/drjit", "nlb_spectral/onnxruntime", "nlb_spectral_integrated/drjit",
 }
+SPECTRAL_CONFIGS = (RGB_CONFIGS - {"spectral_mlp_integrated/drjit", "nlb_spectral_integrated/drjit"}) | {
+    "nlb_spectral_fast/drjit"}
 
 
 @pytest.mark.slow
@@ -36,10 +39,12 @@ def test_quick_benchmark_writes_the_documented_results(tmp_path):
             "load_average"} <= set(results)
     assert results["quick"] is True and len(results["load_average"]["before"]) == 3
     assert results["models"]["spectral_mlp"]["export_max_rel_error"] <= 1e-5
-    assert set(results["fast_paths"]) == {"spectral_mlp f_rgb", "nlb f_fast"}
+    assert set(results["fast_paths"]) == {"spectral_mlp f_rgb", "nlb f_fast", "nlb_spectral f_rgb", "nlb_spectral f_fast"}
+    assert all(entry["image_delta_e2000_mean"] >= 0 for entry in results["fast_paths"].values())
+    assert results["models"]["nlb_spectral"]["hidden_units"].count("/48") == 3
     assert set(results["render"]) == {"llvm_ad_rgb", "llvm_ad_spectral"}
     rgb, spectral = results["render"]["llvm_ad_rgb"], results["render"]["llvm_ad_spectral"]
-    assert set(rgb["configs"]) == RGB_CONFIGS and set(spectral["configs"]) == RGB_CONFIGS - {"spectral_mlp_integrated/drjit"}
+    assert set(rgb["configs"]) == RGB_CONFIGS and set(spectral["configs"]) == SPECTRAL_CONFIGS
     for variant in (rgb, spectral):
         for name, config in variant["configs"].items():
             assert config["median_s"] > 0 and config["shortest_s"] <= config["median_s"] and len(config["times_s"]) >= 2
@@ -52,9 +57,15 @@ def test_quick_benchmark_writes_the_documented_results(tmp_path):
     assert 1 <= len(rgb["configs"]["spectral_mlp_integrated/drjit"]["rgb_rule_wavelengths_nm"]) <= 31
     assert spectral["configs"]["spectral_mlp/drjit"]["output"] == "f"
     assert rgb["configs"]["nlb_fast/drjit"]["output"] == spectral["configs"]["nlb_fast/drjit"]["output"] == "f_fast"
-    assert set(rgb["image_errors"]) == {"spectral_mlp/drjit vs spectral_mlp_integrated/drjit", "nlb_fast/drjit vs nlb/drjit"}
-    assert set(spectral["image_errors"]) == {"nlb_fast/drjit vs nlb/drjit"}
-    assert set(results["throughput"]) == {"spectral_mlp", "spectral_mlp rgb head", "nlb", "nlb fast path", "abc"}
+    assert rgb["configs"]["nlb_spectral/drjit"]["output"] == rgb["configs"]["nlb_spectral/onnxruntime"]["output"] == "f_rgb"
+    assert rgb["configs"]["nlb_spectral_integrated/drjit"]["output"] == spectral["configs"]["nlb_spectral/drjit"]["output"]
+    assert spectral["configs"]["nlb_spectral/drjit"]["output"] == "f"
+    assert spectral["configs"]["nlb_spectral_fast/drjit"]["output"] == "f_fast"
+    assert set(rgb["image_errors"]) == {"spectral_mlp/drjit vs spectral_mlp_integrated/drjit", "nlb_fast/drjit vs nlb/drjit",
+                                        "nlb_spectral/drjit vs nlb_spectral_integrated/drjit"}
+    assert set(spectral["image_errors"]) == {"nlb_fast/drjit vs nlb/drjit", "nlb_spectral_fast/drjit vs nlb_spectral/drjit"}
+    assert set(results["throughput"]) == {"spectral_mlp", "spectral_mlp rgb head", "nlb", "nlb fast path", "abc",
+                                          "nlb_spectral", "nlb_spectral rgb head", "nlb_spectral fast path"}
     for name, model in results["throughput"].items():
         expected = {"onnxruntime", "drjit", "drjit_kernel"} | ({"pytorch"} if model["output"] == "f" else set())
         assert set(model["backends"]) == expected, name

@@ -99,3 +99,36 @@ def test_a_call_does_not_interpret_the_graph_again(graphs, monkeypatch):
     monkeypatch.setattr(graph, "_run", interpret)
     (f,) = graph(columns(WI), columns(WO), Float(WAVELENGTHS))
     assert np.all(np.isfinite(f.numpy()))
+
+
+def test_a_varying_input_copies_only_the_instructions_that_depend_on_it():
+    recording = Recording()
+    x, w = recording.new_register(), recording.new_register()
+    shared = apply(dr.fma, x, 2.0, 1.0)  # depends on x only: issued once
+    out = apply(lambda a, b: a * b + 0.5, shared, w)
+    program = recording.compile([x, w], [out, shared], varying=w, copies=3)
+    assert program.instruction_count == 1 + 3
+    a = Float(1.0, 2.0, -4.0)
+    ws = [Float(0.5, 1.0, 2.0), 3.0, Float(-1.0, 0.0, 1.0)]
+    got = program(a, *ws)
+    assert len(got) == 6  # (out, shared) of each copy
+    for k, w_k in enumerate(ws):
+        np.testing.assert_array_equal(as_array(got[2 * k]), as_array(dr.fma(a, 2.0, 1.0) * w_k + 0.5))
+        assert got[2 * k + 1] is got[1]  # the same column, not a copy
+
+
+def as_array(column) -> np.ndarray:
+    return column.numpy() if hasattr(column, "numpy") else np.asarray(column)
+
+
+@pytest.mark.parametrize("name", ["op_zoo_spectral", "inplane_spectral"])
+def test_several_wavelengths_in_one_call_equal_one_call_each_bit_for_bit(graphs, name):
+    graph = graphs[name]
+    wavelengths = [Float(WAVELENGTHS), Float(WAVELENGTHS[::-1].copy()), 561.5, Float(WAVELENGTHS + 3.0)]
+    together = graph.at_wavelengths(columns(WI), columns(WO), wavelengths)
+    assert len(together) == len(wavelengths)
+    for got, wavelength in zip(together, wavelengths):
+        (expected,) = graph(columns(WI), columns(WO), wavelength)
+        np.testing.assert_array_equal(as_numpy(got), as_numpy(expected))
+    with pytest.raises(ValueError, match="RGB model"):
+        graphs["nlb_like"].at_wavelengths(columns(WI), columns(WO), [550.0])

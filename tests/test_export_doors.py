@@ -28,6 +28,7 @@ def tiny(tmp_path_factory) -> str:
     raw = yaml.safe_load(load_lod_config().path.read_text())
     raw["fast_paths"]["distill"].update(n_pairs=4096, steps=100, batch=1024)
     raw["fast_paths"].update(error_strata=[6, 8], max_hemisphere_logcos_rmse=1.0)
+    raw["fast_paths"]["image_check"].update(resolution=16, spp=2, max_delta_e2000_mean=100.0)
     path = tmp_path_factory.mktemp("lod") / "tiny.yaml"
     path.write_text(yaml.safe_dump(raw))
     return str(path)

@@ -31,7 +31,7 @@ from neuralbrdf.kinds import abc as abc_kind
 from neuralbrdf.kinds import load_model
 from neuralbrdf.lod.config import load_lod_config
 from neuralbrdf.lod.distill import DistillSettings, distill_student, rgb_teacher, teacher_samples
-from neuralbrdf.lod.fast_paths import FastPathError, add_fast_paths
+from neuralbrdf.lod.fast_paths import FastPathError, ImageCheck, add_fast_paths
 from neuralbrdf.lod.ladder import FAST_RUNG, build_ladder, embedded_ladder
 from neuralbrdf.lod.select import find_ladders
 from neuralbrdf.models.student import DirectionalStudent
@@ -48,6 +48,7 @@ TINY = dataclasses.replace(
     CONFIG.fast_paths,
     distill=dataclasses.replace(CONFIG.fast_paths.distill, n_pairs=4096, steps=300, batch=1024),
     error_strata=(8, 10), max_hemisphere_logcos_rmse=1.0,
+    image_check=ImageCheck(resolution=24, spp=4, seed=0, max_delta_e2000_mean=100.0),
 )
 HEAD_ALBEDO = (0.8, 0.5, 0.2)
 
@@ -344,6 +345,36 @@ def test_add_fast_paths_records_error_and_cost_that_hold(distilled):
     assert OnnxEvaluator(out).values(wi, wo, nm) == pytest.approx(OnnxEvaluator(parent).values(wi, wo, nm), rel=1e-6)
 
 
+def test_each_fast_path_records_its_image_error_against_f(distilled):
+    """The record is the mean CIEDE2000 of the preview scene through the fast path against f, same
+    seed and paths (measured again here from the written file), in the variant where it is used."""
+    from neuralbrdf.evaluation.images import image_scores
+    from neuralbrdf.render.preview import Material, render
+
+    _, out, reports = distilled
+    model = load_model(out)
+    check = TINY.image_check
+    for report in reports:
+        recorded = model.fast_paths[report.output]
+        variant = "llvm_ad_spectral" if report.output == OUTPUT_FAST else "llvm_ad_rgb"
+        assert recorded.image_delta_e2000_mean == pytest.approx(report.image_delta_e2000_mean)
+        assert variant in recorded.image_check and "24 px, 4 spp" in recorded.image_check
+        f_image = render(Material(model=out, rgb_head=False), variant, check.spp, check.resolution, check.seed)
+        image = render(Material(model=out, fast=report.output == OUTPUT_FAST, rgb_head=report.output == OUTPUT_RGB),
+                       variant, check.spp, check.resolution, check.seed)
+        again = image_scores(image, f_image)[0]["image_delta_e2000_mean"]
+        assert recorded.image_delta_e2000_mean == pytest.approx(again, rel=1e-6) and again > 0
+
+
+def test_a_student_above_its_image_bound_writes_nothing(distilled, tmp_path):
+    parent, _, _ = distilled
+    strict = dataclasses.replace(TINY, image_check=dataclasses.replace(TINY.image_check, max_delta_e2000_mean=1e-9))
+    out = tmp_path / "never.onnx"
+    with pytest.raises(FastPathError, match="image_check.max_delta_e2000_mean"):
+        add_fast_paths(parent, out, (OUTPUT_FAST,), strict, log=lambda *_: None)
+    assert not out.exists()
+
+
 def test_a_student_above_its_error_bound_writes_nothing(distilled, tmp_path):
     parent, _, _ = distilled
     strict = dataclasses.replace(TINY, max_hemisphere_logcos_rmse=1e-9)
@@ -363,6 +394,7 @@ def tiny_config(tmp_path: Path) -> Path:
     raw = yaml.safe_load(CONFIG.path.read_text())
     raw["fast_paths"]["distill"].update(n_pairs=4096, steps=100, batch=1024)
     raw["fast_paths"].update(error_strata=[6, 8], max_hemisphere_logcos_rmse=1.0)
+    raw["fast_paths"]["image_check"].update(resolution=16, spp=2, max_delta_e2000_mean=100.0)
     path = tmp_path / "tiny.yaml"
     path.write_text(yaml.safe_dump(raw))
     return path
@@ -531,6 +563,29 @@ def test_any_spectral_file_gets_its_fast_paths_the_spectral_nlb_too(tmp_path, ca
     model = load_model(out)
     assert model.kind == "nlb_spectral" and set(model.fast_paths) == {OUTPUT_RGB, OUTPUT_FAST}
     assert model.output_view(OUTPUT_FAST).is_spectral and not model.output_view(OUTPUT_RGB).is_spectral
+    # unasked, the spectral NLB gets its fast path too (its full network is the costliest to render)
+    for flags, expected in (([], {OUTPUT_RGB, OUTPUT_FAST}), (["--no-fast"], {OUTPUT_RGB})):
+        again = tmp_path / f"again{len(flags)}.onnx"
+        assert export_command.main(["--model", str(source), "--out", str(again), *flags,
+                                    "--config", str(tiny_config(tmp_path))]) == 0
+        assert set(load_model(again).fast_paths) == expected
+
+
+def test_a_fast_path_alone_is_a_model_file_whose_f_is_that_output(distilled, tmp_path):
+    """What a study's ``fast`` variant scores: the fast path cut out of its file (its only output
+    ``f``, no fast-path metadata, the provenance saying which output it was)."""
+    from neuralbrdf.study.cell import fast_path_alone
+
+    _, with_paths, _ = distilled
+    for output, spectral in ((OUTPUT_FAST, True), (OUTPUT_RGB, False)):
+        out = fast_path_alone(with_paths, output, tmp_path / f"{output}.onnx")
+        alone = load_model(out)
+        assert alone.kind == load_model(with_paths).kind and alone.fast_paths == {} and alone.is_spectral is spectral
+        assert f"its fast path {output}" in alone.metadata["neuralbrdf.provenance"]
+        wi, wo = np.array([[0.2, 0.1, 0.97], [0.5, -0.3, 0.81]]), np.array([[-0.3, 0.0, 0.95], [0.1, 0.6, 0.79]])
+        nm = np.array([480.0, 610.0])
+        assert OnnxEvaluator(out).values(wi, wo, nm if spectral else None) == pytest.approx(
+            OnnxEvaluator(with_paths, output).values(wi, wo, nm if spectral else None), rel=1e-6)
 
 
 # --------------------------------------------------------------------------- which models get an RGB head

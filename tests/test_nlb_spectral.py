@@ -22,7 +22,7 @@ from neuralbrdf.errors import InputError
 from neuralbrdf.geometry import spherical_pair_to_vectors
 from neuralbrdf.kinds import load_exportable
 from neuralbrdf.kinds.nlb_spectral import load_fitted_spectral
-from neuralbrdf.lightning.latent_fit_data import LatentFitData
+from neuralbrdf.lightning.latent_fit_data import FitSamples, LatentFitData
 from neuralbrdf.lightning.nlb_spectral_fit import (
     SpectralLatentFitModule,
     interpolation_matrix,
@@ -121,6 +121,59 @@ def test_exported_module_equals_the_network_with_its_codes_rgb_and_interpolated_
                                  (720.0, nodes[3])):
             got = spectral(wi, wo, torch.full((300,), wavelength))
             torch.testing.assert_close(got, network(wi, wo, shared, code[None])[:, 0], rtol=1e-5, atol=1e-6)
+
+
+def silenced(network, units=(0, 3, 5)):
+    """``network`` with hidden units of its middle layer that never fire (bias far below their range)."""
+    with torch.no_grad():
+        network.hidden_layers[0].bias[list(units)] = -1e3
+    return network
+
+
+@pytest.mark.parametrize("spectral", [True, False])
+def test_a_module_without_its_silent_units_is_the_same_function(spectral):
+    """Units whose ReLU input never exceeds 0 contribute nothing: removing them (their rows and the
+    next layer's columns) leaves f unchanged to float32 rounding; removing a live unit does not."""
+    network = silenced(random_network(seed=2))
+    shared, nodes = torch.randn(4), torch.randn(4 if spectral else 3, 3)
+    module = SpectralNlbWithCodes(network, shared, nodes, [400.0, 500.0, 600.0, 700.0] if spectral else None)
+    peaks = module.unit_peaks(*unit_pairs(4000, seed=1))
+    assert [len(p) for p in peaks] == [16, 16, 16]
+    assert all(peaks[1][[0, 3, 5]] <= 0)
+    keep = [p > 0 for p in peaks]
+    pruned = module.without_units(keep)
+    assert pruned.units == [int(k.sum()) for k in keep] and pruned.units[1] <= 13
+    wi, wo = unit_pairs(3000, seed=2)
+    arguments = (wi, wo, torch.linspace(380.0, 720.0, 3000)) if spectral else (wi, wo)
+    with torch.no_grad():
+        whole, without = module(*arguments), pruned(*arguments)
+        torch.testing.assert_close(without, whole, rtol=1e-5, atol=1e-6)
+        live = [k.clone() for k in keep]
+        live[1][torch.nonzero(keep[1])[0]] = False
+        assert not torch.allclose(module.without_units(live)(*arguments), whole, rtol=1e-3, atol=1e-4)
+
+
+def test_unit_peaks_take_the_largest_input_over_every_channel_code():
+    """At the channel layer a unit's input is a ⊙ scale + shift of each code: its peak is the largest
+    over codes and pairs (computed here by hand from the network's own FiLM)."""
+    network = random_network(seed=5)
+    shared, nodes = torch.randn(4), torch.randn(4, 3)
+    module = SpectralNlbWithCodes(network, shared, nodes, [400.0, 500.0, 600.0, 700.0])
+    wi, wo = unit_pairs(500, seed=3)
+    with torch.no_grad():
+        pre = network.shared_pre_activation(wi, wo, shared)
+        scale, shift = network.film(nodes)
+        expected = (pre[:, None, :] * scale + shift).amax((0, 1))
+    torch.testing.assert_close(module.unit_peaks(wi, wo)[2], expected, rtol=1e-5, atol=1e-5)
+
+
+def test_shared_pre_activation_with_a_code_table_equals_one_code_per_pair():
+    network = random_network(seed=7)
+    wi, wo = unit_pairs(200, seed=4)
+    codes = torch.randn(5, 4)
+    index = torch.randint(0, 5, (200,))
+    torch.testing.assert_close(network.shared_pre_activation(wi, wo, codes, index),
+                               network.shared_pre_activation(wi, wo, codes[index]), rtol=1e-5, atol=1e-6)
 
 
 # ------------------------------------------------------------------------------- pretraining
@@ -225,6 +278,38 @@ def test_spectral_fit_recovers_a_material_made_from_the_network_and_beats_its_st
     assert relative < 0.05
 
 
+def test_a_small_fit_is_one_lbfgs_run_per_material_on_the_full_batch_and_recovers_them(tmp_path, monkeypatch):
+    """Data within data.full_batch_values are served whole at every step, and with
+    model.full_batch_iterations the fit is one step: one L-BFGS run (with its line search) per
+    material, each on its own samples, which finds the codes of materials made from the network;
+    larger data keep random batches and the configured optimiser."""
+    from neuralbrdf.lightning import latent_only
+
+    network = random_network(seed=4)
+    checkpoint = pretrained_file(tmp_path, network)
+    generator = torch.Generator().manual_seed(9)
+    tables = [network_table(network, 0.5 * torch.randn(4, generator=generator), 0.5 * torch.randn(4, 3, generator=generator),
+                            [400.0, 500.0, 600.0, 700.0], "DS2", tmp_path / f"m{k}.csv") for k in range(2)]
+    values = 2 * 185 * len(WAVELENGTHS)  # two materials: DS2's pairs x bands each
+    sources = [{"path": str(t)} for t in tables]
+    for limit, full in ((values, True), (values - 1, False)):
+        data = LatentFitData(sources=sources, spectral=True, eval_plan=None, batch_values=310, full_batch_values=limit)
+        data.setup()
+        assert data.full_batch is full and len(next(iter(data.train_dataloader())).f) == (370 if full else 10)
+    runs = []
+    monkeypatch.setattr(latent_only, "lbfgs", lambda codes, iterations: runs.append(iterations) or torch.optim.LBFGS(
+        codes, lr=1.0, max_iter=iterations, history_size=latent_only.LBFGS_HISTORY, line_search_fn="strong_wolfe"))
+    run = tmp_path / "run"
+    run_train("--config", str(CONFIGS / "nlb_spectral.yaml"), "--run_dir", str(run), "--model.checkpoint", str(checkpoint),
+              "--data.sources", json.dumps(sources), "--data.eval_plan", "null", "--data.full_batch_values", str(values),
+              "--model.full_batch_iterations", "60", "--model.node_step_nm", "100", "--model.init_screen_steps", "5",
+              "--trainer.enable_progress_bar", "false")
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert runs == [60, 60] and metrics["status"] == "ok"
+    assert metrics["fit/fit_logcos_rmse/m0"] < 2e-3 and metrics["fit/fit_logcos_rmse/m1"] < 2e-3
+    assert torch.load(run / "checkpoints" / "fitted.ckpt", weights_only=False)["global_step"] <= 1
+
+
 def test_channel_normalisation_divides_each_channel_by_its_mean_log_cosine(tmp_path):
     network = random_network()
     checkpoint = pretrained_file(tmp_path, network)
@@ -272,8 +357,9 @@ def test_priors_are_gaussians_of_the_pretrained_codes_and_a_second_difference(tm
 
 def test_fit_config_end_to_end_spectral_and_rgb_with_export(tmp_path):
     """The shipped config on two tables (one run spectral, one RGB); every material exports and
-    the file is the fitted model: spectral with its nodes' range, or RGB."""
-    network = random_network(seed=6)
+    the file is the fitted model: spectral with its nodes' range, or RGB, without the units the
+    material never uses."""
+    network = silenced(random_network(seed=6))
     checkpoint = pretrained_file(tmp_path, network)
     node_nm = [400.0, 500.0, 600.0, 700.0]
     tables = [network_table(network, torch.randn(4), torch.randn(4, 3), node_nm, "DS3", tmp_path / f"m{k}.csv")
@@ -296,6 +382,88 @@ def test_fit_config_end_to_end_spectral_and_rgb_with_export(tmp_path):
             assert fitted.node_wavelengths_nm == tuple(node_nm) and exportable.wavelength_range_nm == (400.0, 700.0)
         else:
             assert fitted.node_wavelengths_nm is None and exportable.wavelength_range_nm is None
+        assert_exported_file_is_the_whole_network(fitted, exportable, tmp_path / f"m1_{spectral}.onnx")
+
+
+def assert_exported_file_is_the_whole_network(fitted, exportable, path):
+    """The written file (without the material's silent units) against the whole network with the
+    material's codes, through onnxruntime and the Dr.Jit interpreter, on the contract's dense probe
+    at several wavelengths."""
+    import drjit as dr
+    import onnxruntime
+    from drjit.llvm import Float
+
+    from neuralbrdf.kinds import load_model
+    from neuralbrdf.onnx_contract import dense_probe
+    from neuralbrdf.onnx_export import write_model
+    from neuralbrdf.render.drjit_onnx import DrJitGraph
+
+    write_model(exportable, path)
+    model = load_model(path)
+    kept = [int(k.split("/")[0]) for k in model.metadata["neuralbrdf.nlb_spectral.hidden_units"].split()]
+    assert kept == exportable.module.units and kept[1] <= 13  # the silenced units are gone
+    wi, wo, _ = dense_probe()
+    session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    whole = fitted.model("m1").eval()
+    graph = DrJitGraph.from_model(model)
+    columns = [[Float(v[:, k]) for k in range(3)] for v in (wi, wo)]
+    for wavelength in ((410.0, 555.5, 700.0) if model.is_spectral else (None,)):
+        feeds = {"wi": wi, "wo": wo}
+        if wavelength is not None:
+            feeds["wavelength"] = np.full(len(wi), wavelength, np.float32)
+        (got,) = session.run(["f"], feeds)
+        with torch.no_grad():
+            expected = whole(*(torch.from_numpy(v) for v in feeds.values())).numpy()
+        np.testing.assert_allclose(got, expected, rtol=2e-5, atol=1e-6)
+        drjit = graph(*columns, None if wavelength is None else Float(feeds["wavelength"]))
+        np.testing.assert_allclose(np.stack([c.numpy() for c in drjit], axis=-1).reshape(got.shape), got,
+                                   rtol=2e-5, atol=1e-6)
+    dr.sync_thread()
+
+
+def test_fit_time_counts_the_screening_of_starts(tmp_path, monkeypatch):
+    """``fit/wall_time_s`` runs from the module's set-up, where the starts are screened (a clock
+    that jumps 1000 s during the screening shows it), to the end of the fit."""
+    import time
+
+    from neuralbrdf.lightning.latent_only import LatentOnlyFit
+
+    jump, real_clock, real_choose = [0.0], time.perf_counter, LatentOnlyFit.choose_starts
+
+    def choose_starts(self, samples):
+        real_choose(self, samples)
+        jump[0] += 1000.0
+
+    monkeypatch.setattr(time, "perf_counter", lambda: real_clock() + jump[0])
+    monkeypatch.setattr(LatentOnlyFit, "choose_starts", choose_starts)
+    network = random_network(seed=3)
+    table = network_table(network, torch.randn(4), torch.randn(4, 3), [400.0, 500.0, 600.0, 700.0], "DS4",
+                          tmp_path / "m.csv")
+    run_train("--config", str(CONFIGS / "nlb_spectral.yaml"), "--run_dir", str(tmp_path / "run"),
+              "--model.checkpoint", str(pretrained_file(tmp_path, network)), "--data.path", str(table),
+              "--trainer.max_epochs", "1", "--data.steps_per_epoch", "2", "--model.init_screen_steps", "1",
+              "--trainer.enable_progress_bar", "false", "--data.eval_plan", "null")
+    assert 1000.0 <= json.loads((tmp_path / "run" / "metrics.json").read_text())["fit/wall_time_s"] < 1600.0
+
+
+def test_screening_sees_at_most_init_screen_values_of_each_material_and_of_all(tmp_path, monkeypatch):
+    from neuralbrdf.lightning import nlb_spectral_fit
+
+    network = random_network()
+    module = fit_module(pretrained_file(tmp_path, network), init_screen_values=21)  # 7 pairs of 3 channels
+    material = torch.tensor([0] * 20 + [1] * 5 + [2] * 9)
+    wi, wo = unit_pairs(len(material))
+    samples = FitSamples(material, wi, wo, torch.rand(len(material), 3))
+    chosen = module.screening_samples(samples)
+    assert torch.bincount(chosen.material).tolist() == [7, 5, 7]
+    assert len(set(map(tuple, chosen.wi.tolist()))) == 19  # distinct samples, each once
+    monkeypatch.setattr(nlb_spectral_fit, "SCREEN_VALUES", 36)  # a large fit: 12 values, 4 pairs each
+    assert torch.bincount(module.screening_samples(samples).material).tolist() == [4, 4, 4]
+    module._full_batch = True  # a small fit: init_screen_values alone
+    assert torch.bincount(module.screening_samples(samples).material).tolist() == [7, 5, 7]
+    assert fit_module(pretrained_file(tmp_path, network)).screening_samples(samples) is samples  # None: all
+    with pytest.raises(InputError, match="init_screen_values"):
+        fit_module(pretrained_file(tmp_path, network), init_screen_values=0)
 
 
 def test_spectral_fit_refuses_rgb_sources_and_mixed_wavelength_grids(tmp_path):

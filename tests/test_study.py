@@ -93,6 +93,33 @@ def test_sweep_only_variants_are_neither_rendered_nor_timed(tmp_path):
         load_profile(str(_write(tmp_path, text.replace("speed_accuracy: false", "speed_accuracy: no-ish"))))
 
 
+def test_a_fast_variant_studies_the_models_fast_path(tmp_path, monkeypatch):
+    """``fast: true`` keys its cells apart (the fast-path settings' file included) and exports the
+    fitted model's ``f_fast`` as the cell's model (a model file of its own)."""
+    from neuralbrdf.study import cell as cell_module
+
+    text = BASE + "  - {name: abc_fast, method: abc, config: configs/abc.yaml, fast: true}\n"
+    profile = load_profile(str(_write(tmp_path, text)))
+    assert profile.variant("abc_fast").fast and not profile.variant("abc").fast
+    plain, fast = Cell("gold", "abc", "DS1", 0.0, 0), Cell("gold", "abc_fast", "DS1", 0.0, 0)
+    assert "fast" in cell_settings(fast, profile)["variant"] and "fast" not in cell_settings(plain, profile)["variant"]
+    with pytest.raises(InputError, match=r"variants\[1\].fast"):
+        load_profile(str(_write(tmp_path, text.replace("fast: true", "fast: quickly"))))
+    calls = []
+    monkeypatch.setattr("neuralbrdf.onnx_export.export_checkpoint", lambda ckpt, out: calls.append(("export", out)))
+    monkeypatch.setattr(cell_module.subprocess, "run", lambda command, **kwargs: calls.append(("add", command)) or
+                        subprocess.CompletedProcess(command, 0, "", ""))
+    monkeypatch.setattr(cell_module, "fast_path_alone", lambda model, output, out: calls.append(("alone", output, out)))
+    out = tmp_path / "model.onnx"
+    assert cell_module.export({"variant": {"method": "abc", "fast": True}}, tmp_path / "run", out) == out
+    assert [c[0] for c in calls] == ["export", "add", "alone"] and calls[2][1:] == ("f_fast", out)
+    assert calls[1][1][2:4] == ["neuralbrdf", "export"] and "--fast" in calls[1][1]  # neuralbrdf export --fast
+    monkeypatch.setattr(cell_module.subprocess, "run", lambda command, **kwargs: subprocess.CompletedProcess(
+        command, 1, "", "error: x.onnx not written: the f_fast student renders ΔE2000 0.9 away"))
+    with pytest.raises(cell_module.CellFailure, match="not written"):
+        cell_module.export({"variant": {"method": "abc", "fast": True}}, tmp_path / "run", out)
+
+
 def test_a_variant_fits_only_the_materials_it_names(tmp_path):
     text = BASE.replace("variants:", '  - {name: cyan, truth: "virtual:cyan"}\nvariants:') + (
         "  - {name: mlp, method: spectral_mlp, config: configs/spectral_mlp.yaml, materials: [cyan]}\n")

@@ -1,8 +1,8 @@
 """``neuralbrdf export`` (and ``export/to_onnx.py``): a checkpoint to the ONNX file of docs/formats.md#onnx-model-files, with
 its fast paths.
 
-    neuralbrdf export --ckpt RUN.ckpt --out MODEL.onnx [--material NAME] [--fast] [--no-rgb-head]
-    neuralbrdf export --model MODEL.onnx --out NEW.onnx [--fast] [--no-rgb-head]
+    neuralbrdf export --ckpt RUN.ckpt --out MODEL.onnx [--material NAME] [--fast | --no-fast] [--no-rgb-head]
+    neuralbrdf export --model MODEL.onnx --out NEW.onnx [--fast | --no-fast] [--no-rgb-head]
 
 The export itself is :func:`neuralbrdf.exporting.export_model`, the path ``nb.export`` and
 ``FitResult.export`` take too (same file, same printed checks, same defaults): the checkpoint's
@@ -10,7 +10,8 @@ kind builds the model on directions, which is traced, checked against PyTorch wi
 and written atomically, with its **fast paths** (:mod:`neuralbrdf.lod.fast_paths`) distilled
 from it and embedded in the same file: a spectral model gets its RGB head ``f_rgb`` (its linear
 sRGB, once per query: what the renderer uses in RGB variants) unless ``--no-rgb-head``;
-``--fast`` adds ``f_fast``, a compact copy of any model (the renderer's ``--fast``).  Each
+``--fast`` adds ``f_fast``, a compact copy of any model (the renderer's ``--fast``), which a
+spectral NLB model gets unless ``--no-fast`` (:attr:`neuralbrdf.kinds.Kind.fast_by_default`).  Each
 distillation takes several seconds on one idle core; its error against the model and counted
 relative cost are printed and recorded in the file.  ``--model`` adds fast paths to a file that
 has none of those asked for, e.g. a spectral model exported elsewhere.  Settings:
@@ -59,8 +60,12 @@ def build_parser(prog: str = "neuralbrdf export") -> argparse.ArgumentParser:
     parser.add_argument(
         "--material", default=None, help="material to export (required when the checkpoint holds several)"
     )
-    parser.add_argument("--fast", action="store_true",
-                        help="add f_fast: a compact network distilled from the model (render it with --fast)")
+    fast = parser.add_mutually_exclusive_group()
+    fast.add_argument("--fast", dest="fast", action="store_true", default=None,
+                      help="add f_fast: a compact network distilled from the model (render it with --fast); "
+                      "spectral NLB models get it unless --no-fast")
+    fast.add_argument("--no-fast", dest="fast", action="store_false",
+                      help="no f_fast, even for a kind that gets one by default")
     parser.add_argument("--no-rgb-head", action="store_true",
                         help="spectral models: no f_rgb (RGB renders then integrate the spectrum, several "
                         "evaluations per query)")

@@ -98,6 +98,9 @@ class Kind:
     scalar_parameters:
         Fitted values the graph holds as scalar constants rather than weight tensors (ABC's
         ``B``, ``C``, ``η``), so that a parameter count can include them.
+    fast_by_default:
+        ``neuralbrdf export`` adds the fast path ``f_fast`` to its models unless told not to
+        (``--no-fast``): for kinds whose full network renders well above analytic cost.
     """
 
     name: str
@@ -108,6 +111,7 @@ class Kind:
     from_checkpoint: Callable[[dict, Path, str | None], Exportable] | None = None
     recognises: Callable[[dict], bool] | None = None
     scalar_parameters: int = 0
+    fast_by_default: bool = False
 
 
 _REGISTRY: dict[str, Kind] = {}

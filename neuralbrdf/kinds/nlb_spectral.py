@@ -5,8 +5,10 @@ the frozen channel-agnostic network (:mod:`neuralbrdf.models.nlb_spectral`), per
 shared code and channel codes, the materials' names and the channel codes' wavelength nodes.
 One ``.onnx`` file is exported per material, its codes baked into the graph
 (:class:`~neuralbrdf.models.directional.SpectralNlbWithCodes`): a spectral model with a
-``wavelength`` input when the fit was spectral, else an RGB one.  Sampling: a GGX mixture fitted
-to the model.
+``wavelength`` input when the fit was spectral, else an RGB one, without the hidden units the
+material never uses (:func:`export_module`; the file's ``neuralbrdf.nlb_spectral.hidden_units``
+says how many are left).  ``neuralbrdf export`` adds its fast path ``f_fast`` by default
+(:attr:`~neuralbrdf.kinds.Kind.fast_by_default`).  Sampling: a GGX mixture fitted to the model.
 """
 
 from __future__ import annotations
@@ -18,14 +20,23 @@ from typing import TYPE_CHECKING
 
 from neuralbrdf.errors import InputError
 from neuralbrdf.kinds import Exportable, Kind, contract_metadata, module_class_name, pick_material, provenance
+from neuralbrdf.onnx_contract import kind_key
 
 if TYPE_CHECKING:
     import torch
 
+    from neuralbrdf.models.directional import SpectralNlbWithCodes
     from neuralbrdf.models.nlb_spectral import SpectralNlbNetwork
 
 _FIT_KEYS = ("spectral_nlb_config", "material_names", "state_dict", "node_wavelengths_nm")
 _PREFIX = "network."
+#: Uniformly random direction pairs (besides the contract's dense probe) on which a hidden unit
+#: must never fire to be left out of the exported graph, and as many others on which the graph
+#: without them is checked against the whole network.
+UNIT_SEARCH_PAIRS = 2**18
+#: Largest relative change of ``f`` that leaving the silent units out may make on the check's
+#: pairs (float32 rounding of the reordered sums is ~1e-6); above it the whole network is exported.
+PRUNED_RELATIVE_TOLERANCE = 1e-4
 
 
 @dataclass(frozen=True)
@@ -80,12 +91,64 @@ def load_fitted_spectral(path: str | os.PathLike[str]) -> FittedSpectralNlb:
     return _fitted(read_checkpoint(path, "fitted spectral NLB checkpoint"), path)
 
 
+def _pairs(count: int, seed: int):
+    """The contract's dense probe (:func:`~neuralbrdf.onnx_contract.dense_probe`: stratified, near the
+    mirror, grazing) and ``count`` uniformly random pairs, as float32 tensors ``[N, 3]``."""
+    import numpy as np
+    import torch
+
+    from neuralbrdf.onnx_contract import dense_probe
+
+    rng = np.random.default_rng(seed)
+    wi, wo, _ = dense_probe(seed)
+    random = rng.normal(size=(2, count, 3))
+    random[..., 2] = np.abs(random[..., 2])
+    random /= np.linalg.norm(random, axis=-1, keepdims=True)
+    return (torch.from_numpy(np.concatenate([a, b]).astype(np.float32)) for a, b in zip((wi, wo), random))
+
+
+def _in_chunks(*tensors, size: int = 2**14):
+    """Consecutive slices of ``size`` rows of ``tensors`` (bounded memory for ``[N, K, units]``)."""
+    for start in range(0, len(tensors[0]), size):
+        yield tuple(t[start:start + size] for t in tensors)
+
+
+def export_module(module: SpectralNlbWithCodes) -> tuple[SpectralNlbWithCodes, str]:
+    """``module`` without the hidden units that never fire on the contract's dense probe and
+    :data:`UNIT_SEARCH_PAIRS` random pairs
+    (:meth:`~neuralbrdf.models.directional.SpectralNlbWithCodes.unit_peaks`; the most active unit
+    of a layer is always kept), checked on as many other pairs at random wavelengths; the whole
+    module where leaving them out changes ``f`` by more than :data:`PRUNED_RELATIVE_TOLERANCE`.
+    Also the units kept per layer, as the metadata entry says them."""
+    import torch
+
+    chunks = [module.unit_peaks(wi, wo) for wi, wo in _in_chunks(*_pairs(UNIT_SEARCH_PAIRS, seed=0))]
+    peaks = [torch.stack(layer).amax(0) for layer in zip(*chunks)]
+    keep = [(peak > 0) | (peak == peak.max()) for peak in peaks]
+    pruned = module.without_units(keep)
+    arguments = list(_pairs(UNIT_SEARCH_PAIRS, seed=1))
+    if module.is_spectral:
+        low, high = module.wavelength_range_nm
+        order = torch.randperm(len(arguments[0]), generator=torch.Generator().manual_seed(1))
+        arguments.append(torch.linspace(low, high, len(arguments[0]))[order])
+    change = 0.0
+    with torch.no_grad():
+        for chunk in _in_chunks(*arguments):
+            whole, without = module(*chunk), pruned(*chunk)
+            change = max(change, float(((without - whole).abs() / whole.abs().clamp_min(1e-3)).max()))
+    total = module.units
+    if not change <= PRUNED_RELATIVE_TOLERANCE:
+        return module, " ".join(f"{n}/{n}" for n in total)
+    return pruned, " ".join(f"{int(k.sum())}/{n}" for k, n in zip(keep, total))
+
+
 def from_checkpoint(checkpoint: dict, path: Path, material: str | None) -> Exportable:
     fitted = _fitted(checkpoint, path)
     name = pick_material(list(fitted.shared), material, path)
-    module = fitted.model(name)
+    module, units = export_module(fitted.model(name))
     wavelength_range = module.wavelength_range_nm if module.is_spectral else None
-    metadata = contract_metadata(KIND.name, name, provenance(checkpoint, path), wavelength_range_nm=wavelength_range)
+    metadata = contract_metadata(KIND.name, name, provenance(checkpoint, path), wavelength_range_nm=wavelength_range,
+                                 kind_metadata={kind_key(KIND.name, "hidden_units"): units})
     return Exportable(module, KIND.name, name, metadata, wavelength_range)
 
 
@@ -99,4 +162,5 @@ KIND = Kind(
             "RGB ones, one file per material (docs/models.md#spectral-nlb)",
     from_checkpoint=from_checkpoint,
     recognises=_recognises,
+    fast_by_default=True,  # its f renders at ~1.7x roughconductor, its f_fast at ~1.1x (docs/design.md)
 )

@@ -139,6 +139,11 @@ class LatentFitData(pl.LightningDataModule):
         Instead of ``batch_size``: each step sees as many direction pairs as hold this many values
         over the channels (pairs × 3 for RGB, pairs × bands for a spectral fit), so a step costs
         about the same whatever the number of channels.
+    full_batch_values:
+        Every step sees every sample when they hold at most this many values (pairs × channels),
+        whatever ``batch_size`` or ``batch_values`` say: a small fit (one material, a few) is then
+        deterministic, which lets the fit optimise it by L-BFGS
+        (:mod:`neuralbrdf.lightning.latent_only`); ``None``: no such rule.
     seed:
         Seed of those draws.
     spectral:
@@ -158,6 +163,7 @@ class LatentFitData(pl.LightningDataModule):
         steps_per_epoch: int = 100,
         batch_size: int | None = None,
         batch_values: int | None = None,
+        full_batch_values: int | None = None,
         seed: int = 0,
         spectral: bool | None = False,
         trust_units: bool = False,
@@ -194,14 +200,15 @@ class LatentFitData(pl.LightningDataModule):
                           stacklevel=2)
             low2012_abc = None
         self.plan, self.eval_plan, self.low2012_abc = plan, eval_plan, low2012_abc
-        for key, value in (("batch_size", batch_size), ("batch_values", batch_values)):
+        for key, value in (("batch_size", batch_size), ("batch_values", batch_values),
+                           ("full_batch_values", full_batch_values)):
             if value is not None and (not isinstance(value, int) or isinstance(value, bool) or value < 1):
                 raise InputError(f"must be a positive integer or null, got {value!r}", key=f"data.{key}")
         if batch_size is not None and batch_values is not None:
             raise InputError("give data.batch_size (pairs) or data.batch_values (values), not both",
                              key="data.batch_values")
         self.steps_per_epoch, self.batch_size, self.seed = steps_per_epoch, batch_size, seed
-        self.batch_values = batch_values
+        self.batch_values, self.full_batch_values = batch_values, full_batch_values
         self.spectral = spectral
         if self.spectral:
             rgb = [name for name, source in zip(self.material_names, self.sources) if "nbrdf" in source]
@@ -266,12 +273,23 @@ class LatentFitData(pl.LightningDataModule):
         self.eval_sets = [self._samples(i, s, m, abc_fits) for i, (s, m) in enumerate(zip(self.sources, materials))]
         self.train_samples = FitSamples(*(torch.cat(c) for c in zip(*(e.fit for e in self.eval_sets))))
 
+    def _pairs_per_step(self) -> int | None:
+        """Direction pairs of each step's batch (``None``: all)."""
+        if self.full_batch_values is not None and self.train_samples.f.numel() <= self.full_batch_values:
+            return None
+        if self.batch_values is not None:  # as many pairs as give that many values over the channels
+            return max(self.batch_values // self.train_samples.f.shape[1], 1)
+        return self.batch_size
+
+    @property
+    def full_batch(self) -> bool:
+        """Every step sees every sample (once set up)."""
+        pairs = self._pairs_per_step()
+        return pairs is None or pairs >= len(self.train_samples.f)
+
     def train_dataloader(self) -> DataLoader:
         if self._steps is None:  # one stream of random subsets for the whole fit
-            pairs = self.batch_size
-            if self.batch_values is not None:  # as many pairs as give that many values over the channels
-                pairs = max(self.batch_values // self.train_samples.f.shape[1], 1)
-            self._steps = _Steps(self.train_samples, self.steps_per_epoch, pairs, self.seed)
+            self._steps = _Steps(self.train_samples, self.steps_per_epoch, self._pairs_per_step(), self.seed)
         return DataLoader(self._steps, batch_size=None)
 
     def val_dataloader(self) -> DataLoader:

@@ -21,7 +21,7 @@ loss *at the start* is not always the one whose basin fits best (measured: from 
 some metals ended with a third less in-plane loss), so with ``init_starts`` S > 1 the centroid
 and the S − 1 best codes are each optimised for ``init_screen_steps`` steps (the config's
 optimiser, all materials and starts at once) and each material continues from the start with
-the lowest loss after them (on at most :data:`~neuralbrdf.lightning.latent_only.SCREEN_SAMPLES` of its samples).  Selection uses
+the lowest loss after them (on at most :data:`~neuralbrdf.lightning.latent_only.SCREEN_SAMPLES` samples).  Selection uses
 the fitting samples only, never the truth.
 
 **Latent prior** (``latent_prior_weight``, ``latent_prior_codes``).  Each material's loss gets

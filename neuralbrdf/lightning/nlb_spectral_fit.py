@@ -49,7 +49,7 @@ from neuralbrdf.errors import InputError
 from neuralbrdf.lightning.common import WritesKind
 from neuralbrdf.lightning.latent_fit_data import FitSamples
 from neuralbrdf.lightning.latent_fit_module import sample_errors_in
-from neuralbrdf.lightning.latent_only import SCREEN_SAMPLES, LatentOnlyFit, check_fit_settings, check_weight
+from neuralbrdf.lightning.latent_only import LatentOnlyFit, check_fit_settings, check_weight
 from neuralbrdf.lightning.nlb_spectral_module import PretrainedSpectralNlb, load_spectral_pretrained
 from neuralbrdf.losses import check_loss_domain, log_cosine
 from neuralbrdf.models.directional import LinearInWavelength
@@ -63,10 +63,10 @@ from neuralbrdf.shipped import SPECTRAL_DEFAULT, resolve_pretrained
 RGB_CODE_WAVELENGTHS_NM = (465.0, 550.0, 610.0)
 #: Floor of a channel's mean ``ln(1 + f cos θi)`` when it normalises that channel's errors.
 CHANNEL_SCALE_FLOOR = 1e-4
-#: Values (direction pairs × bands) the screening of starts of a spectral fit uses at most: fewer
-#: pairs than an RGB fit screens on (:data:`~neuralbrdf.lightning.latent_only.SCREEN_SAMPLES`),
-#: at a cost of the same order.
-SCREEN_VALUES = 16384
+#: Values (pairs × channels) the screening of starts compares at most over all the materials of
+#: a large fit (random batches; :meth:`SpectralLatentFitModule.screening_samples`): a batch of many
+#: materials screens each on its share, so that screening stays a fraction of the fit.
+SCREEN_VALUES = 8192
 
 
 def wavelength_nodes(wavelengths_nm: np.ndarray, step_nm: float) -> np.ndarray:
@@ -98,6 +98,12 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
         Divide each channel's errors by its mean ``ln(1 + f cos θi)`` (module docstring).
     init_candidates, init_starts, init_screen_steps, early_stop_patience, early_stop_tolerance:
         Starts and stopping (:mod:`neuralbrdf.lightning.latent_only`).
+    init_screen_values:
+        Values (pairs × channels) of each material on which the candidates and starts are
+        compared, at most (:meth:`screening_samples`); ``None``: all the samples.
+    full_batch_iterations:
+        When every step sees every sample, the fit is one L-BFGS run of at most this many
+        iterations (:mod:`neuralbrdf.lightning.latent_only`); ``None``: the configured optimiser.
     shared_prior_weight, channel_prior_weight, smoothness_weight:
         Weights of the priors (module docstring); 0: none.
     optimizer, lr_scheduler:
@@ -115,6 +121,8 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
         init_candidates: int = 64,
         init_starts: int = 4,
         init_screen_steps: int = 100,
+        init_screen_values: int | None = None,
+        full_batch_iterations: int | None = None,
         early_stop_patience: int | None = 50,
         early_stop_tolerance: float = 1e-3,
         shared_prior_weight: float = 0.01,
@@ -126,6 +134,9 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
         super().__init__(optimizer, lr_scheduler)
         check_loss_domain(loss_domain, "model.loss_domain")
         check_fit_settings(init_candidates, init_starts, init_screen_steps, early_stop_patience, early_stop_tolerance)
+        for key, value in (("init_screen_values", init_screen_values), ("full_batch_iterations", full_batch_iterations)):
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+                raise InputError(f"must be a positive integer or null, got {value!r}", column=f"model.{key}")
         for key in ("shared_prior_weight", "channel_prior_weight", "smoothness_weight"):
             check_weight(locals()[key], f"model.{key}")
         if isinstance(node_step_nm, bool) or not (isinstance(node_step_nm, (int, float)) and node_step_nm > 0
@@ -164,13 +175,25 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
     def n_nodes(self) -> int:
         return self._interpolation.shape[1]
 
-    @property
-    def screen_samples(self) -> int:
-        """Direction pairs the screening of starts uses at most: as many as the RGB NLB's for RGB
-        channels, as hold :data:`SCREEN_VALUES` values over the bands of a spectral fit."""
-        if self.node_wavelengths_nm is None:
-            return SCREEN_SAMPLES
-        return max(SCREEN_VALUES // self._interpolation.shape[0], 1)
+    def screening_samples(self, samples: FitSamples) -> FitSamples:
+        """A fixed random subset of each material's fitting samples (every channel) that holds at
+        most ``init_screen_values`` values — in a large fit (random batches) at most its share of
+        :data:`SCREEN_VALUES` —: the candidates and starts are compared on these."""
+        if self.hparams.init_screen_values is None:
+            return samples
+        n_materials, channels = int(samples.material.max()) + 1, samples.f.shape[1]
+        values = self.hparams.init_screen_values
+        if not self._full_batch:
+            values = min(values, SCREEN_VALUES // n_materials)
+        limit = max(values // channels, 1)
+        order = torch.randperm(len(samples.f), generator=torch.Generator().manual_seed(0))
+        material = samples.material[order]
+        rank = torch.zeros_like(material)  # position of each sample among its material's, in random order
+        for m in material.unique():
+            rows = material == m
+            rank[rows] = torch.arange(int(rows.sum()))
+        keep = order[rank < limit]
+        return FitSamples(*(column[keep] for column in samples))
 
     def setup(self, stage: str) -> None:
         if not self.material_names:
@@ -227,12 +250,18 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
     def _values(self, samples: FitSamples, shared: torch.Tensor, nodes: torch.Tensor) -> torch.Tensor:
         """Values ``[S, N, C]`` under ``S`` sets of codes ``shared [S, n, ds]``, ``nodes [S, n, K, dc]``.
 
-        The FiLM of each channel code is computed once per material and channel, not per sample."""
-        network, n_starts = self.network, shared.shape[0]
+        The shared code's share of the input layer and the FiLM of each channel code are computed
+        once per material and channel, not per sample; one material's are broadcast, not copied."""
+        network, (n_starts, n) = self.network, shared.shape[:2]
         wi, wo = samples.wi.repeat(n_starts, 1), samples.wo.repeat(n_starts, 1)
-        pre = network.shared_pre_activation(wi, wo, shared[:, samples.material].reshape(-1, shared.shape[-1]))
+        # row s·n + m of the flattened codes is start s of material m
+        index = (samples.material + n * torch.arange(n_starts)[:, None]).reshape(-1)
+        pre = network.shared_pre_activation(wi, wo, shared.reshape(-1, shared.shape[-1]), index)
         scale, shift = network.film(torch.einsum("ck,snkd->sncd", self._interpolation, nodes))  # [S, n, C, width]
-        scale, shift = (t[:, samples.material].reshape(-1, *t.shape[2:]) for t in (scale, shift))
+        if n == 1:
+            scale, shift = (t.expand(-1, len(samples.f), -1, -1).reshape(-1, *t.shape[2:]) for t in (scale, shift))
+        else:
+            scale, shift = (t.reshape(-1, *t.shape[2:])[index] for t in (scale, shift))
         pred = masked_brdf(wi, wo, network.decode(pre[:, None, :], scale, shift))
         return pred.reshape(n_starts, len(samples.f), -1)
 

@@ -156,7 +156,8 @@ class MetricsJson(pl.Callback):
     Keys are ``<stage>/<metric>``.  After ``fit``: every logged metric as ``fit/<name>``
     (``fit/train/loss``, ``fit/val/rel_rmse_glossy_median`` of the last epoch) plus
     ``fit/best_model_score``, ``fit/best_model_path`` (relative to the run directory if inside it),
-    ``fit/epochs``, ``fit/wall_time_s`` and whatever the module's optional
+    ``fit/epochs``, ``fit/wall_time_s`` (from the module's set-up, where a latent fit screens its
+    starts, to the end of the fit; data loading excluded) and whatever the module's optional
     ``metrics_json_extras()`` returns (non-scalar results such as fitted parameters); ``fit`` starts a new file (a new model makes earlier
     evaluations stale).  After ``validate``/``test``: the logged ``val/x``/``test/x`` as
     ``validate/x``/``test/x``, merged into the existing file.  Writes are atomic.
@@ -174,8 +175,12 @@ class MetricsJson(pl.Callback):
         if trainer.is_global_zero:
             write_metrics(self.path(trainer), metrics, merge)
 
+    def setup(self, trainer: pl.Trainer, pl_module: pl.LightningModule, stage: str) -> None:
+        # the clock starts before the module's own set-up: a latent fit screens its starts there
+        if stage == "fit":
+            self._fit_started = time.perf_counter()
+
     def on_fit_start(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
-        self._fit_started = time.perf_counter()
         self._earlier_wall_time_s = 0.0
         path = self.path(trainer)
         if _is_resuming(trainer) and path.exists():  # a resumed run: its time so far counts

@@ -32,6 +32,14 @@ export; ``neuralbrdf ladder`` times its rungs).  A student whose error exceeds
 ``max_hemisphere_logcos_rmse`` is not embedded: :class:`FastPathError` says so, and
 ``neuralbrdf export`` writes nothing.
 
+**Where users look.**  Each fast path is also rendered against ``f`` (:func:`image_errors`): the
+material-preview scene through the fast path and through ``f`` at the same seed — both outputs of
+one file, so both trace the same paths and the difference is the fast path's own error — in
+``llvm_ad_spectral`` for a spectral ``f_fast``, in ``llvm_ad_rgb`` otherwise (``f_rgb`` against
+``f`` integrated by the plugin's sRGB rule).  The mean CIEDE2000 and the render's settings are
+recorded (``image_delta_e2000_mean``, ``image_check``), and a fast path whose mean exceeds
+``image_check.max_delta_e2000_mean`` is refused like one beyond the hemisphere bound.
+
 The settings are ``configs/lod/default.yaml``, section ``fast_paths`` (:mod:`neuralbrdf.lod.config`).
 """
 
@@ -49,7 +57,7 @@ from neuralbrdf.evaluation.scores import HEMISPHERE_STRATA, OnnxEvaluator, Torch
 from neuralbrdf.kinds import Exportable, load_model
 from neuralbrdf.lod.distill import DistillSettings, distill_student, rgb_teacher, teacher_samples
 from neuralbrdf.onnx_contract import OUTPUT_F, OUTPUT_FAST, OUTPUT_RGB, FastPath, fast_path_key
-from neuralbrdf.onnx_export import ExportValidationError, trace, validate, with_fast_paths
+from neuralbrdf.onnx_export import save_checked, trace, validate, with_fast_paths
 
 
 #: Least share of each of the CIE 1931 X, Y, Z weights (D65, the sRGB grid 400–700 nm, docs/formats.md#spectral-to-linear-srgb)
@@ -96,6 +104,17 @@ class StudentShape:
 
 
 @dataclass(frozen=True)
+class ImageCheck:
+    """The renders that measure a fast path's image error against ``f`` (module docstring)."""
+
+    resolution: int
+    spp: int
+    seed: int
+    #: A fast path whose mean CIEDE2000 against ``f`` exceeds this is refused (:class:`FastPathError`).
+    max_delta_e2000_mean: float
+
+
+@dataclass(frozen=True)
 class FastPathSettings:
     """How the fast paths are made (values: ``configs/lod/default.yaml``, section ``fast_paths``)."""
 
@@ -104,6 +123,7 @@ class FastPathSettings:
     distill: DistillSettings
     #: A student with a larger error against its teacher is refused (:class:`FastPathError`).
     max_hemisphere_logcos_rmse: float
+    image_check: ImageCheck
     #: ``(cos θ, φ)`` strata of the hemisphere pairs of the recorded error (docs/evaluate.md#metrics by default).
     error_strata: tuple[int, int] = HEMISPHERE_STRATA
 
@@ -154,7 +174,8 @@ def add_fast_paths(model_path: str | Path, out: str | Path, outputs: tuple[str, 
                    log=print) -> list[FastPath]:
     """Write ``out``: the model file ``model_path`` with the fast paths ``outputs`` (``f_rgb``,
     ``f_fast``) added (module docstring), atomically and only after the contract check accepted
-    it; nothing is written on failure (:class:`FastPathError`, :class:`ExportValidationError`,
+    it; nothing is written on failure (:class:`FastPathError`,
+    :class:`~neuralbrdf.onnx_export.ExportValidationError`,
     :class:`~neuralbrdf.errors.InputError`)."""
     model_path = Path(model_path)
     parent = OnnxEvaluator(model_path)
@@ -186,13 +207,45 @@ def add_fast_paths(model_path: str | Path, out: str | Path, outputs: tuple[str, 
         metadata.update({fast_path_key(output, "approximates"): describes,
                          fast_path_key(output, "hemisphere_logcos_rmse"): repr(error),
                          fast_path_key(output, "relative_cost"): repr(relative)})
-        reports.append(FastPath(output, describes, error, relative))
     combined = with_fast_paths(parent.file.proto, traced, metadata)
     out = Path(out)
     with atomic_path(out) as tmp:
-        onnx.save(combined, str(tmp))
-        try:
-            load_model(tmp)
-        except InputError as error:
-            raise ExportValidationError(f"the file with fast paths fails the ONNX contract check: {error.reason}") from None
+        save_checked(combined, tmp, "the file with fast paths")
+        check = settings.image_check
+        for output, (delta_e, where) in image_errors(tmp, outputs, check).items():
+            log(f"{output}: image ΔE2000 mean {delta_e:.3f} against f ({where})")
+            if not delta_e <= check.max_delta_e2000_mean:
+                raise FastPathError(f"the {output} student renders ΔE2000 {delta_e:.3g} (mean) away from the model, "
+                                    f"above the bound {check.max_delta_e2000_mean:g} (fast_paths.image_check."
+                                    "max_delta_e2000_mean)")
+            entries[output] += (delta_e, where)
+            metadata.update({fast_path_key(output, "image_delta_e2000_mean"): repr(delta_e),
+                             fast_path_key(output, "image_check"): where})
+        onnx.save(with_fast_paths(parent.file.proto, traced, metadata), str(tmp))
+        for output, (describes, error, delta_e, where) in entries.items():
+            reports.append(FastPath(output, describes, error, float(metadata[fast_path_key(output, "relative_cost")]),
+                                    delta_e, where))
     return reports
+
+
+def image_errors(path: Path, outputs: tuple[str, ...], check: ImageCheck) -> dict[str, tuple[float, str]]:
+    """Per fast path of the file ``path``: the mean CIEDE2000 of the preview scene rendered through
+    it against the render of ``f`` (same seed, same paths), and where (module docstring)."""
+    from neuralbrdf.evaluation.images import image_scores
+    from neuralbrdf.render.preview import Material, render
+
+    spectral = load_model(path).is_spectral
+    found, f_images = {}, {}
+    for output in outputs:
+        variant = "llvm_ad_spectral" if output == OUTPUT_FAST and spectral else "llvm_ad_rgb"
+        if variant not in f_images:
+            f_images[variant] = render(Material(model=path, rgb_head=False), variant, check.spp, check.resolution,
+                                       check.seed)
+        image = render(Material(model=path, fast=output == OUTPUT_FAST, rgb_head=output == OUTPUT_RGB), variant,
+                       check.spp, check.resolution, check.seed)
+        metrics, _ = image_scores(image, f_images[variant])
+        found[output] = (metrics["image_delta_e2000_mean"],
+                         f"material-preview scene, {variant}, {check.resolution} px, {check.spp} spp, seed {check.seed}, "
+                         "the same paths as f")
+    return found
+

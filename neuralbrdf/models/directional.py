@@ -25,6 +25,7 @@ used: no ``atan2`` (ONNX has none), no ``floor`` or integer indexing.
 
 from __future__ import annotations
 
+import copy
 import math
 
 import torch
@@ -32,7 +33,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from neuralbrdf.physics.abc import AbcParameters, abc_brdf
-from neuralbrdf.models.nlb import NlbNetwork, above_horizon, direction_inputs, masked_brdf
+from neuralbrdf.models.nlb import NlbNetwork, above_horizon, direction_inputs, log1p_output, masked_brdf
 from neuralbrdf.models.nlb_spectral import SpectralNlbNetwork
 from neuralbrdf.models.spectral_mlp import SpectralMLP
 
@@ -191,14 +192,25 @@ class SpectralNlbWithCodes(nn.Module):
     ``shared`` ``[shared_dim]`` and ``channels`` ``[K, channel_dim]`` are the material's codes;
     ``node_wavelengths_nm`` the wavelengths of the ``K`` channel codes of a spectral fit, or
     ``None`` for an RGB fit (``K`` = 3: R, G, B).  Everything the codes determine is baked into
-    constants: the shared code into the input layer's bias (no multiply-adds for it, as
-    :class:`NlbWithLatent`) and each channel code into its FiLM scale and shift ``[K, width]``.
+    constants, and the network's weights are copied beside them: the shared code into the input
+    layer's bias (no multiply-adds for it, as :class:`NlbWithLatent`) and each channel code into
+    its FiLM scale and shift ``film_scale``, ``film_shift`` ``[K, width]``.
 
     * RGB: ``forward(wi, wo) -> [N, 3]``, the channels decoded one after the other from the
       shared pre-activation;
     * spectral: ``forward(wi, wo, wavelength) -> [N]``, the FiLM scale and shift interpolated
       linearly in wavelength between the nodes (clamped to their range, :class:`LinearInWavelength`)
       — the same interpolation as the fit's.
+
+    **Units this material never uses.**  A material's codes leave many ReLU units of the shared
+    network inactive over the whole hemisphere (for the shipped network and the four virtual
+    materials, 13–22 of the 48 units of each of the last two layers).  :meth:`unit_peaks` finds
+    each unit's largest ReLU input over given direction pairs, and :meth:`without_units` the same
+    function with the units that never fire removed (their rows and the next layer's columns):
+    fewer multiply-adds per query at the same values, up to float32 rounding
+    (:func:`neuralbrdf.kinds.nlb_spectral.export_module` checks that on other pairs).  At the channel layer a
+    unit's input is piecewise linear in wavelength between the nodes, so its peak over all
+    wavelengths is its peak over the node codes.
     """
 
     def __init__(self, network: SpectralNlbNetwork, shared: torch.Tensor, channels: torch.Tensor,
@@ -209,7 +221,9 @@ class SpectralNlbWithCodes(nn.Module):
         if shared.numel() != network.shared_dim or channels.ndim != 2 or channels.shape[1] != network.channel_dim:
             raise ValueError(f"codes of shapes {list(shared.shape)} and {list(channels.shape)} do not fit the network "
                              f"(shared {network.shared_dim}, channel {network.channel_dim})")
-        self.network = network
+        self.half_vector = network.config.half_vector
+        self.channel_layer = network.config.channel_layer
+        self.node_wavelengths_nm = None if node_wavelengths_nm is None else tuple(float(w) for w in node_wavelengths_nm)
         self.is_spectral = node_wavelengths_nm is not None
         if self.is_spectral:
             self.interpolation_weights = LinearInWavelength(node_wavelengths_nm)
@@ -221,27 +235,75 @@ class SpectralNlbWithCodes(nn.Module):
         n = network.config.direction_features
         with torch.no_grad():
             weight = network.input_layer.weight
+            weights = [weight[:, :n], *(layer.weight for layer in network.hidden_layers), network.output_layer.weight]
+            biases = [weight[:, n:] @ shared + network.input_layer.bias,
+                      *(layer.bias for layer in network.hidden_layers), network.output_layer.bias]
             scale, shift = network.film(channels)
-        self.register_buffer("direction_weight", weight[:, :n].detach().clone())
-        self.register_buffer("input_bias", (weight[:, n:] @ shared + network.input_layer.bias).detach().clone())
+        #: Hidden layers; layer ``i`` is ``weight_i``, ``bias_i``, and layer ``depth`` the output layer.
+        self.depth = network.config.depth
+        for i, (weight, bias) in enumerate(zip(weights, biases)):
+            self.register_buffer(f"weight_{i}", weight.detach().clone())
+            self.register_buffer(f"bias_{i}", bias.detach().clone())
         self.register_buffer("film_scale", scale.detach().clone())
         self.register_buffer("film_shift", shift.detach().clone())
 
+    def _layer(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
+        return getattr(self, f"weight_{i}"), getattr(self, f"bias_{i}")
+
     def _shared_pre_activation(self, wi: torch.Tensor, wo: torch.Tensor) -> torch.Tensor:
-        network = self.network
-        a = F.linear(direction_inputs(wi, wo, network.config.half_vector), self.direction_weight, self.input_bias)
-        for layer in network.hidden_layers[: network.config.channel_layer]:
-            a = layer(F.relu(a))
+        """``a_L`` ``[N, units]`` of the channel layer (:mod:`neuralbrdf.models.nlb_spectral`)."""
+        a = F.linear(direction_inputs(wi, wo, self.half_vector), *self._layer(0))
+        for i in range(1, self.channel_layer + 1):
+            a = F.linear(F.relu(a), *self._layer(i))
         return a
+
+    def _decode(self, pre: torch.Tensor, scale: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
+        """``ln(1 + f)`` ``[...]`` from ``a_L`` and a channel's FiLM scale and shift, broadcast together."""
+        x = F.relu(pre * scale + shift)
+        for i in range(self.channel_layer + 1, self.depth):
+            x = F.relu(F.linear(x, *self._layer(i)))
+        return log1p_output(F.linear(x, *self._layer(self.depth)))[..., 0]
 
     def forward(self, wi: torch.Tensor, wo: torch.Tensor, wavelength: torch.Tensor | None = None) -> torch.Tensor:
         pre = self._shared_pre_activation(wi, wo)
         if not self.is_spectral:
-            log1p_f = torch.stack([self.network.decode(pre, self.film_scale[k], self.film_shift[k]) for k in range(3)],
-                                  dim=-1)
-            return masked_brdf(wi, wo, log1p_f)
+            return masked_brdf(wi, wo, self._decode(pre[:, None, :], self.film_scale, self.film_shift))
         if wavelength is None:
             raise ValueError("a spectral fit needs wavelengths")
         weights = self.interpolation_weights(wavelength)
-        log1p_f = self.network.decode(pre, weights @ self.film_scale, weights @ self.film_shift)
+        log1p_f = self._decode(pre, weights @ self.film_scale, weights @ self.film_shift)
         return masked_brdf(wi, wo, log1p_f[:, None])[:, 0]
+
+    @property
+    def units(self) -> list[int]:
+        """Units of each hidden layer."""
+        return [self._layer(i)[0].shape[0] for i in range(self.depth)]
+
+    @torch.no_grad()
+    def unit_peaks(self, wi: torch.Tensor, wo: torch.Tensor) -> list[torch.Tensor]:
+        """Per hidden layer, each unit's largest ReLU input over the pairs ``wi, wo`` ``[N, 3]`` and
+        every channel code (class docstring): a unit whose peak is ``<= 0`` never fires there."""
+        a = F.linear(direction_inputs(wi, wo, self.half_vector), *self._layer(0))
+        peaks = []
+        for i in range(self.depth):
+            if i > 0:
+                a = F.linear(F.relu(a), *self._layer(i))
+            if i == self.channel_layer:  # [N, K, units]: one row per channel code
+                a = a[:, None, :] * self.film_scale + self.film_shift
+            peaks.append(a.reshape(-1, a.shape[-1]).amax(0))
+        return peaks
+
+    def without_units(self, keep: list[torch.Tensor]) -> SpectralNlbWithCodes:
+        """A copy with only the units ``keep`` (a boolean mask per hidden layer) of each hidden layer."""
+        pruned = copy.deepcopy(self)
+        for i in range(self.depth + 1):
+            weight, bias = self._layer(i)
+            if i < self.depth:
+                weight, bias = weight[keep[i]], bias[keep[i]]
+            if i > 0:
+                weight = weight[:, keep[i - 1]]
+            setattr(pruned, f"weight_{i}", weight.clone())
+            setattr(pruned, f"bias_{i}", bias.clone())
+        pruned.film_scale = self.film_scale[:, keep[self.channel_layer]].clone()
+        pruned.film_shift = self.film_shift[:, keep[self.channel_layer]].clone()
+        return pruned

@@ -118,10 +118,18 @@ class SpectralNlbNetwork(nn.Module):
     def channel_dim(self) -> int:
         return self.config.channel_dim
 
-    def shared_pre_activation(self, wi: torch.Tensor, wo: torch.Tensor, shared: torch.Tensor) -> torch.Tensor:
-        """Pre-activation ``a_L`` ``[..., width]`` of the channel layer: directions and shared code only."""
+    def shared_pre_activation(self, wi: torch.Tensor, wo: torch.Tensor, shared: torch.Tensor,
+                              index: torch.Tensor | None = None) -> torch.Tensor:
+        """Pre-activation ``a_L`` ``[..., width]`` of the channel layer: directions and shared code only.
+
+        ``shared`` is one code per pair (or one for all); with ``index`` ``[N]`` it is a table of
+        codes ``[M, shared_dim]`` and pair ``i`` takes code ``index[i]``: the codes' share of the
+        input layer is then computed once per code, not once per pair."""
         features = direction_inputs(wi, wo, self.config.half_vector)
-        a = self.input_layer(torch.cat([features, shared.expand(*features.shape[:-1], -1)], dim=-1))
+        n = features.shape[-1]
+        weight = self.input_layer.weight
+        codes = F.linear(shared, weight[:, n:], self.input_layer.bias)
+        a = F.linear(features, weight[:, :n]) + (codes if index is None else codes[index])
         for layer in self.hidden_layers[: self.config.channel_layer]:
             a = layer(F.relu(a))
         return a

@@ -1013,6 +1013,19 @@ class DrJitGraph:
             inputs[INPUT_WAVELENGTH] = wavelength
         return self._program(*self._input_columns(inputs))
 
+    def at_wavelengths(self, wi: Sequence[Any], wo: Sequence[Any], wavelengths: Sequence[Any]) -> list[Any]:
+        """``f`` of a spectral model at each of ``wavelengths`` (Dr.Jit arrays or floats, nm): one
+        column per wavelength, as ``[self(wi, wo, w)[0] for w in wavelengths]`` with the
+        instructions that depend on the directions alone issued once
+        (:meth:`~neuralbrdf.render.drjit_program.Recording.compile`, ``varying``)."""
+        if INPUT_WAVELENGTH not in self.input_names:
+            raise ValueError(f"{self.source}: an RGB model has no wavelength input")
+        count = len(wavelengths)
+        if count not in self._programs_at:
+            recording, inputs, outputs = self._recorded
+            self._programs_at[count] = recording.compile(inputs, outputs, inputs[-1], count)
+        return self._programs_at[count](*wi, *wo, *wavelengths)
+
     def _input_columns(self, inputs: Mapping[str, Any]) -> list[Any]:
         """The input columns in the program's order: ``wi`` x, y, z, ``wo`` x, y, z, wavelength."""
         columns = [*inputs[INPUT_WI], *inputs[INPUT_WO]]
@@ -1030,6 +1043,8 @@ class DrJitGraph:
         if INPUT_WAVELENGTH in self.input_names:
             inputs[INPUT_WAVELENGTH] = recording.new_register()
         outputs = self._run(inputs)
+        self._recorded = (recording, self._input_columns(inputs), outputs)
+        self._programs_at: dict[int, Callable[..., list[Any]]] = {}
         return recording.compile(self._input_columns(inputs), outputs)
 
     def _run(self, inputs: Mapping[str, Any]) -> list[Any]:

@@ -341,8 +341,8 @@ class _DrJitBackend:
         return _nonnegative(self.graph(wi, wo))
 
     def spectral(self, wi: mi.Vector3f, wo: mi.Vector3f, wavelengths: list) -> list:
-        # One evaluation per wavelength; Dr.Jit shares the parts that depend on wi, wo only.
-        return _nonnegative([self.graph(wi, wo, w)[0] for w in wavelengths])
+        # The parts that depend on wi, wo only are issued once for all wavelengths.
+        return _nonnegative(self.graph.at_wavelengths(wi, wo, wavelengths))
 
     def integrated(self, wi: mi.Vector3f, wo: mi.Vector3f, rule: ReducedQuadrature) -> list:
         """``Σ_k f(λ_k) V[k, c]``, the network unrolled once per node (weights as literals); one

@@ -51,6 +51,7 @@ import io
 import json
 import math
 import os
+import subprocess
 import sys
 import threading
 import time
@@ -208,15 +209,54 @@ def fit(spec: dict, table: Path, run_dir: Path) -> tuple[float, dict]:
 
 
 def export(spec: dict, run_dir: Path, out: Path) -> Path:
-    """Export the fitted checkpoint (step 3) through its kind; :class:`CellFailure` when refused."""
+    """Export the fitted checkpoint (step 3) through its kind — for a ``fast`` variant its fast
+    path ``f_fast`` as a model of its own (:func:`fast_path_alone`) — ; :class:`CellFailure` when refused."""
     from neuralbrdf.errors import InputError
+    from neuralbrdf.onnx_contract import OUTPUT_FAST
     from neuralbrdf.onnx_export import ExportValidationError, export_checkpoint
+    from neuralbrdf.study.cells import FAST_PATH_SETTINGS
 
     checkpoint = run_dir / "checkpoints" / CHECKPOINTS[spec["variant"]["method"]]
     try:
-        export_checkpoint(checkpoint, out)
+        if not spec["variant"].get("fast"):
+            export_checkpoint(checkpoint, out)
+            return out
+        full, with_fast = out.with_name(f"{out.stem}_full.onnx"), out.with_name(f"{out.stem}_with_fast.onnx")
+        export_checkpoint(checkpoint, full)
+        # `neuralbrdf export` (a process of its own: the study imports nothing of neuralbrdf.lod,
+        # which imports the study's cost module)
+        done = subprocess.run([sys.executable, "-m", "neuralbrdf", "export", "--model", str(full), "--out",
+                               str(with_fast), "--fast", "--no-rgb-head", "--config", FAST_PATH_SETTINGS],
+                              capture_output=True, text=True)
+        if done.returncode != 0:
+            raise CellFailure("export_refused", (done.stderr.strip().splitlines() or ["neuralbrdf export failed"])[-1][:300])
+        fast_path_alone(with_fast, OUTPUT_FAST, out)
     except (InputError, ExportValidationError) as error:
         raise CellFailure("export_refused", f"{type(error).__name__}: {error}"[:300]) from None
+    return out
+
+
+def fast_path_alone(model_path: Path, output: str, out: Path) -> Path:
+    """Write ``out``: the fast path ``output`` of the file ``model_path`` as a model file of its own
+    (its only output ``f``; the file's metadata without its fast paths' entries, the provenance
+    saying which output it is), checked by the contract like any model file."""
+    from onnx import helper
+
+    from neuralbrdf.atomic import atomic_path
+    from neuralbrdf.kinds import load_model
+    from neuralbrdf.onnx_contract import FAST_PATH_OUTPUTS, PROVENANCE_KEY, WAVELENGTH_MAX_KEY, WAVELENGTH_MIN_KEY
+    from neuralbrdf.onnx_export import save_checked
+
+    model = load_model(model_path)
+    recorded, view = model.fast_paths[output], model.output_view(output)
+    dropped = () if view.is_spectral else (WAVELENGTH_MIN_KEY, WAVELENGTH_MAX_KEY)  # f_rgb: an RGB model
+    metadata = {key: value for key, value in model.metadata.items() if key not in dropped
+                and not (key.startswith("neuralbrdf.") and key.split(".")[1] in FAST_PATH_OUTPUTS)}
+    metadata[PROVENANCE_KEY] = f"{metadata[PROVENANCE_KEY]}; its fast path {output}: {recorded.approximates}"
+    proto = view.proto
+    helper.set_model_props(proto, metadata)
+    with atomic_path(out) as tmp:
+        save_checked(proto, tmp, f"{output} alone")
     return out
 
 

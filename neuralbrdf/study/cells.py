@@ -156,6 +156,10 @@ def overlay_digests(variant: VariantSpec) -> list[str]:
     return [file_digest(str(resolve_config(path))) for path in flag_values(variant.args, "--config")]
 
 
+#: The level-of-detail settings (section ``fast_paths``) a ``fast`` variant's fast paths are made with.
+FAST_PATH_SETTINGS = "default"
+
+
 def is_rendered(cell: Cell, profile: Profile) -> bool:
     """Whether ``cell`` is rendered and timed: the main condition of a speed–accuracy variant."""
     return cell.is_main and profile.variant(cell.variant).speed_accuracy
@@ -181,6 +185,8 @@ def cell_settings(cell: Cell, profile: Profile) -> dict:
     seeded = seed_args(variant.method, cell.seed)
     if seeded:  # likewise: only the methods whose fit takes the seed as an option
         settings["variant"]["seed_args"] = seeded
+    if variant.fast:  # only then: the keys of the other variants stay what they were
+        settings["variant"]["fast"] = file_digest(str(resolve_config(FAST_PATH_SETTINGS, "lod")))
     if variant.method in NETWORK_DEFAULTS:  # a retrained network changes every NLB result
         network = resolve_pretrained(pretrained_network(variant), NETWORK_DEFAULTS[variant.method])
         settings["variant"]["pretrained"] = file_digest(str(network))

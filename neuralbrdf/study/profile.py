@@ -30,7 +30,10 @@ with a ``group`` are also run at every stability seed (DS1, no noise) and box-pl
 ``speed_accuracy: false`` makes a variant a sweep only: its DS1 noise-free seed-0 cell is neither
 rendered nor timed, so it is no point of the speed–accuracy charts (the γ variants of the full
 profile: the same 3×10 network as ``spectral_mlp``, so the same cost).  ``materials: [NAME, …]``
-fits a variant to those materials only (default: every material it applies to).
+fits a variant to those materials only (default: every material it applies to).  ``fast: true``
+studies the model's fast path instead of the model: each fitted model is exported with its
+``f_fast`` (``neuralbrdf export --fast``, :mod:`neuralbrdf.lod.fast_paths`) and that output, cut
+out as a model file of its own, is what the cell scores, renders and times.
 Every error names the profile file and the key (``materials[1].truth``): among others a virtual
 material that does not exist, a truth ``.onnx`` that is not a valid ground truth (kind
 ``reference``, ``neuralbrdf export-truth``), render sizes outside what an evaluation accepts
@@ -111,6 +114,7 @@ class VariantSpec:
     label: str | None = None
     speed_accuracy: bool = True
     materials: tuple[str, ...] | None = None
+    fast: bool = False
 
 
 @dataclass(frozen=True)
@@ -269,16 +273,17 @@ def load_profile(name_or_path: str) -> Profile:
     for i, entry in enumerate(r.sequence(raw["variants"], "variants")):
         key = f"variants[{i}]"
         entry = r.mapping(entry, key, ("name", "method", "config", "args", "render_variant", "group", "label",
-                                        "speed_accuracy", "materials"),
+                                        "speed_accuracy", "materials", "fast"),
                           ("name", "method", "config"))
         if entry["method"] not in METHODS:
             r.fail(f"{key}.method", f"expected one of {', '.join(METHODS)}, got {entry['method']!r}")
         args = entry.get("args", [])
         if not isinstance(args, list) or not all(isinstance(a, (str, int, float)) for a in args):
             r.fail(f"{key}.args", "expected a list of command-line words")
-        speed_accuracy = entry.get("speed_accuracy", True)
-        if not isinstance(speed_accuracy, bool):
-            r.fail(f"{key}.speed_accuracy", f"expected true or false, got {speed_accuracy!r}")
+        speed_accuracy, fast = entry.get("speed_accuracy", True), entry.get("fast", False)
+        for name, value in (("speed_accuracy", speed_accuracy), ("fast", fast)):
+            if not isinstance(value, bool):
+                r.fail(f"{key}.{name}", f"expected true or false, got {value!r}")
         only = entry.get("materials")
         if only is not None:
             known = [m.name for m in materials]
@@ -291,7 +296,7 @@ def load_profile(name_or_path: str) -> Profile:
         variants.append(VariantSpec(
             r.string(entry["name"], f"{key}.name"), entry["method"], r.file(entry["config"], f"{key}.config"),
             tuple(str(a) for a in args), entry.get("render_variant"), entry.get("group"),
-            entry.get("label") or entry["name"], speed_accuracy, only))
+            entry.get("label") or entry["name"], speed_accuracy, only, fast))
     for names, what in (([m.name for m in materials], "materials"), ([v.name for v in variants], "variants")):
         duplicated = sorted({n for n in names if names.count(n) > 1})
         if duplicated:
