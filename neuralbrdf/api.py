@@ -6,7 +6,7 @@ is a layer over the same functions, so a script and a shell command do the same 
 
     import neuralbrdf as nb
 
-    gold = nb.read("virtual:gold")                        # or a table, GCMS raw + reference, .h5, .binary
+    gold = nb.read("virtual:gold")                        # or a table, GCMS raw + reference, .h5, .binary, .bsdf
     result = nb.fit("spectral_mlp", gold, run_dir="runs/gold")
     model = result.export("gold.onnx")                    # a validated ONNX file (SPEC §6)
     f = model(wi, wo, wavelength)                         # BRDF in sr^-1, as numpy
@@ -51,7 +51,9 @@ FIT_KINDS: dict[str, str] = {
     "nlb_spectral": "nlb_spectral",
 }
 #: Source kinds with a ground truth everywhere (not only at measured directions).
-TRUTH_KINDS = ("nbrdf", "merl", "virtual")
+TRUTH_KINDS = ("nbrdf", "merl", "rgl", "virtual")
+#: File suffixes of the sampled sources -> their kind (each sampled on a plan).
+SAMPLED_SUFFIXES = {".h5": "nbrdf", ".json": "nbrdf", ".binary": "merl", ".bsdf": "rgl"}
 VIRTUAL_PREFIX = "virtual:"
 
 
@@ -64,9 +66,10 @@ class Source:
 
     ``kind`` is ``table`` (a BRDF sample table, SPEC §2.1), ``gcms`` (a GCMS raw file calibrated
     against its Munsell N9 ``reference``, SPEC §2.2), ``nbrdf`` (an NBRDF proxy ``.h5``, SPEC §2.4),
-    ``merl`` (a MERL ``.binary`` measurement) or ``virtual`` (a stand-in of the virtual
-    goniospectrophotometer, SPEC §2.5: its shipped DS1 measurement).  ``samples`` is the BRDF table
-    a fit sees: the file, the calibrated measurement, or the proxy / MERL table sampled on ``plan``.
+    ``merl`` (a MERL ``.binary`` measurement), ``rgl`` (an RGL ``.bsdf`` measurement) or ``virtual`` (a
+    stand-in of the virtual goniospectrophotometer, SPEC §2.5: its shipped DS1 measurement).
+    ``samples`` is the BRDF table a fit sees: the file, the calibrated measurement, or the proxy /
+    measured table sampled on ``plan``.
     """
 
     kind: str
@@ -92,7 +95,7 @@ class Source:
         :mod:`neuralbrdf.sources`)."""
         if self.kind == "virtual":
             return {"virtual": self.location}
-        if self.kind in ("nbrdf", "merl"):
+        if self.kind in SAMPLED_SUFFIXES.values():
             return {self.kind: self.location, "plan": self.plan}
         return {"path": self.location} if self.reference is None else {"path": self.location, "reference": self.reference}
 
@@ -100,7 +103,8 @@ class Source:
 def read(source: PathLike, reference: PathLike | None = None, *, plan: str | None = None,
          name: str | None = None) -> Source:
     """Read a material: a BRDF table, a GCMS raw file with its Munsell N9 ``reference``, an
-    NBRDF proxy ``NAME.h5`` or a MERL ``NAME.binary`` (both sampled on ``plan``, default DS1), or
+    NBRDF proxy ``NAME.h5``, a MERL ``NAME.binary`` or an RGL ``NAME.bsdf`` (spectral from a
+    ``NAME_spec.bsdf``, RGB from a ``NAME_rgb.bsdf``; all three sampled on ``plan``, default DS1), or
     ``virtual:NAME`` (``cyan``, ``magenta``, ``gold``, ``gonio``: the shipped DS1 measurement).
 
     >>> import neuralbrdf as nb
@@ -117,9 +121,9 @@ def read(source: PathLike, reference: PathLike | None = None, *, plan: str | Non
 
     text = os.fspath(source)
     suffix = Path(text).suffix
-    sampled = not text.startswith(VIRTUAL_PREFIX) and suffix in (".h5", ".json", ".binary")
+    sampled = not text.startswith(VIRTUAL_PREFIX) and suffix in SAMPLED_SUFFIXES
     if plan is not None and not sampled:
-        raise InputError(f"plan {plan!r} applies to NBRDF (.h5) and MERL (.binary) files, not to {text}")
+        raise InputError(f"plan {plan!r} applies to NBRDF (.h5), MERL (.binary) and RGL (.bsdf) files, not to {text}")
     if plan is not None and plan not in PLAN_NAMES:
         raise InputError(f"unknown plan {plan!r}; expected one of {', '.join(PLAN_NAMES)}")
     if reference is not None and (text.startswith(VIRTUAL_PREFIX) or sampled):
@@ -134,7 +138,7 @@ def read(source: PathLike, reference: PathLike | None = None, *, plan: str | Non
     if sampled:
         plan = plan or "DS1"
         samples = sample_file(text, plan)
-        return Source("merl" if suffix == ".binary" else "nbrdf", text, samples, name or Path(text).stem, plan=plan)
+        return Source(SAMPLED_SUFFIXES[suffix], text, samples, name or Path(text).stem, plan=plan)
     samples = load_measurement(text, reference)
     return Source("table" if reference is None else "gcms", text, samples, name or Path(text).stem,
                   None if reference is None else os.fspath(reference))
@@ -189,7 +193,7 @@ def _data_arguments(config: str, source: Source) -> list[str]:
         return [argument for key, value in options.items() for argument in (f"--data.{key}", value)]
     if "sources" in accepted:
         return ["--data.sources", json.dumps([options])]
-    takes = [key for key in ("path", "reference", "nbrdf", "merl", "virtual") if key in accepted]
+    takes = [key for key in ("path", "reference", *dict.fromkeys(SAMPLED_SUFFIXES.values()), "virtual") if key in accepted]
     raise InputError(f"the {Path(config).stem} config's data module takes {', '.join(takes)}; "
                      f"{source.location} is a {source.kind} source")
 
@@ -326,7 +330,9 @@ def export(checkpoint: PathLike, out: PathLike, material: str | None = None) -> 
 def truth(source: Source | PathLike, out: PathLike) -> Model:
     """Export the ground truth of a material to ``out`` (a ``reference`` model file that renders
     like a fitted one): ``virtual:NAME`` (spectral), an NBRDF proxy ``.h5`` or a MERL ``.binary``
-    (RGB), or a :class:`Source` of one of those.  A measurement (table, GCMS raw) has no truth.
+    (RGB), an RGL ``.bsdf`` (a dense resampling, spectral or RGB as the file; its resampling error
+    against Mitsuba's ``measured`` plugin is in the file's metadata), or a :class:`Source` of one of
+    those.  A measurement table or GCMS raw file has no truth.
 
     >>> import tempfile, neuralbrdf as nb
     >>> with tempfile.TemporaryDirectory() as folder:
@@ -338,7 +344,7 @@ def truth(source: Source | PathLike, out: PathLike) -> Model:
     if isinstance(source, Source):
         if not source.has_truth:
             raise InputError(f"a measurement ({source.kind}) is known only where it was measured; a truth comes from "
-                             "virtual:NAME, an NBRDF .h5 or a MERL .binary", path=source.location)
+                             "virtual:NAME, an NBRDF .h5, a MERL .binary or an RGL .bsdf", path=source.location)
         source = VIRTUAL_PREFIX + source.location if source.kind == "virtual" else source.location
     export_truth(os.fspath(source), out)
     return Model(out)

@@ -8,12 +8,15 @@ latent fit's ``data.sources``).  One material comes from exactly one of:
 * ``nbrdf`` — a MERL-proxy NBRDF network (SPEC §2.4) sampled on ``plan``;
 * ``merl`` — a MERL ``.binary`` measurement (:mod:`neuralbrdf.data.merl_binary`) sampled on
   ``plan`` (nearest cell, RGB);
+* ``rgl`` — an RGL material database ``.bsdf`` measurement (:mod:`neuralbrdf.data.rgl_bsdf`)
+  sampled on ``plan`` through Mitsuba's ``measured`` plugin (spectral at 400–700 nm from a
+  ``NAME_spec.bsdf``, RGB from a ``NAME_rgb.bsdf``);
 * ``virtual`` — a stand-in of the virtual goniospectrophotometer (SPEC §2.5): its shipped DS1
   measurement, calibrated against the shipped Munsell N9 reference.
 
-with optional ``name`` (default: the file stem or the virtual material) and, for ``nbrdf`` and
-``merl``, ``plan``.  Proxies, MERL tables and virtual materials are defined everywhere, so they
-also give a dense ``truth`` on
+with optional ``name`` (default: the file stem or the virtual material) and, for ``nbrdf``,
+``merl`` and ``rgl``, ``plan``.  Proxies, measured files and virtual materials are defined
+everywhere, so they also give a dense ``truth`` on
 ``eval_plan`` (default the Löw et al. set) for the hemisphere log-cosine RMSE (SPEC §5); a
 user's measurement has none.
 """
@@ -27,6 +30,8 @@ from pathlib import Path
 from neuralbrdf.data.loading import load_measurement
 from neuralbrdf.data.merl_binary import MerlBrdf, sample_merl
 from neuralbrdf.data.nbrdf import NbrdfNetwork, sample_plan
+from neuralbrdf.data.rgl_bsdf import SUFFIX as RGL_SUFFIX
+from neuralbrdf.data.rgl_bsdf import RglBsdf, sample_rgl
 from neuralbrdf.data.plans import PLAN_NAMES, plan_spherical
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
@@ -36,9 +41,9 @@ from neuralbrdf.virtual.materials import REFERENCE_MATERIAL, get_material
 
 
 #: Keys naming where a material comes from: exactly one per material.
-SOURCE_KEYS = ("path", "nbrdf", "merl", "virtual")
+SOURCE_KEYS = ("path", "nbrdf", "merl", "rgl", "virtual")
 #: Source keys of files sampled on a plan (``plan`` applies to them).
-SAMPLED_KEYS = ("nbrdf", "merl")
+SAMPLED_KEYS = ("nbrdf", "merl", "rgl")
 #: Every key a material source may have.
 MATERIAL_KEYS = (*SOURCE_KEYS, "reference", "plan", "name")
 
@@ -89,10 +94,13 @@ def virtual_measurement(material: str, plan: str, noise: float, seed: int, refer
 
 
 def sample_file(path: str | os.PathLike[str], plan: str, progress: bool = False) -> BrdfTable:
-    """A MERL ``.binary`` measurement or an NBRDF proxy ``.h5`` sampled on ``plan`` (RGB, sr⁻¹);
-    ``progress``: a progress bar while a network is evaluated."""
+    """A MERL ``.binary`` measurement, an RGL ``.bsdf`` measurement (spectral or RGB as the file) or an
+    NBRDF proxy ``.h5`` (RGB) sampled on ``plan`` (sr⁻¹); ``progress``: a progress bar while a network
+    is evaluated."""
     if Path(path).suffix == ".binary":
         return sample_merl(MerlBrdf.load(path), plan)
+    if Path(path).suffix == RGL_SUFFIX:
+        return sample_rgl(RglBsdf.load(path), plan)
     return sample_plan(NbrdfNetwork.load(path), plan, progress=progress)
 
 
@@ -102,13 +110,14 @@ def load_material(
     reference: str | None = None,
     nbrdf: str | None = None,
     merl: str | None = None,
+    rgl: str | None = None,
     virtual: str | None = None,
     plan: str = "DS1",
     eval_plan: str | None = "low",
     name: str | None = None,
 ) -> MaterialData:
-    """Load one material from exactly one source (module docstring); ``plan`` applies to NBRDF and MERL."""
-    sources = (("path", path), ("nbrdf", nbrdf), ("merl", merl), ("virtual", virtual))
+    """Load one material from exactly one source (module docstring); ``plan`` applies to the sampled files."""
+    sources = (("path", path), ("nbrdf", nbrdf), ("merl", merl), ("rgl", rgl), ("virtual", virtual))
     given = [key for key, value in sources if value is not None]
     if len(given) != 1:
         raise InputError(f"give exactly one of {', '.join('data.' + k for k in SOURCE_KEYS)}; got {given or 'none'}")
@@ -126,6 +135,10 @@ def load_material(
         brdf = MerlBrdf.load(merl)
         truth = None if eval_plan is None else sample_merl(brdf, eval_plan)
         return MaterialData(name or brdf.name, sample_merl(brdf, plan), truth)
+    if rgl is not None:
+        measurement = RglBsdf.load(rgl)
+        truth = None if eval_plan is None else sample_rgl(measurement, eval_plan)
+        return MaterialData(name or measurement.name, sample_rgl(measurement, plan), truth)
     fit = load_measurement(default_data_path(virtual), default_data_path(REFERENCE_MATERIAL))
     truth = None if eval_plan is None else virtual_truth(virtual, eval_plan)
     return MaterialData(name or virtual, fit, truth)
@@ -144,7 +157,7 @@ def check_source(source, where: str) -> dict[str, str]:
     if "reference" in source and given[0] != "path":
         raise InputError("'reference' goes with a GCMS raw 'path'", column=where)
     if "plan" in source and (given[0] not in SAMPLED_KEYS or source["plan"] not in PLAN_NAMES):
-        raise InputError(f"'plan' is for nbrdf and merl sources, one of {', '.join(PLAN_NAMES)}; got "
+        raise InputError(f"'plan' is for nbrdf, merl and rgl sources, one of {', '.join(PLAN_NAMES)}; got "
                          f"{source['plan']!r}", column=where)
     return {k: str(v) for k, v in source.items()}
 

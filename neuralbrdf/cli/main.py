@@ -116,11 +116,13 @@ def build_parser() -> argparse.ArgumentParser:
             commands.sample,
             help_text,
             "Sample a material on a sampling plan and write a BRDF table (1/sr): a MERL measurement NAME.binary "
-            "(Matusik et al. 2003; nearest cell, RGB), a MERL-proxy NBRDF network NAME.h5 with NAME.json beside it "
-            "(Sztrajman et al. 2021; RGB) or virtual:NAME, the noiseless ground truth of a virtual stand-in "
+            "(Matusik et al. 2003; nearest cell, RGB), an RGL measurement NAME.bsdf (Dupuy & Jakob 2018; Mitsuba's "
+            "measured plugin; spectral at 400-700 nm every 10 nm from a NAME_spec.bsdf, RGB from a NAME_rgb.bsdf, "
+            "negative values clipped to 0; wi is the light), a MERL-proxy NBRDF network NAME.h5 with NAME.json beside "
+            "it (Sztrajman et al. 2021; RGB) or virtual:NAME, the noiseless ground truth of a virtual stand-in "
             "(spectral, 400-700 nm).",
         )
-        p.add_argument("material", help="NAME.binary, NAME.h5 (or NAME.json) or virtual:NAME")
+        p.add_argument("material", help="NAME.binary, NAME.bsdf, NAME.h5 (or NAME.json) or virtual:NAME")
         p.add_argument("--plan", required=True, choices=PLAN_NAMES)
         p.add_argument("--out", required=True, help="output BRDF table CSV")
 
@@ -154,10 +156,13 @@ def build_parser() -> argparse.ArgumentParser:
         "export a ground-truth material to an ONNX model file (kind 'reference')",
         "Write the ground truth of a material as one .onnx file under the model contract (SPEC §6, §9), so it "
         "renders through the same plugin, sampler and seeds as a fitted model. SOURCE is virtual:NAME (gold, gonio, "
-        "cyan, magenta, munsell_n9: spectral, 400-700 nm, 1/sr), an NBRDF proxy NAME.h5 (linear sRGB, 1/sr) or a "
-        "MERL measurement NAME.binary (linear sRGB, 1/sr; MERL's nearest cell, unmeasured cells 0).",
+        "cyan, magenta, munsell_n9: spectral, 400-700 nm, 1/sr), an NBRDF proxy NAME.h5 (linear sRGB, 1/sr), a "
+        "MERL measurement NAME.binary (linear sRGB, 1/sr; MERL's nearest cell, unmeasured cells 0) or an RGL "
+        "measurement NAME.bsdf (spectral 400-700 nm or linear sRGB as the file: Mitsuba's measured plugin resampled "
+        "on a dense table, whose error against the plugin is measured, printed and written into the file).",
     )
-    p.add_argument("source", help="virtual:NAME, an NBRDF weight file NAME.h5 or a MERL file NAME.binary")
+    p.add_argument("source", help="virtual:NAME, an NBRDF weight file NAME.h5, a MERL file NAME.binary or an RGL "
+                   "file NAME.bsdf")
     p.add_argument("--out", required=True, help="output .onnx file")
 
     p = add(
