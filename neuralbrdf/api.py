@@ -364,14 +364,17 @@ def _positive(**values) -> None:
 
 
 def evaluate(model: Model | PathLike, truth: Model | PathLike, out_dir: PathLike, *, scene: PathLike | None = None,
-             material: str | None = None, variant: str = DEFAULT_VARIANT, spp: int = 256,
+             material: str | None = None, variant: str | None = None, spp: int = 256,
              resolution: int | None = None, seed: int = 0, backend: str = "drjit", fast: bool = False,
              images: bool = True) -> dict:
     """Score ``model`` against ``truth`` (SPEC §5, §9): log-cosine and relative RMSE over the
     hemisphere, relative RMSE in the in-plane glossy and diffuse regions, and, with ``images``, the
     image errors (ΔE2000 mean and p95, PSNR) of both rendered with the same seeds in the material
     preview or in ``scene`` (any Mitsuba scene using the ``neuralbrdf`` BSDF; ``material`` names the
-    one that carries model, then truth).  Writes ``out_dir/evaluation.json`` (and the images) and
+    one that carries model, then truth).  ``truth``: a reference model file, or an RGL measurement
+    ``NAME.bsdf``, scored and rendered through Mitsuba's own ``measured`` plugin.  ``variant``:
+    default ``llvm_ad_spectral``, or for a measurement the variant of its kind (``llvm_ad_rgb`` for
+    an RGB file).  Writes ``out_dir/evaluation.json`` (and the images) and
     returns its content.  ``resolution``: default 128 in the preview, the scene's own film in a scene;
     ``fast``: render the model's fast path ``f_fast`` (``neuralbrdf export --fast``).  The model's
     fast paths are always scored against its ``f`` (``result["fast_paths"]``).
@@ -383,9 +386,10 @@ def evaluate(model: Model | PathLike, truth: Model | PathLike, out_dir: PathLike
     >>> scores["hemisphere_logcos_rmse"], scores["inplane_glossy_rel_rmse"]
     (0.0, 0.0)
     """
-    from neuralbrdf.evaluation.evaluate import DEFAULT_RESOLUTION, RenderSettings, SceneTarget
+    from neuralbrdf.evaluation.evaluate import DEFAULT_RESOLUTION, RenderSettings, SceneTarget, measurement_variant
     from neuralbrdf.evaluation.evaluate import evaluate as run_evaluation
 
+    variant = measurement_variant(_model_path(truth), variant)
     settings = RenderSettings(variant, spp, DEFAULT_RESOLUTION if resolution is None else resolution, seed, backend,
                               fast)  # checked by the evaluation before any work
     target = None if scene is None else SceneTarget(Path(scene), material, resolution)

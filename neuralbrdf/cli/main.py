@@ -178,13 +178,15 @@ def build_parser() -> argparse.ArgumentParser:
         "Writes DIR/evaluation.json, model.png, truth.png, error_map.png, comparison.png and prints a table.",
     )
     p.add_argument("model", help="model file (.onnx)")
-    p.add_argument("--truth", required=True, help="truth file (.onnx, e.g. from export-truth)")
+    p.add_argument("--truth", required=True, help="truth file: .onnx (e.g. from export-truth), or an RGL measurement "
+                   "NAME.bsdf, scored and rendered through Mitsuba's own measured plugin")
     p.add_argument("--out-dir", required=True, help="output folder")
     p.add_argument("--scene", default=None, help="render in this Mitsuba scene instead of the material preview: any "
                    "scene using the neuralbrdf BSDF; its material --material carries the model, then the truth")
     p.add_argument("--material", default=None, help="with --scene: the neuralbrdf material (its id, or the id of "
                    "its shape) to swap (default: the scene's only one)")
-    p.add_argument("--variant", default=DEFAULT_VARIANT, help=f"Mitsuba variant (default {DEFAULT_VARIANT}, as for render)")
+    p.add_argument("--variant", default=None, help=f"Mitsuba variant (default {DEFAULT_VARIANT}, as for render; with "
+                   "a .bsdf truth the variant of its kind: llvm_ad_rgb for an RGB file)")
     p.add_argument("--backend", default="drjit", choices=("drjit", "onnxruntime"), help="plugin backend (default drjit)")
     p.add_argument("--spp", type=int, default=256, help="samples per pixel (default 256)")
     p.add_argument("--resolution", type=int, default=None, help="image width = height in pixels (default 128, or "
