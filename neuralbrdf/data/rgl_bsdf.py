@@ -184,18 +184,24 @@ class RglBsdf:
 _PLUGINS: dict[tuple, object] = {}
 
 
+def measured_plugin(brdf: RglBsdf):
+    """Mitsuba's ``measured`` BSDF of a checked file, in the current variant (of the file's kind)."""
+    import mitsuba as mi
+
+    try:
+        return mi.load_dict({"type": "measured", "filename": str(brdf.path.resolve())})
+    except RuntimeError as error:
+        raise InputError(f"Mitsuba's measured plugin refused it: {one_line(error)}", path=brdf.path) from None
+
+
 def _plugin(brdf: RglBsdf):
-    """Mitsuba's ``measured`` BSDF of ``brdf`` in the current variant, kept while the file is unchanged."""
+    """:func:`measured_plugin`, kept while the file is unchanged."""
     import mitsuba as mi
 
     key = (file_version(brdf.path), mi.variant())
     if key not in _PLUGINS:
-        try:
-            plugin = mi.load_dict({"type": "measured", "filename": str(brdf.path.resolve())})
-        except RuntimeError as error:
-            raise InputError(f"Mitsuba's measured plugin refused it: {one_line(error)}", path=brdf.path) from None
         _PLUGINS.clear()  # one file at a time: a plugin holds the whole table
-        _PLUGINS[key] = plugin
+        _PLUGINS[key] = measured_plugin(brdf)
     return _PLUGINS[key]
 
 

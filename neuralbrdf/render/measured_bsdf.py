@@ -25,21 +25,21 @@ from pathlib import Path
 import drjit as dr
 import mitsuba as mi
 
-from neuralbrdf.data.rgl_bsdf import RglBsdf
-from neuralbrdf.errors import InputError, one_line
+from neuralbrdf.data.rgl_bsdf import RglBsdf, measured_plugin
+from neuralbrdf.errors import InputError
 
 PLUGIN_NAME = "neuralbrdf_measured"
 
-_REGISTERED_VARIANTS: set[str] = set()
+_CLASSES: dict[str, type] = {}
 
 
 def register_measured() -> None:
     """Register ``neuralbrdf_measured`` in the current Mitsuba variant (idempotent)."""
     variant = mi.variant()
-    if variant in _REGISTERED_VARIANTS:
-        return
-    mi.register_bsdf(PLUGIN_NAME, lambda props: MeasuredBSDF(props))
-    _REGISTERED_VARIANTS.add(variant)
+    if variant not in _CLASSES:
+        _CLASSES[variant] = _measured_class()
+        cls = _CLASSES[variant]
+        mi.register_bsdf(PLUGIN_NAME, lambda props: cls(props))
 
 
 def _measurement(props: mi.Properties) -> RglBsdf:
@@ -53,54 +53,57 @@ def _measurement(props: mi.Properties) -> RglBsdf:
     return brdf
 
 
-class MeasuredBSDF(mi.BSDF):
-    """Mitsuba's ``measured`` BSDF, clipped at 0, optionally sampled with a model's proposal (module docstring)."""
+def _measured_class() -> type:
+    """The BSDF class for the current variant (a Python BSDF derives from that variant's ``mi.BSDF``)."""
 
-    def __init__(self, props: mi.Properties) -> None:
-        from neuralbrdf.render.mitsuba_bsdf import _fitted_proposal, _proposal_path, validated_model
+    class MeasuredBSDF(mi.BSDF):
+        """Mitsuba's ``measured`` BSDF, clipped at 0, optionally sampled with a model's proposal (module
+        docstring)."""
 
-        mi.BSDF.__init__(self, props)
-        self.brdf = _measurement(props)
-        proposal = _proposal_path(props)
-        self.mixture = None if proposal is None else _fitted_proposal(validated_model(proposal))
-        try:
-            self.measured = mi.load_dict({"type": "measured", "filename": str(self.brdf.path.resolve())})
-        except RuntimeError as error:
-            raise InputError(f"Mitsuba's measured plugin refused it: {one_line(error)}", path=self.brdf.path) from None
-        self.m_flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
-        self.m_components = [self.m_flags]
+        def __init__(self, props: mi.Properties) -> None:
+            from neuralbrdf.render.mitsuba_bsdf import _fitted_proposal, _proposal_path, validated_model
 
-    def eval(self, ctx, si, wo, active=True):
-        return dr.maximum(self.measured.eval(ctx, si, wo, active), 0.0)
+            mi.BSDF.__init__(self, props)
+            self.brdf = _measurement(props)
+            proposal = _proposal_path(props)
+            self.mixture = None if proposal is None else _fitted_proposal(validated_model(proposal))
+            self.measured = measured_plugin(self.brdf)
+            self.m_flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
+            self.m_components = [self.m_flags]
 
-    def pdf(self, ctx, si, wo, active=True):
-        if self.mixture is None:
-            return self.measured.pdf(ctx, si, wo, active)
-        if not ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0):
-            return mi.Float(0.0)
-        return dr.select(active, self.mixture.pdf(si.wi, wo), 0.0)
+        def eval(self, ctx, si, wo, active=True):
+            return dr.maximum(self.measured.eval(ctx, si, wo, active), 0.0)
 
-    def eval_pdf(self, ctx, si, wo, active=True):
-        return self.eval(ctx, si, wo, active), self.pdf(ctx, si, wo, active)
+        def pdf(self, ctx, si, wo, active=True):
+            if self.mixture is None:
+                return self.measured.pdf(ctx, si, wo, active)
+            if not ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0):
+                return mi.Float(0.0)
+            return dr.select(active, self.mixture.pdf(si.wi, wo), 0.0)
 
-    def sample(self, ctx, si, sample1, sample2, active=True):
-        if self.mixture is None:
-            bs, weight = self.measured.sample(ctx, si, sample1, sample2, active)
-            return bs, dr.maximum(weight, 0.0)
-        bs = dr.zeros(mi.BSDFSample3f)
-        if not ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0):
-            return bs, mi.Spectrum(0.0)
-        wo, pdf, valid = self.mixture.sample(si.wi, sample1, sample2)
-        valid &= active
-        bs.wo = wo
-        bs.pdf = dr.select(valid, pdf, 0.0)
-        bs.eta = 1.0
-        bs.sampled_type = mi.UInt32(+mi.BSDFFlags.GlossyReflection)
-        bs.sampled_component = mi.UInt32(0)
-        return bs, dr.select(valid, self.eval(ctx, si, wo, valid) / pdf, 0.0)
+        def eval_pdf(self, ctx, si, wo, active=True):
+            return self.eval(ctx, si, wo, active), self.pdf(ctx, si, wo, active)
 
-    def to_string(self):
-        sampling = "the measured plugin's own" if self.mixture is None else self.mixture.describe()
-        return (f"MeasuredNeuralbrdf[\n  filename = {str(self.brdf.path)!r},\n  {self.brdf.description!r}, "
-                f"{'spectral' if self.brdf.is_spectral else 'RGB'}, negative values clipped to 0,\n"
-                f"  sampling = {sampling}\n]")
+        def sample(self, ctx, si, sample1, sample2, active=True):
+            if self.mixture is None:
+                bs, weight = self.measured.sample(ctx, si, sample1, sample2, active)
+                return bs, dr.maximum(weight, 0.0)
+            bs = dr.zeros(mi.BSDFSample3f)
+            if not ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0):
+                return bs, mi.Spectrum(0.0)
+            wo, pdf, valid = self.mixture.sample(si.wi, sample1, sample2)
+            valid &= active
+            bs.wo = wo
+            bs.pdf = dr.select(valid, pdf, 0.0)
+            bs.eta = 1.0
+            bs.sampled_type = mi.UInt32(+mi.BSDFFlags.GlossyReflection)
+            bs.sampled_component = mi.UInt32(0)
+            return bs, dr.select(valid, self.eval(ctx, si, wo, valid) / pdf, 0.0)
+
+        def to_string(self):
+            sampling = "the measured plugin's own" if self.mixture is None else self.mixture.describe()
+            return (f"MeasuredNeuralbrdf[\n  filename = {str(self.brdf.path)!r},\n  {self.brdf.description!r}, "
+                    f"{'spectral' if self.brdf.is_spectral else 'RGB'}, negative values clipped to 0,\n"
+                    f"  sampling = {sampling}\n]")
+
+    return MeasuredBSDF
