@@ -334,6 +334,23 @@ def test_evaluate_scores_a_model_against_the_measurement_through_the_plugin(file
         nb.evaluate(model, files["rgb"], tmp_path / "eval2", variant="llvm_ad_spectral")
 
 
+def test_a_measurement_is_rendered_with_the_models_proposal(files, tmp_path, monkeypatch):
+    """Matched paths the other way round: the model samples its own way, the measurement with the model's."""
+    import neuralbrdf as nb
+    from neuralbrdf.evaluation import evaluate as evaluation
+
+    model = nb.truth(files["rgb"], tmp_path / "resampled.onnx")
+    calls = []
+
+    def fake_render(path, settings, seed, proposal=None, scene=None):
+        calls.append((path.name, settings.variant, proposal and proposal.name))
+        return np.full((2, 2, 3), 0.5, dtype=np.float32)
+
+    monkeypatch.setattr(evaluation, "_render", fake_render)
+    nb.evaluate(model, files["rgb"], tmp_path / "eval", spp=2, resolution=16)
+    assert calls == [("resampled.onnx", "llvm_ad_rgb", None)] + [("closed_rgb.bsdf", "llvm_ad_rgb", "resampled.onnx")] * 2
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", ["rgb", "spectral"])
 def test_evaluate_renders_the_truth_with_the_measured_plugin(files, tmp_path, kind):
