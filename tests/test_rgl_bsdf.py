@@ -34,6 +34,14 @@ def files(tmp_path_factory):
     return paths
 
 
+@pytest.fixture(scope="module")
+def resampled(files):
+    """The RGB file's resampled truth, a model close to the measurement."""
+    import neuralbrdf as nb
+
+    return nb.truth(files["rgb"], files["rgb"].with_name("resampled.onnx"))
+
+
 def _pairs(n=4000, max_theta=85.0, seed=0):
     rng = np.random.default_rng(seed)
     wi = spherical_to_vector(rng.uniform(0.0, max_theta, n), rng.uniform(0.0, 360.0, n))
@@ -322,10 +330,10 @@ def test_export_truth_of_a_spectral_file_is_within_target(files, tmp_path):
     assert _logcos(values, closed_form(wi, wo, True, bands), wi) <= 0.005
 
 
-def test_evaluate_scores_a_model_against_the_measurement_through_the_plugin(files, tmp_path):
+def test_evaluate_scores_a_model_against_the_measurement_through_the_plugin(files, resampled, tmp_path):
     import neuralbrdf as nb
 
-    model = nb.truth(files["rgb"], tmp_path / "resampled.onnx")  # a model close to the measurement
+    model = resampled
     scores = nb.evaluate(model, files["rgb"], tmp_path / "eval", images=False)
     assert (scores["truth_kind"], scores["truth_material"], scores["notes"]) == ("measurement", "closed_rgb", [])
     recorded = float(model._evaluator.model.metadata["neuralbrdf.reference.resampling_logcos_rmse"])
@@ -334,12 +342,11 @@ def test_evaluate_scores_a_model_against_the_measurement_through_the_plugin(file
         nb.evaluate(model, files["rgb"], tmp_path / "eval2", variant="llvm_ad_spectral")
 
 
-def test_a_measurement_is_rendered_with_the_models_proposal(files, tmp_path, monkeypatch):
+def test_a_measurement_is_rendered_with_the_models_proposal(files, resampled, tmp_path, monkeypatch):
     """Matched paths the other way round: the model samples its own way, the measurement with the model's."""
     import neuralbrdf as nb
     from neuralbrdf.evaluation import evaluate as evaluation
 
-    model = nb.truth(files["rgb"], tmp_path / "resampled.onnx")
     calls = []
 
     def fake_render(path, settings, seed, proposal=None, scene=None):
@@ -347,8 +354,26 @@ def test_a_measurement_is_rendered_with_the_models_proposal(files, tmp_path, mon
         return np.full((2, 2, 3), 0.5, dtype=np.float32)
 
     monkeypatch.setattr(evaluation, "_render", fake_render)
-    nb.evaluate(model, files["rgb"], tmp_path / "eval", spp=2, resolution=16)
+    nb.evaluate(resampled, files["rgb"], tmp_path / "eval", spp=2, resolution=16)
     assert calls == [("resampled.onnx", "llvm_ad_rgb", None)] + [("closed_rgb.bsdf", "llvm_ad_rgb", "resampled.onnx")] * 2
+
+
+@pytest.mark.slow
+def test_a_measurement_replaces_the_named_material_of_a_users_scene(files, tmp_path):
+    import json
+
+    from test_evaluate_scene import SCENE
+
+    import neuralbrdf as nb
+
+    nb.truth(files["rgb"], tmp_path / "truth.onnx")  # the scene's own material, and the model scored
+    (tmp_path / "scene.xml").write_text(SCENE.format(second=""))
+    out = tmp_path / "eval"
+    assert cli(["evaluate", str(tmp_path / "truth.onnx"), "--truth", str(files["rgb"]), "--scene",
+                str(tmp_path / "scene.xml"), "--out-dir", str(out), "--spp", "4"]) == 0
+    result = json.loads((out / "evaluation.json").read_text())
+    assert (result["scene_material"], result["truth_kind"], result["variant"]) == ("ball", "measurement", "llvm_ad_rgb")
+    assert result["resolution"] == [20, 14] and result["image_delta_e2000_mean"] < result["noise"]["image_delta_e2000_mean"]
 
 
 @pytest.mark.slow
