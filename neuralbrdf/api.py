@@ -66,8 +66,9 @@ class Source:
 
     ``kind`` is ``table`` (a BRDF sample table, SPEC §2.1), ``gcms`` (a GCMS raw file calibrated
     against its Munsell N9 ``reference``, SPEC §2.2), ``nbrdf`` (an NBRDF proxy ``.h5``, SPEC §2.4),
-    ``merl`` (a MERL ``.binary`` measurement), ``rgl`` (an RGL ``.bsdf`` measurement) or ``virtual`` (a
-    stand-in of the virtual goniospectrophotometer, SPEC §2.5: its shipped DS1 measurement).
+    ``merl`` (a MERL ``.binary`` measurement), ``rgl`` (an RGL ``.bsdf`` measurement, docs/formats.md#rgl-measurement-bsdf)
+    or ``virtual`` (a stand-in of the virtual goniospectrophotometer,
+    docs/measure.md#the-virtual-goniospectrophotometer: its shipped DS1 measurement).
     ``samples`` is the BRDF table a fit sees: the file, the calibrated measurement, or the proxy /
     measured table sampled on ``plan``.
     """

@@ -94,7 +94,7 @@ MIN_RESOLUTION = 16
 #: Widest evaluation image: the image metrics hold about twenty float64 copies of an image
 #: (~0.5 KB per pixel), ~2 GB at 2048 x 2048.
 MAX_RESOLUTION = 2048
-#: The kind of a ground truth model file (SPEC §9) ...
+#: The kind of a ground truth model file (docs/evaluate.md#ground-truths) ...
 REFERENCE_KIND = "reference"
 #: ... and of a measurement given as the truth (:class:`~neuralbrdf.evaluation.scores.MeasurementFile`).
 MEASUREMENT_KIND = "measurement"
