@@ -169,7 +169,8 @@ def build_parser() -> argparse.ArgumentParser:
         "evaluate",
         commands.evaluate,
         "score a model file against a truth file (hemisphere, in-plane, rendered image)",
-        "Score MODEL.onnx against TRUTH.onnx (SPEC §5, §9): log-cosine and relative RMSE over 102 400 stratified "
+        "Score MODEL.onnx against TRUTH.onnx, or against an RGL measurement NAME.bsdf through Mitsuba's own "
+        "measured plugin, which also renders its truth image (docs/evaluate.md): log-cosine and relative RMSE over 102 400 stratified "
         "hemisphere pairs (theta <= 80 deg), relative RMSE over the in-plane glossy (|ti - tr| <= 10 deg) and diffuse "
         "regions (1 deg grid within +-60 deg), and image metrics (relative MSE, PSNR, CIEDE2000 mean and p95) of both "
         "rendered in the material-preview scene (or your own, --scene) with the same seeds; the truth rendered again "
