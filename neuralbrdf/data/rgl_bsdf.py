@@ -176,7 +176,8 @@ class RglBsdf:
             for start in range(0, len(wavelengths_nm), lanes):
                 group = [float(nm) for nm in wavelengths_nm[start:start + lanes]]
                 # opaque: one kernel for every wavelength, not one compiled per literal value
-                si.wavelengths = mi.Spectrum(*(dr.opaque(mi.Float, nm) for nm in group + group[-1:] * (lanes - len(group))))
+                padded = group + group[-1:] * (lanes - len(group))
+                si.wavelengths = mi.Spectrum(*(dr.opaque(mi.Float, nm) for nm in padded))
                 columns.append(np.asarray(bsdf.eval(context, si, wo_), dtype=np.float64)[: len(group)])
             return np.concatenate(columns).T
 
