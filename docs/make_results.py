@@ -80,6 +80,9 @@ SPECTRAL_NLB = (("benchmarks/spectral_nlb.json", "python benchmarks/spectral_nlb
 SPECTRAL_NLB_VALIDATION = "benchmarks/spectral_nlb_validation.json"
 SPECTRAL_NLB_TIMING = "benchmarks/spectral_nlb_timing.json"
 SPECTRAL_PRETRAIN = "benchmarks/nlb_spectral_pretrain.json"
+RGL_REAL = ("benchmarks/rgl_real.json", "python benchmarks/rgl_real.py")
+#: Methods of ``benchmarks/rgl_real.py`` as the page names them.
+RGL_METHODS = {"abc": "ABC", "spectral_mlp": "spectral MLP", "nlb": "RGB NLB", "nlb_spectral": "spectral NLB"}
 
 
 # -- formatting ------------------------------------------------------------------------------
@@ -748,6 +751,53 @@ def spectral_nlb_tables(data: dict) -> list[str]:
 # -- the page -----------------------------------------------------------------------------------
 
 
+def rgl_real_section() -> list[str]:
+    relative, command = RGL_REAL
+    lines = ["## A real measurement: RGL green acrylic felt", ""]
+    if not (ROOT / relative).is_file():
+        return lines + [f"No result file is committed: `{command}` writes `{relative}`.", ""]
+    data = load(relative)
+    render = data["render"]
+    lines += [f"The RGL material database's `{data['file']}` ({data['description']}; Dupuy & Jakob 2018, EPFL, CC0), "
+              "a real measurement, sampled on each plan by Mitsuba's `measured` plugin and fitted by each method "
+              "(ABC: `configs/abc.yaml`; spectral MLP: `configs/spectral_mlp.yaml` on the samples upsampled to "
+              "spectra as the renderer upsamples RGB; RGB NLB: `configs/nlb_latent.yaml`; spectral NLB: "
+              "`configs/nlb_spectral.yaml`, per channel). Every score is against the measurement itself through "
+              "the plugin ([evaluate.md](evaluate.md#neuralbrdf-evaluate)): hemisphere log-cos RMSE over 102 400 "
+              f"pairs, and image ΔE2000 against the plugin's own render of the preview scene ({render['variant']}, "
+              f"{render['resolution']} px, {render['spp']} spp, matched seeds; `noise`: the truth against itself at "
+              "other seeds).", ""]
+    lines += source_lines(relative, command, data.get("machine"))
+    rows = []
+    for plan, methods in data["plans"].items():
+        for method in sorted(methods, key=lambda m: list(RGL_METHODS).index(m) if m in RGL_METHODS else len(RGL_METHODS)):
+            scores, name = methods[method], RGL_METHODS.get(method, method)
+            if "failed" in scores:
+                rows.append([plan, name] + ["fit failed"] + ["—"] * 6)
+                continue
+            rows.append([plan, name, num(scores["hemisphere_logcos_rmse"]), num(scores["image_delta_e2000_mean"], 2),
+                         num(scores["image_delta_e2000_p95"], 2), num(scores["image_noise_delta_e2000_mean"], 2),
+                         num(scores["inplane_glossy_rel_rmse"], 3), num(scores["inplane_diffuse_rel_rmse"], 3),
+                         num(scores["fit_time_s"], 1)])
+    lines += table(["plan", "method", "hemisphere log-cos RMSE", "ΔE2000 mean", "ΔE2000 p95", "noise ΔE mean",
+                    "in-plane glossy rel. RMSE", "in-plane diffuse rel. RMSE", "fit s"], rows)
+    for plan, methods in data["plans"].items():
+        spectral, abc = methods.get("nlb_spectral", {}), methods.get("abc", {})
+        if "hemisphere_logcos_rmse" in spectral and "hemisphere_logcos_rmse" in abc:
+            ratio = spectral["hemisphere_logcos_rmse"] / abc["hemisphere_logcos_rmse"]
+            closer = spectral["image_delta_e2000_mean"] < abc["image_delta_e2000_mean"]
+            lines += [f"From {plan}, the spectral NLB's hemisphere log-cos RMSE is {ratio:.2f}× ABC's, and its image "
+                      f"ΔE2000 mean is {'below' if closer else 'not below'} ABC's "
+                      f"({spectral['image_delta_e2000_mean']:.2f} against {abc['image_delta_e2000_mean']:.2f}).", ""]
+    first = next(iter(data["plans"]))
+    pictures = [f"[{RGL_METHODS.get(m, m)}](../benchmarks/rgl_real_{first}_{m}.png)" for m in RGL_METHODS
+                if (ROOT / "benchmarks" / f"rgl_real_{first}_{m}.png").is_file()]
+    if pictures:
+        lines += [f"The {first} comparisons (truth render, model render, ΔE2000 map) are committed beside the file: "
+                  + ", ".join(pictures) + ".", ""]
+    return lines
+
+
 # -- the caption of the README's picture (benchmarks/main_job/evaluation.json) -------------
 
 
@@ -789,9 +839,10 @@ def build() -> str:
              "[rendered held-out ten](#where-users-look-the-held-out-ten-rendered) · "
              "[ABC against NLB in the image](#abc-against-nlb-in-the-image-the-reports-five) · "
              "[speed](#rendering-speed-and-throughput) · [level of detail](#level-of-detail-selection-on-the-demo-scenes) · "
-             "[study](#the-study) · [spectral NLB](#the-spectral-nlb)", ""]
+             "[study](#the-study) · [spectral NLB](#the-spectral-nlb) · "
+             "[a real measurement](#a-real-measurement-rgl-green-acrylic-felt)", ""]
     for section in (nlb_section, networks_section, prior_section, render_check_section, accuracy_section,
-                    speed_section, lod_section, studies_section, spectral_nlb_section):
+                    speed_section, lod_section, studies_section, spectral_nlb_section, rgl_real_section):
         lines += section()
     while lines and lines[-1] == "":
         lines.pop()

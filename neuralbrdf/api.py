@@ -6,7 +6,7 @@ is a layer over the same functions, so a script and a shell command do the same 
 
     import neuralbrdf as nb
 
-    gold = nb.read("virtual:gold")                        # or a table, GCMS raw + reference, .h5, .binary
+    gold = nb.read("virtual:gold")                        # or a table, GCMS raw + reference, .h5, .binary, .bsdf
     result = nb.fit("spectral_mlp", gold, run_dir="runs/gold")
     model = result.export("gold.onnx")                    # a validated ONNX file (docs/formats.md#onnx-model-files)
     f = model(wi, wo, wavelength)                         # BRDF in sr^-1, as numpy
@@ -52,7 +52,9 @@ FIT_KINDS: dict[str, str] = {
     "nlb_spectral": "nlb_spectral",
 }
 #: Source kinds with a ground truth everywhere (not only at measured directions).
-TRUTH_KINDS = ("nbrdf", "merl", "virtual")
+TRUTH_KINDS = ("nbrdf", "merl", "rgl", "virtual")
+#: File suffixes of the sampled sources -> their kind (each sampled on a plan).
+SAMPLED_SUFFIXES = {".h5": "nbrdf", ".json": "nbrdf", ".binary": "merl", ".bsdf": "rgl"}
 VIRTUAL_PREFIX = "virtual:"
 
 
@@ -79,9 +81,11 @@ class Source:
 
     ``kind`` is ``table`` (a BRDF sample table, spherical or signed in-plane), ``gcms`` (a GCMS raw file calibrated
     against its Munsell N9 ``reference``, docs/formats.md#gcms-raw-measurement), ``nbrdf`` (an NBRDF proxy ``.h5``, docs/formats.md#nbrdf-proxy),
-    ``merl`` (a MERL ``.binary`` measurement) or ``virtual`` (a stand-in of the virtual
-    goniospectrophotometer, docs/measure.md#the-virtual-goniospectrophotometer: its shipped DS1 measurement).  ``samples`` is the BRDF table
-    a fit sees: the file, the calibrated measurement, or the proxy / MERL table sampled on ``plan``.
+    ``merl`` (a MERL ``.binary`` measurement), ``rgl`` (an RGL ``.bsdf`` measurement, docs/formats.md#rgl-measurement-bsdf)
+    or ``virtual`` (a stand-in of the virtual goniospectrophotometer,
+    docs/measure.md#the-virtual-goniospectrophotometer: its shipped DS1 measurement).
+    ``samples`` is the BRDF table a fit sees: the file, the calibrated measurement, or the proxy /
+    measured table sampled on ``plan``.
     ``trust_units``: a measurement read as it is although its numbers look like a unit slip
     (:mod:`neuralbrdf.data.units`); a fit of this source reads it so too.
     """
@@ -110,7 +114,7 @@ class Source:
         :mod:`neuralbrdf.sources`)."""
         if self.kind == "virtual":
             return {"virtual": self.location}
-        if self.kind in ("nbrdf", "merl"):
+        if self.kind in SAMPLED_SUFFIXES.values():
             return {self.kind: self.location, "plan": self.plan}
         return {"path": self.location, **({} if self.reference is None else {"reference": self.reference}),
                 **({"trust_units": True} if self.trust_units else {})}
@@ -119,10 +123,12 @@ class Source:
 def read(source: PathLike, reference: PathLike | None = None, *, plan: str | None = None,
          name: str | None = None, trust_units: bool = False) -> Source:
     """Read a material: a BRDF table (spherical or signed in-plane), a GCMS raw file with its
-    Munsell N9 ``reference``, an NBRDF proxy ``NAME.h5`` or a MERL ``NAME.binary`` (both sampled on
-    ``plan``, default DS1), or ``virtual:NAME`` (``cyan``, ``magenta``, ``gold``, ``gonio``: the
-    shipped DS1 measurement).  A measurement whose numbers look like a unit slip (angles in
-    radians, wavelengths in µm, ... :mod:`neuralbrdf.data.units`) is refused unless ``trust_units``.
+    Munsell N9 ``reference``, an NBRDF proxy ``NAME.h5``, a MERL ``NAME.binary`` or an RGL
+    ``NAME.bsdf`` (spectral from a ``NAME_spec.bsdf``, RGB from a ``NAME_rgb.bsdf``; all three
+    sampled on ``plan``, default DS1), or ``virtual:NAME`` (``cyan``, ``magenta``, ``gold``,
+    ``gonio``: the shipped DS1 measurement).  A measurement whose numbers look like a unit slip
+    (angles in radians, wavelengths in µm, ... :mod:`neuralbrdf.data.units`) is refused unless
+    ``trust_units``.
 
     >>> import neuralbrdf as nb
     >>> gold = nb.read("virtual:gold")
@@ -142,9 +148,9 @@ def read(source: PathLike, reference: PathLike | None = None, *, plan: str | Non
     _text("plan", plan)
     _text("name", name)
     suffix = Path(text).suffix
-    sampled = not text.startswith(VIRTUAL_PREFIX) and suffix in (".h5", ".json", ".binary")
+    sampled = not text.startswith(VIRTUAL_PREFIX) and suffix in SAMPLED_SUFFIXES
     if plan is not None and not sampled:
-        raise InputError(f"plan {plan!r} applies to NBRDF (.h5) and MERL (.binary) files, not to {text}")
+        raise InputError(f"plan {plan!r} applies to NBRDF (.h5), MERL (.binary) and RGL (.bsdf) files, not to {text}")
     if plan is not None and plan not in PLAN_NAMES:
         raise InputError(f"unknown plan {plan!r}; expected one of {', '.join(PLAN_NAMES)}")
     if reference is not None and (text.startswith(VIRTUAL_PREFIX) or sampled):
@@ -161,7 +167,7 @@ def read(source: PathLike, reference: PathLike | None = None, *, plan: str | Non
     if sampled:
         plan = plan or "DS1"
         samples = sample_file(text, plan)
-        return Source("merl" if suffix == ".binary" else "nbrdf", text, samples, name or Path(text).stem, plan=plan)
+        return Source(SAMPLED_SUFFIXES[suffix], text, samples, name or Path(text).stem, plan=plan)
     samples = load_measurement(text, reference, trust_units)
     return Source("table" if reference is None else "gcms", text, samples, name or Path(text).stem,
                   None if reference is None else os.fspath(reference), trust_units=trust_units)
@@ -220,7 +226,7 @@ def _data_arguments(config: str, source: Source) -> list[str]:
         return [argument for key, value in options.items() for argument in (f"--data.{key}", _option(value))]
     if "sources" in accepted:
         return ["--data.sources", json.dumps([options])]
-    takes = [key for key in ("path", "reference", "nbrdf", "merl", "virtual") if key in accepted]
+    takes = [key for key in ("path", "reference", *dict.fromkeys(SAMPLED_SUFFIXES.values()), "virtual") if key in accepted]
     raise InputError(f"the {Path(config).stem} config's data module takes {', '.join(takes)}; "
                      f"{source.location} is a {source.kind} source")
 
@@ -386,7 +392,9 @@ def export(checkpoint: PathLike, out: PathLike, material: str | None = None, *, 
 def truth(source: Source | PathLike, out: PathLike) -> Model:
     """Export the ground truth of a material to ``out`` (a ``reference`` model file that renders
     like a fitted one): ``virtual:NAME`` (spectral), an NBRDF proxy ``.h5`` or a MERL ``.binary``
-    (RGB), or a :class:`Source` of one of those.  A measurement (table, GCMS raw) has no truth.
+    (RGB), an RGL ``.bsdf`` (a dense resampling, spectral or RGB as the file; its resampling error
+    against Mitsuba's ``measured`` plugin is in the file's metadata), or a :class:`Source` of one of
+    those.  A measurement table or GCMS raw file has no truth.
 
     >>> import tempfile, neuralbrdf as nb
     >>> with tempfile.TemporaryDirectory() as folder:
@@ -401,7 +409,7 @@ def truth(source: Source | PathLike, out: PathLike) -> Model:
     if isinstance(source, Source):
         if not source.has_truth:
             raise InputError(f"a measurement ({source.kind}) is known only where it was measured; a truth comes from "
-                             "virtual:NAME, an NBRDF .h5 or a MERL .binary", path=source.location)
+                             "virtual:NAME, an NBRDF .h5, a MERL .binary or an RGL .bsdf", path=source.location)
         source = VIRTUAL_PREFIX + source.location if source.kind == "virtual" else source.location
     export_truth(os.fspath(source), out)
     return Model(out)
@@ -429,14 +437,17 @@ def _positive(**values) -> None:
 
 
 def evaluate(model: Model | PathLike, truth: Model | PathLike, out_dir: PathLike, *, scene: PathLike | None = None,
-             material: str | None = None, variant: str = DEFAULT_VARIANT, spp: int = 256,
+             material: str | None = None, variant: str | None = None, spp: int = 256,
              resolution: int | None = None, seed: int = 0, backend: str = "drjit", fast: bool = False,
              images: bool = True) -> dict:
     """Score ``model`` against ``truth`` (docs/evaluate.md): log-cosine and relative RMSE over the
     hemisphere, relative RMSE in the in-plane glossy and diffuse regions, and, with ``images``, the
     image errors (ΔE2000 mean and p95, PSNR) of both rendered with the same seeds in the material
     preview or in ``scene`` (any Mitsuba scene using the ``neuralbrdf`` BSDF; ``material`` names the
-    one that carries model, then truth).  Writes ``out_dir/evaluation.json`` (and the images) and
+    one that carries model, then truth).  ``truth``: a reference model file, or an RGL measurement
+    ``NAME.bsdf``, scored and rendered through Mitsuba's own ``measured`` plugin.  ``variant``:
+    default ``llvm_ad_spectral``, or for a measurement the variant of its kind (``llvm_ad_rgb`` for
+    an RGB file).  Writes ``out_dir/evaluation.json`` (and the images) and
     returns its content.  ``resolution``: default 128 in the preview, the scene's own film in a scene;
     ``fast``: render the model's fast path ``f_fast`` (``neuralbrdf export --fast``).  The model's
     fast paths are always scored against its ``f`` (``result["fast_paths"]``).
@@ -448,12 +459,13 @@ def evaluate(model: Model | PathLike, truth: Model | PathLike, out_dir: PathLike
     >>> scores["hemisphere_logcos_rmse"], scores["inplane_glossy_rel_rmse"]
     (0.0, 0.0)
     """
-    from neuralbrdf.evaluation.evaluate import DEFAULT_RESOLUTION, RenderSettings, SceneTarget
+    from neuralbrdf.evaluation.evaluate import DEFAULT_RESOLUTION, RenderSettings, SceneTarget, measurement_variant
     from neuralbrdf.evaluation.evaluate import evaluate as run_evaluation
 
     _integers(spp=spp, resolution=resolution, seed=seed)  # their values: checked by the evaluation
-    _text("variant", variant, optional=False)
+    _text("variant", variant)
     _text("material", material)
+    variant = measurement_variant(_model_path(truth, "truth"), variant)
     settings = RenderSettings(variant, spp, DEFAULT_RESOLUTION if resolution is None else resolution, seed, backend,
                               fast)  # checked by the evaluation before any work
     target = None if scene is None else SceneTarget(_path(scene, "scene", "a Mitsuba scene file path"), material,

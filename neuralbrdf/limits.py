@@ -19,6 +19,9 @@ MIB = 2**20
 #: CSV files (BRDF tables, GCMS raw files).  The largest the project writes, a spectral table on
 #: the Löw et al. plan (230 400 rows × 35 columns), is about 150 MiB.
 MAX_CSV_BYTES = 512 * MIB
+#: Mitsuba ``tensor_file`` measurements (RGL ``.bsdf``).  The RGL database's spectral files are
+#: about 7 MiB (195 wavelengths), its anisotropic ones a few times that.
+MAX_TENSOR_FILE_BYTES = 256 * MIB
 #: ``.onnx`` model files.  A paper-size NLB (1.07 M weights) is about 4 MiB.
 MAX_ONNX_BYTES = 256 * MIB
 #: Total elements of an ONNX graph's initialisers and constants (as declared by their shapes).

@@ -10,12 +10,15 @@ latent fit's ``data.sources``).  One material comes from exactly one of:
 * ``nbrdf`` — a MERL-proxy NBRDF network (docs/formats.md#nbrdf-proxy) sampled on ``plan``;
 * ``merl`` — a MERL ``.binary`` measurement (:mod:`neuralbrdf.data.merl_binary`) sampled on
   ``plan`` (nearest cell, RGB);
+* ``rgl`` — an RGL material database ``.bsdf`` measurement (:mod:`neuralbrdf.data.rgl_bsdf`)
+  sampled on ``plan`` through Mitsuba's ``measured`` plugin (spectral at 400–700 nm from a
+  ``NAME_spec.bsdf``, RGB from a ``NAME_rgb.bsdf``);
 * ``virtual`` — a stand-in of the virtual goniospectrophotometer (docs/measure.md#the-virtual-goniospectrophotometer): its shipped DS1
   measurement, calibrated against the shipped Munsell N9 reference.
 
-with optional ``name`` (default: the file stem or the virtual material) and, for ``nbrdf`` and
-``merl``, ``plan``.  Proxies, MERL tables and virtual materials are defined everywhere, so they
-also give a dense ``truth`` on
+with optional ``name`` (default: the file stem or the virtual material) and, for ``nbrdf``,
+``merl`` and ``rgl``, ``plan``.  Proxies, measured files and virtual materials are defined
+everywhere, so they also give a dense ``truth`` on
 ``eval_plan`` (default the Löw et al. set) for the hemisphere log-cosine RMSE (docs/evaluate.md#metrics); a
 user's measurement has none.
 """
@@ -31,6 +34,8 @@ import numpy as np
 from neuralbrdf.data.loading import load_measurement
 from neuralbrdf.data.merl_binary import MerlBrdf, sample_merl
 from neuralbrdf.data.nbrdf import NbrdfNetwork, sample_plan
+from neuralbrdf.data.rgl_bsdf import SUFFIX as RGL_SUFFIX
+from neuralbrdf.data.rgl_bsdf import RglBsdf, sample_rgl
 from neuralbrdf.data.plans import PLAN_NAMES, plan_spherical
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
@@ -40,9 +45,9 @@ from neuralbrdf.virtual.materials import REFERENCE_MATERIAL, get_material
 
 
 #: Keys naming where a material comes from: exactly one per material.
-SOURCE_KEYS = ("path", "nbrdf", "merl", "virtual")
+SOURCE_KEYS = ("path", "nbrdf", "merl", "rgl", "virtual")
 #: Source keys of files sampled on a plan (``plan`` applies to them).
-SAMPLED_KEYS = ("nbrdf", "merl")
+SAMPLED_KEYS = ("nbrdf", "merl", "rgl")
 #: Every key a material source may have.
 MATERIAL_KEYS = (*SOURCE_KEYS, "reference", "plan", "name", "trust_units")
 
@@ -118,10 +123,13 @@ def virtual_measurement(material: str, plan: str, noise: float, seed: int, refer
 
 
 def sample_file(path: str | os.PathLike[str], plan: str, progress: bool = False) -> BrdfTable:
-    """A MERL ``.binary`` measurement or an NBRDF proxy ``.h5`` sampled on ``plan`` (RGB, sr⁻¹);
-    ``progress``: a progress bar while a network is evaluated."""
+    """A MERL ``.binary`` measurement, an RGL ``.bsdf`` measurement (spectral or RGB as the file) or an
+    NBRDF proxy ``.h5`` (RGB) sampled on ``plan`` (sr⁻¹); ``progress``: a progress bar while a network
+    is evaluated."""
     if Path(path).suffix == ".binary":
         return sample_merl(MerlBrdf.load(path), plan)
+    if Path(path).suffix == RGL_SUFFIX:
+        return sample_rgl(RglBsdf.load(path), plan)
     return sample_plan(NbrdfNetwork.load(path), plan, progress=progress)
 
 
@@ -131,15 +139,16 @@ def load_material(
     reference: str | None = None,
     nbrdf: str | None = None,
     merl: str | None = None,
+    rgl: str | None = None,
     virtual: str | None = None,
     plan: str = "DS1",
     eval_plan: str | None = "low",
     name: str | None = None,
     trust_units: bool = False,
 ) -> MaterialData:
-    """Load one material from exactly one source (module docstring); ``plan`` applies to NBRDF and
-    MERL, ``trust_units`` to a ``path``."""
-    sources = (("path", path), ("nbrdf", nbrdf), ("merl", merl), ("virtual", virtual))
+    """Load one material from exactly one source (module docstring); ``plan`` applies to the sampled
+    files, ``trust_units`` to a ``path``."""
+    sources = (("path", path), ("nbrdf", nbrdf), ("merl", merl), ("rgl", rgl), ("virtual", virtual))
     given = [key for key, value in sources if value is not None]
     if len(given) != 1:
         raise InputError(f"give exactly one of {', '.join('data.' + k for k in SOURCE_KEYS)}; got {given or 'none'}")
@@ -161,6 +170,12 @@ def load_material(
         check_signal(fit, merl)
         truth = None if eval_plan is None else sample_merl(brdf, eval_plan)
         return MaterialData(name or brdf.name, fit, truth)
+    if rgl is not None:
+        measurement = RglBsdf.load(rgl)
+        fit = sample_rgl(measurement, plan)
+        check_signal(fit, rgl)
+        truth = None if eval_plan is None else sample_rgl(measurement, eval_plan)
+        return MaterialData(name or measurement.name, fit, truth)
     fit = load_measurement(default_data_path(virtual), default_data_path(REFERENCE_MATERIAL))
     truth = None if eval_plan is None else virtual_truth(virtual, eval_plan)
     return MaterialData(name or virtual, fit, truth)
@@ -180,7 +195,7 @@ def check_source(source, where: str) -> dict[str, str | bool]:
     if "reference" in source and given[0] != "path":
         raise InputError("'reference' goes with a GCMS raw 'path'", key=where)
     if "plan" in source and (given[0] not in SAMPLED_KEYS or source["plan"] not in PLAN_NAMES):
-        raise InputError(f"'plan' is for nbrdf and merl sources, one of {', '.join(PLAN_NAMES)}; got "
+        raise InputError(f"'plan' is for nbrdf, merl and rgl sources, one of {', '.join(PLAN_NAMES)}; got "
                          f"{source['plan']!r}", key=where)
     if "trust_units" in source and (given[0] != "path" or not isinstance(source["trust_units"], bool)):
         raise InputError(f"'trust_units' is true or false, for a 'path'; got {source['trust_units']!r}", key=where)

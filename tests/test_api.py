@@ -76,7 +76,7 @@ def test_read_an_nbrdf_proxy():
 
 
 @pytest.mark.parametrize("call, message", [
-    (lambda f: nb.read(f / "cyan_table.csv", plan="DS2"), "applies to NBRDF (.h5) and MERL (.binary) files"),
+    (lambda f: nb.read(f / "cyan_table.csv", plan="DS2"), "applies to NBRDF (.h5), MERL (.binary) and RGL (.bsdf) files"),
     (lambda f: nb.read("virtual:gold", f / "munsell_n9.csv"), "a Munsell reference goes with a GCMS raw file"),
     (lambda f: nb.read(f / "blue.binary", plan="DS9"), "unknown plan 'DS9'"),
     (lambda f: nb.read(f / "cyan.csv"), "is a GCMS raw file"),

@@ -127,3 +127,20 @@ def test_a_finer_table_follows_a_glossy_lobe_more_closely(tmp_path):
         errors.append(hemisphere_scores(OnnxEvaluator(path), parent, strata=(8, 10))["hemisphere_logcos_rmse"])
     assert errors[1] < 0.5 * errors[0], errors
     assert errors[1] < 0.02, errors
+
+
+def test_measured_axes_invert_their_nodes_and_tell_wi_from_wo():
+    """``axes="measured"``: θd uniform, φd over [0°, 180°]; the table coordinates of the node directions
+    are the nodes, and exchanging wi and wo maps a_p to 1 − a_p (the reciprocal axes cannot tell them apart)."""
+    nodes = (5, 6, 7)
+    grid = np.stack(np.meshgrid(*(np.linspace(0, 1, n) for n in nodes), indexing="ij"), -1).reshape(-1, 3)
+    regular = (grid[:, 0] > 0) & (grid[:, 1] > 0) & (grid[:, 1] < 1)  # φd is undefined at θh = 0, θd = 0 or 90°
+    wi, wo = node_directions(nodes, "measured")
+    theta_d = np.degrees(np.arccos(np.clip(np.sum(wi * (wi + wo), axis=1) / np.linalg.norm(wi + wo, axis=1), -1, 1)))
+    np.testing.assert_allclose(theta_d[regular], 90.0 * grid[regular, 1], atol=1e-6)
+    forward = np.stack([c.numpy() for c in table_coordinates(torch.tensor(wi), torch.tensor(wo), "measured")], axis=1)
+    np.testing.assert_allclose(forward[regular], grid[regular], atol=1e-9)
+    backward = table_coordinates(torch.tensor(wo), torch.tensor(wi), "measured")[2].numpy()
+    np.testing.assert_allclose(backward[regular], 1.0 - grid[regular, 2], atol=1e-9)
+    reciprocal = [table_coordinates(torch.tensor(a), torch.tensor(b))[2].numpy() for a, b in ((wi, wo), (wo, wi))]
+    np.testing.assert_allclose(reciprocal[0], reciprocal[1], atol=1e-9)

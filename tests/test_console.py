@@ -70,9 +70,11 @@ def test_off_a_terminal_progress_is_a_few_plain_lines(capsys, monkeypatch):
 
 def test_render_and_evaluate_share_the_spectral_default_variant():
     from neuralbrdf.cli import render_command
-    from neuralbrdf.evaluation.evaluate import RenderSettings
+    from neuralbrdf.evaluation.evaluate import RenderSettings, measurement_variant
     from neuralbrdf.render import DEFAULT_VARIANT
 
     render = render_command.build_parser().parse_args(["--model", "m.onnx", "--out", "x.png"])
     evaluate = build_parser().parse_args(["evaluate", "m.onnx", "--truth", "t.onnx", "--out-dir", "d"])
-    assert render.variant == evaluate.variant == RenderSettings().variant == DEFAULT_VARIANT == "llvm_ad_spectral"
+    assert evaluate.variant is None  # the truth's kind decides: a measurement renders in the variant of its kind
+    assert render.variant == measurement_variant("t.onnx", evaluate.variant) == RenderSettings().variant \
+        == DEFAULT_VARIANT == "llvm_ad_spectral"

@@ -256,7 +256,7 @@ def test_truth_renders_are_kept_per_file_settings_and_seed(tmp_path, monkeypatch
 
     calls = []
 
-    def fake_render(path, settings, seed, scene=None):
+    def fake_render(path, settings, seed, proposal=None, scene=None):
         calls.append((path.name, settings.spp, seed))
         return np.full((2, 2, 3), float(len(calls)), dtype=np.float32)
 

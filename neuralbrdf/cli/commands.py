@@ -123,13 +123,17 @@ def regenerate_default_data(args) -> None:
 
 
 def export_truth(args) -> None:
-    from neuralbrdf.evaluation.truth import export_truth as write_truth
+    from neuralbrdf.evaluation.truth import describe_resampling, load_truth
+    from neuralbrdf.onnx_export import write_model
 
-    report = write_truth(args.source, args.out)
+    truth = load_truth(args.source)
+    report = write_model(truth.exportable(), args.out)
     print(
         f"wrote {report.path}: reference model of {report.material!r}; onnxruntime vs PyTorch on {report.n_probes} "
         f"probes: max error {report.max_abs_error:.2g} sr^-1, {report.max_rel_error:.2g} relative"
     )
+    if truth.kind_metadata:
+        print(describe_resampling(truth.kind_metadata))
 
 
 def evaluate(args) -> None:

@@ -122,11 +122,13 @@ def build_parser() -> argparse.ArgumentParser:
             commands.sample,
             help_text,
             "Sample a material on a sampling plan and write a BRDF table (1/sr): a MERL measurement NAME.binary "
-            "(Matusik et al. 2003; nearest cell, RGB), a MERL-proxy NBRDF network NAME.h5 with NAME.json beside it "
-            "(Sztrajman et al. 2021; RGB) or virtual:NAME, the noiseless ground truth of a virtual stand-in "
+            "(Matusik et al. 2003; nearest cell, RGB), an RGL measurement NAME.bsdf (Dupuy & Jakob 2018; Mitsuba's "
+            "measured plugin; spectral at 400-700 nm every 10 nm from a NAME_spec.bsdf, RGB from a NAME_rgb.bsdf, "
+            "negative values clipped to 0; wi is the light), a MERL-proxy NBRDF network NAME.h5 with NAME.json beside "
+            "it (Sztrajman et al. 2021; RGB) or virtual:NAME, the noiseless ground truth of a virtual stand-in "
             "(spectral, 400-700 nm).",
         )
-        p.add_argument("material", help="NAME.binary, NAME.h5 (or NAME.json) or virtual:NAME")
+        p.add_argument("material", help="NAME.binary, NAME.bsdf, NAME.h5 (or NAME.json) or virtual:NAME")
         p.add_argument("--plan", required=True, choices=PLAN_NAMES)
         p.add_argument("--out", required=True, help="output BRDF table CSV")
 
@@ -161,17 +163,21 @@ def build_parser() -> argparse.ArgumentParser:
         "export a ground-truth material to an ONNX model file (kind 'reference')",
         "Write the ground truth of a material as one .onnx file under the model contract (docs/formats.md#onnx-model-files, docs/evaluate.md), so it "
         "renders through the same plugin, sampler and seeds as a fitted model. SOURCE is virtual:NAME (gold, gonio, "
-        "cyan, magenta, munsell_n9: spectral, 400-700 nm, 1/sr), an NBRDF proxy NAME.h5 (linear sRGB, 1/sr) or a "
-        "MERL measurement NAME.binary (linear sRGB, 1/sr; MERL's nearest cell, unmeasured cells 0).",
+        "cyan, magenta, munsell_n9: spectral, 400-700 nm, 1/sr), an NBRDF proxy NAME.h5 (linear sRGB, 1/sr), a "
+        "MERL measurement NAME.binary (linear sRGB, 1/sr; MERL's nearest cell, unmeasured cells 0) or an RGL "
+        "measurement NAME.bsdf (spectral 400-700 nm or linear sRGB as the file: Mitsuba's measured plugin resampled "
+        "on a dense table, whose error against the plugin is measured, printed and written into the file).",
     )
-    p.add_argument("source", help="virtual:NAME, an NBRDF weight file NAME.h5 or a MERL file NAME.binary")
+    p.add_argument("source", help="virtual:NAME, an NBRDF weight file NAME.h5, a MERL file NAME.binary or an RGL "
+                   "file NAME.bsdf")
     p.add_argument("--out", required=True, help="output .onnx file")
 
     p = add(
         "evaluate",
         commands.evaluate,
         "score a model file against a truth file (hemisphere, in-plane, rendered image)",
-        "Score MODEL.onnx against TRUTH.onnx (docs/evaluate.md): log-cosine and relative RMSE over 102 400 stratified "
+        "Score MODEL.onnx against TRUTH.onnx, or against an RGL measurement NAME.bsdf through Mitsuba's own "
+        "measured plugin, which also renders its truth image (docs/evaluate.md): log-cosine and relative RMSE over 102 400 stratified "
         "hemisphere pairs (theta <= 80 deg), relative RMSE over the in-plane glossy (|ti - tr| <= 10 deg) and diffuse "
         "regions (1 deg grid within +-60 deg), and image metrics (relative MSE, PSNR, CIEDE2000 mean and p95) of both "
         "rendered in the material-preview scene (or your own, --scene) with the same seeds; the truth rendered again "
@@ -180,13 +186,15 @@ def build_parser() -> argparse.ArgumentParser:
         "Writes DIR/evaluation.json, model.png, truth.png, error_map.png, comparison.png and prints a table.",
     )
     p.add_argument("model", help="model file (.onnx)")
-    p.add_argument("--truth", required=True, help="truth file (.onnx, e.g. from export-truth)")
+    p.add_argument("--truth", required=True, help="truth file: .onnx (e.g. from export-truth), or an RGL measurement "
+                   "NAME.bsdf, scored and rendered through Mitsuba's own measured plugin")
     p.add_argument("--out-dir", required=True, help="output folder")
     p.add_argument("--scene", default=None, help="render in this Mitsuba scene instead of the material preview: any "
                    "scene using the neuralbrdf BSDF; its material --material carries the model, then the truth")
     p.add_argument("--material", default=None, help="with --scene: the neuralbrdf material (its id, or the id of "
                    "its shape) to swap (default: the scene's only one)")
-    p.add_argument("--variant", default=DEFAULT_VARIANT, help=f"Mitsuba variant (default {DEFAULT_VARIANT}, as for render)")
+    p.add_argument("--variant", default=None, help=f"Mitsuba variant (default {DEFAULT_VARIANT}, as for render; with "
+                   "a .bsdf truth the variant of its kind: llvm_ad_rgb for an RGB file)")
     p.add_argument("--backend", default="drjit", choices=("drjit", "onnxruntime"), help="plugin backend (default drjit)")
     p.add_argument("--spp", type=int, default=256, help="samples per pixel (default 256)")
     p.add_argument("--resolution", type=int, default=None, help="image width = height in pixels (default 128, or "

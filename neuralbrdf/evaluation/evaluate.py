@@ -33,6 +33,16 @@ materials, wavelength ranges and SHA-256, and ``notes`` for what a reader must k
 is not a ground truth, kind ``reference``, docs/evaluate.md#ground-truths: then the scores measure a difference between
 two models).
 
+**A measurement as the truth** (``--truth NAME.bsdf``, an RGL measurement: Dupuy & Jakob 2018).
+The direction metrics evaluate Mitsuba's own ``measured`` plugin
+(:class:`~neuralbrdf.evaluation.scores.MeasurementEvaluator`), not a resampling of it, and the
+truth image is rendered by that plugin (the ``neuralbrdf_measured`` BSDF of
+:mod:`neuralbrdf.render.measured_bsdf`: its ``eval``, clipped at 0 like every other reading of the
+file).  Here the paths are matched the other way round: the model renders with its own proposal
+and the measurement with the model's.  Mitsuba reads an RGB file only in an RGB variant and a
+spectral file only in a spectral one, so the variant must be of the file's kind
+(:func:`measurement_variant` gives the default).
+
 **Your own scene** (:class:`SceneTarget`, ``neuralbrdf evaluate --scene SCENE.xml [--material
 NAME]``): any Mitsuba scene that uses the ``neuralbrdf`` BSDF; the named material is pointed at
 the model, then at the truth (:mod:`neuralbrdf.render.scene_file`), everything else in the scene
@@ -53,7 +63,15 @@ from neuralbrdf.atomic import atomic_paths, check_outputs, file_version
 from neuralbrdf.errors import InputError
 from neuralbrdf.evaluation.fast_paths import fast_path_scores, image_against_f, rendered_output
 from neuralbrdf.evaluation.images import IMAGE_METRICS, displayed, image_scores
-from neuralbrdf.evaluation.scores import DIRECTION_METRICS, HEMISPHERE_STRATA, Evaluator, OnnxEvaluator, direction_scores
+from neuralbrdf.evaluation.scores import (
+    DIRECTION_METRICS,
+    HEMISPHERE_STRATA,
+    Evaluator,
+    OnnxEvaluator,
+    direction_scores,
+    is_measurement,
+    truth_evaluator as open_truth,
+)
 from neuralbrdf.onnx_contract import OUTPUT_F
 from neuralbrdf.render import DEFAULT_VARIANT
 
@@ -76,8 +94,26 @@ MIN_RESOLUTION = 16
 #: Widest evaluation image: the image metrics hold about twenty float64 copies of an image
 #: (~0.5 KB per pixel), ~2 GB at 2048 x 2048.
 MAX_RESOLUTION = 2048
-#: The kind of a ground truth (docs/evaluate.md#ground-truths).
+#: The kind of a ground truth model file (docs/evaluate.md#ground-truths) ...
 REFERENCE_KIND = "reference"
+#: ... and of a measurement given as the truth (:class:`~neuralbrdf.evaluation.scores.MeasurementFile`).
+MEASUREMENT_KIND = "measurement"
+
+
+def measurement_variant(truth_path: str | Path, variant: str | None) -> str:
+    """The variant to render with: ``variant`` if given, else :data:`DEFAULT_VARIANT`, or for a
+    measured truth its own kind of variant (``llvm_ad_rgb`` for an RGB file, ``llvm_ad_spectral`` for
+    a spectral one); :class:`InputError` for a measurement and a variant of the other kind."""
+    if not is_measurement(truth_path):
+        return variant or DEFAULT_VARIANT
+    from neuralbrdf.data.rgl_bsdf import RglBsdf
+
+    own = RglBsdf.load(truth_path).variant
+    if variant is not None and ("_spectral" in variant) != ("_spectral" in own):
+        kind = "spectral" if "_spectral" in own else "RGB"
+        raise InputError(f"an {kind} measurement: Mitsuba's measured plugin renders it only in {kind} variants such "
+                         f"as {own} (the default for it), not in {variant}", path=truth_path)
+    return variant or own
 
 
 @dataclass(frozen=True)
@@ -145,12 +181,19 @@ class SceneTarget:
                rgb_head: bool = True) -> np.ndarray:
         """The scene with ``model`` in the material (sampled with ``proposal``'s proposal, if given;
         through its fast path with ``settings.fast``; ``rgb_head=False``: a spectral file's ``f``
-        even in RGB variants)."""
+        even in RGB variants); a measurement ``model`` (``.bsdf``) replaces the material by Mitsuba's
+        ``measured`` plugin, sampled with ``proposal``."""
         from neuralbrdf.render.fast_paths import FAST_PROPERTY, RGB_HEAD_PROPERTY
         from neuralbrdf.render.preview import set_variant
         from neuralbrdf.render.scene_file import SceneFile, render_scene_file
 
         scene_file = SceneFile(self.path)
+        if is_measurement(model):
+            scene_file.set_measurement(self.material_name(), model, proposal)
+            if self.resolution is not None:
+                scene_file.set_resolution(self.resolution)
+            set_variant(settings.variant)
+            return render_scene_file(scene_file, settings.spp, seed)[0]
         properties = {"backend": settings.backend}
         if proposal is not None:
             properties["proposal"] = str(Path(proposal).resolve())
@@ -168,11 +211,15 @@ class SceneTarget:
 def _render(path: Path, settings: RenderSettings, seed: int, proposal: Path | None = None,
             scene: SceneTarget | None = None, rgb_head: bool = True) -> np.ndarray:
     """One render of the preview scene, or of ``scene`` (``settings.fast``: the file's fast path
-    ``f_fast``; ``rgb_head=False``: a spectral file's ``f`` even in RGB variants)."""
+    ``f_fast``; ``rgb_head=False``: a spectral file's ``f`` even in RGB variants); a measurement
+    ``path`` renders through Mitsuba's ``measured`` plugin with ``proposal``'s proposal."""
     from neuralbrdf.render.preview import Material, render
 
     if scene is not None:
         image = scene.render(path, settings, seed, proposal, rgb_head)
+    elif is_measurement(path):
+        image = render(Material(measurement=path, proposal=proposal), settings.variant, settings.spp,
+                       settings.resolution, seed)
     else:
         material = Material(model=path, backend=settings.backend, proposal=proposal, fast=settings.fast,
                             rgb_head=rgb_head)
@@ -183,17 +230,18 @@ def _render(path: Path, settings: RenderSettings, seed: int, proposal: Path | No
 
 
 def _render_kept(kept: dict | None, path: Path, settings: RenderSettings, seed: int,
-                 scene: SceneTarget | None = None) -> np.ndarray:
-    """:func:`_render` of a truth (its ``f``: ``--fast`` is the model's), or its image kept in
-    ``kept`` from an earlier call for the same file (path, size, modification time, inode:
-    :func:`~neuralbrdf.atomic.file_version`), settings, seed and scene (read-only: shared by later
-    calls)."""
+                 scene: SceneTarget | None = None, proposal: Path | None = None) -> np.ndarray:
+    """:func:`_render` of a truth (its ``f``: ``--fast`` is the model's; a measurement with
+    ``proposal``'s proposal), or its image kept in ``kept`` from an earlier call for the same file
+    (path, size, modification time, inode: :func:`~neuralbrdf.atomic.file_version`), proposal file,
+    settings, seed and scene (read-only: shared by later calls)."""
     own = replace(settings, fast=False)
     if kept is None:
-        return _render(path, own, seed, scene=scene)
-    key = (file_version(path), own, seed, None if scene is None else (file_version(scene.path), scene))
+        return _render(path, own, seed, proposal, scene)
+    key = (file_version(path), None if proposal is None else file_version(proposal), own, seed,
+           None if scene is None else (file_version(scene.path), scene))
     if key not in kept:
-        image = _render(path, own, seed, scene=scene)
+        image = _render(path, own, seed, proposal, scene)
         image.flags.writeable = False
         kept[key] = image
     return kept[key]
@@ -262,10 +310,13 @@ def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path
     model_path, truth_path, out_dir = Path(model_path), Path(truth_path), Path(out_dir)
     scene_material = scene.material_name() if scene is not None and render_images else None
     started = time.perf_counter()
+    measured = is_measurement(truth_path)
+    if measured and render_images:
+        measurement_variant(truth_path, settings.variant)  # one line for a variant of the other kind
     check_settings(settings, model_path, render_images)
     check_outputs(*(out_dir / name for name in FILES[: 5 if render_images else 1]))
     model = OnnxEvaluator(model_path)
-    truth = OnnxEvaluator(truth_path) if truth_evaluator is None else truth_evaluator
+    truth = open_truth(truth_path) if truth_evaluator is None else truth_evaluator
     directions = direction_scores(model, truth, strata=strata)
     timings = {"directions_s": time.perf_counter() - started}
     result = {
@@ -282,9 +333,12 @@ def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path
     images = None
     if render_images:
         render_started = time.perf_counter()
-        model_image = _render(model_path, settings, settings.seed, truth_path, scene)  # matched paths
-        truth_image = _render_kept(truth_renders, truth_path, settings, settings.seed, scene)
-        truth_again = _render_kept(truth_renders, truth_path, settings, settings.seed + NOISE_SEED_OFFSET, scene)
+        # matched paths: the model samples with the truth's proposal, a measurement with the model's
+        model_proposal, truth_proposal = (None, model_path) if measured else (truth_path, None)
+        model_image = _render(model_path, settings, settings.seed, model_proposal, scene)
+        truth_image = _render_kept(truth_renders, truth_path, settings, settings.seed, scene, truth_proposal)
+        truth_again = _render_kept(truth_renders, truth_path, settings, settings.seed + NOISE_SEED_OFFSET, scene,
+                                   truth_proposal)
         timings["render_s"] = time.perf_counter() - render_started
         image_metrics, delta_e = image_scores(model_image, truth_image)
         noise, _ = image_scores(truth_again, truth_image)
@@ -292,7 +346,7 @@ def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path
         result["noise"] = {**noise, "what": NOISE_DESCRIPTION}
         images = (model_image, truth_image, delta_e)
         if output != OUTPUT_F:  # what the fast path changes in the picture: f at the same seed and paths
-            f_image = _render(model_path, replace(settings, fast=False), settings.seed, proposal=truth_path,
+            f_image = _render(model_path, replace(settings, fast=False), settings.seed, proposal=model_proposal,
                               scene=scene, rgb_head=False)
             fast_paths[output]["image_against_f"] = image_against_f(model_image, f_image)
     result.update(
@@ -325,7 +379,7 @@ def _notes(model, truth) -> list[str]:
     if model.sha256 == truth.sha256:
         notes.append(f"the model {model.path} and the truth {truth.path} are the same model (SHA-256 "
                      f"{model.sha256[:12]}): every error is 0 by construction and says nothing of the model")
-    elif truth.kind != REFERENCE_KIND:
+    elif truth.kind not in (REFERENCE_KIND, MEASUREMENT_KIND):
         notes.append(f"the truth {truth.path} is a {truth.kind!r} model, not a ground truth (kind {REFERENCE_KIND!r}): "
                      "the scores measure how two models differ, not how far the model is from the material")
     return notes

@@ -18,8 +18,10 @@ Otherwise both sides compare in linear sRGB: a spectral side is converted throug
 :mod:`neuralbrdf.data.colorimetry` (CIE 1931 2°, D65, docs/formats.md#spectral-to-linear-srgb).
 
 Models are :class:`Evaluator` objects: an ``.onnx`` file through onnxruntime
-(:class:`OnnxEvaluator`) or a torch module on directions (:class:`TorchEvaluator`);
-:class:`MemoEvaluator` remembers another's values, for a truth scored against many models.
+(:class:`OnnxEvaluator`), a torch module on directions (:class:`TorchEvaluator`) or, as a truth,
+an RGL ``.bsdf`` measurement through Mitsuba's ``measured`` plugin (:class:`MeasurementEvaluator`);
+:class:`MemoEvaluator` remembers another's values, for a truth scored against many models;
+:func:`truth_evaluator` opens a truth file of either kind.
 """
 
 from __future__ import annotations
@@ -35,7 +37,10 @@ import numpy as np
 import torch
 
 from neuralbrdf.data.colorimetry import spectral_to_linear_srgb
+from neuralbrdf.data.calibration import CALIBRATED_WAVELENGTHS_NM
 from neuralbrdf.data.plans import is_glossy
+from neuralbrdf.data.rgl_bsdf import SUFFIX as RGL_SUFFIX
+from neuralbrdf.data.rgl_bsdf import RglBsdf
 from neuralbrdf.errors import InputError
 from neuralbrdf.geometry import inplane_to_vectors, spherical_to_vector
 from neuralbrdf.metrics import DEFAULT_FLOOR, hemisphere_logcos_rmse, masked_relative_rmse
@@ -94,6 +99,43 @@ class OnnxEvaluator:
         if self.is_spectral:
             feeds["wavelength"] = np.clip(wavelength, *self.model.wavelength_range_nm).astype(np.float32)
         return self.session.run(["f"], feeds)[0].astype(np.float64)
+
+
+@dataclass(frozen=True)
+class MeasurementFile:
+    """What an evaluation records of a measurement file, as it records a model file's
+    (:class:`~neuralbrdf.onnx_contract.OnnxModel`): kind ``measurement``."""
+
+    path: Path
+    material: str
+    wavelength_range_nm: tuple[float, float] | None
+    sha256: str
+    kind: str = "measurement"
+
+
+class MeasurementEvaluator:
+    """An RGL ``.bsdf`` measurement as a truth: Mitsuba's ``measured`` plugin, values clipped at 0
+    (:mod:`neuralbrdf.data.rgl_bsdf`); a spectral file read at the report's bands, 400–700 nm."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.brdf = RglBsdf.load(path)
+        self.is_spectral = self.brdf.is_spectral
+        bands = (float(CALIBRATED_WAVELENGTHS_NM[0]), float(CALIBRATED_WAVELENGTHS_NM[-1]))
+        self.model = MeasurementFile(Path(path), self.brdf.name, bands if self.is_spectral else None,
+                                     hashlib.sha256(Path(path).read_bytes()).hexdigest())
+
+    def values(self, wi, wo, wavelength=None):
+        return self.brdf.values(wi, wo, wavelength)
+
+
+def is_measurement(path: str | Path) -> bool:
+    """Whether a truth file is a measurement (an RGL ``.bsdf``) rather than a model file."""
+    return Path(path).suffix == RGL_SUFFIX
+
+
+def truth_evaluator(path: str | Path) -> OnnxEvaluator | MeasurementEvaluator:
+    """A truth file opened as an :class:`Evaluator`: a model file (``.onnx``) or an RGL measurement."""
+    return MeasurementEvaluator(path) if is_measurement(path) else OnnxEvaluator(path)
 
 
 class TorchEvaluator:

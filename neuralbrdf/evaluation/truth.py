@@ -19,15 +19,20 @@ as a fitted model: image differences then measure the model, not the renderer.
   1``) on the Rusinkiewicz half/difference vectors, clamped at 0 and 0 below the horizon.
 * :class:`MerlTruth` — RGB, ``f(wi, wo) [N, 3]``: a MERL ``.binary`` measurement (Matusik et al.
   2003), its table looked up by MERL's nearest-cell rule.
+* :class:`MeasuredTruth` — an RGL ``.bsdf`` measurement (Dupuy & Jakob 2018;
+  :mod:`neuralbrdf.data.rgl_bsdf`), spectral (400–700 nm) or RGB as the file: Mitsuba's
+  ``measured`` plugin resampled on a dense table (:func:`rgl_truth`), its resampling error
+  against the plugin measured when it is made and written into the file's metadata.
 
 ``SOURCE`` strings name a truth: ``virtual:NAME`` (``gold``, ``gonio``, ``cyan``, ``magenta``,
-``munsell_n9``), the path of an NBRDF weight file ``NAME.h5`` or of a MERL file ``NAME.binary``.
+``munsell_n9``), the path of an NBRDF weight file ``NAME.h5``, of a MERL file ``NAME.binary`` or of
+an RGL file ``NAME.bsdf``.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -35,10 +40,17 @@ import torch
 from torch import nn
 
 from neuralbrdf.data.merl_binary import MerlBrdf
+from neuralbrdf.data.calibration import CALIBRATED_WAVELENGTHS_NM
 from neuralbrdf.data.nbrdf import DENSE_LAYERS, NbrdfNetwork, nbrdf_input
+from neuralbrdf.data.rgl_bsdf import SUFFIX as RGL_SUFFIX
+from neuralbrdf.data.rgl_bsdf import RglBsdf
 from neuralbrdf.errors import InputError
+from neuralbrdf.evaluation.scores import TorchEvaluator, compared_values, hemisphere_pairs
+from neuralbrdf.metrics import hemisphere_logcos_rmse
+from neuralbrdf.models.baked_table import BakedTable, bake_values
 from neuralbrdf.models.directional import LinearInWavelength
 from neuralbrdf.models.nlb import above_horizon
+from neuralbrdf.onnx_contract import kind_key
 from neuralbrdf.onnx_export import Exportable, ExportReport, write_model
 from neuralbrdf.kinds import contract_metadata
 from neuralbrdf.virtual.materials import MATERIALS, get_material
@@ -50,6 +62,18 @@ TRUTH_STEP_NM = 5.0
 VIRTUAL_PREFIX = "virtual:"
 #: The kind written to ``neuralbrdf.kind`` (docs/formats.md#onnx-model-files).
 REFERENCE_KIND = "reference"
+#: Nodes ``(θh, θd, φd)`` of an RGL measurement's resampled table (``axes="measured"`` of
+#: :mod:`neuralbrdf.models.baked_table`), times the report's 31 bands for a spectral file: 1.2 MB
+#: (RGB) or 12 MB (spectral) of float32 in the ``.onnx`` file.
+RGL_TABLE_NODES = (90, 45, 24)
+#: ``(cos θ, φ)`` strata of the pairs on which the resampling is checked against the plugin:
+#: (10 · 14)² = 19 600 pairs of :func:`~neuralbrdf.evaluation.scores.hemisphere_pairs`.
+RESAMPLING_STRATA = (10, 14)
+#: Metadata entries of a resampled measurement (the ``reference`` kind's own, ``neuralbrdf.reference.*``).
+RESAMPLING_LOGCOS_KEY = kind_key(REFERENCE_KIND, "resampling_logcos_rmse")
+RESAMPLING_MEDIAN_KEY = kind_key(REFERENCE_KIND, "resampling_median_rel_error")
+RESAMPLING_PAIRS_KEY = kind_key(REFERENCE_KIND, "resampling_pairs")
+TABLE_NODES_KEY = kind_key(REFERENCE_KIND, "table_nodes")
 
 
 def truth_grid_nm() -> np.ndarray:
@@ -141,14 +165,31 @@ class MerlTruth(nn.Module):
         return torch.where(above_horizon(wi, wo)[:, None], f, torch.zeros_like(f))
 
 
+class MeasuredTruth(nn.Module):
+    """``f(wi, wo[, λ])`` of an RGL measurement: a table of ``f · cos θo`` — the quantity Mitsuba's
+    ``measured`` plugin stores and interpolates, smooth up to the horizon — divided by ``cos θo``."""
+
+    def __init__(self, table: BakedTable) -> None:
+        super().__init__()
+        self.table = table
+        self.wavelength_range_nm = table.wavelength_range_nm
+
+    def forward(self, wi: torch.Tensor, wo: torch.Tensor, wavelength: torch.Tensor | None = None) -> torch.Tensor:
+        cos_o = torch.clamp(wo[:, 2], min=1e-6)  # the table is 0 at and below the horizon
+        f_cos = self.table(wi, wo, wavelength)
+        return f_cos / (cos_o if f_cos.ndim == 1 else cos_o[:, None])
+
+
 @dataclass(frozen=True)
 class Truth:
-    """A ground truth: its module on directions, material name, provenance and spectral range."""
+    """A ground truth: its module on directions, material name, provenance, spectral range and
+    the ``reference`` kind's own metadata entries (a resampled measurement's nodes and error)."""
 
     module: nn.Module
     material: str
     provenance: str
     wavelength_range_nm: tuple[float, float] | None
+    kind_metadata: dict[str, str] = field(default_factory=dict)
 
     @property
     def is_spectral(self) -> bool:
@@ -156,14 +197,62 @@ class Truth:
 
     def exportable(self) -> Exportable:
         metadata = contract_metadata(
-            REFERENCE_KIND, self.material, self.provenance, wavelength_range_nm=self.wavelength_range_nm
+            REFERENCE_KIND, self.material, self.provenance, wavelength_range_nm=self.wavelength_range_nm,
+            kind_metadata=self.kind_metadata,
         )
         return Exportable(self.module.eval().requires_grad_(False), REFERENCE_KIND, self.material, metadata,
                           self.wavelength_range_nm)
 
 
+class _TimesCosine:
+    """An evaluator's values times ``cos θo``: what the measured table stores."""
+
+    def __init__(self, evaluator) -> None:
+        self.evaluator, self.is_spectral = evaluator, evaluator.is_spectral
+
+    def values(self, wi, wo, wavelength=None):
+        f = self.evaluator.values(wi, wo, wavelength)
+        return f * (wo[:, 2] if f.ndim == 1 else wo[:, 2:3])
+
+
+def rgl_truth(path: Path) -> Truth:
+    """The truth of an RGL measurement (module docstring): the plugin's ``f · cos θo`` baked at the
+    nodes of :data:`RGL_TABLE_NODES` (and the report's 31 bands), checked against the plugin on the
+    :data:`RESAMPLING_STRATA` hemisphere pairs."""
+    brdf = RglBsdf.load(path)
+    bands = CALIBRATED_WAVELENGTHS_NM
+    wavelength_range = (float(bands[0]), float(bands[-1])) if brdf.is_spectral else None
+    nodes = RGL_TABLE_NODES + ((len(bands),) if brdf.is_spectral else ())
+    values = bake_values(_TimesCosine(brdf), nodes, wavelength_range, axes="measured")
+    module = MeasuredTruth(BakedTable(torch.as_tensor(values, dtype=torch.float32), wavelength_range, axes="measured"))
+    wi, wo = hemisphere_pairs(seed=1, strata=RESAMPLING_STRATA)
+    resampled = compared_values(TorchEvaluator(module, brdf.is_spectral), wi, wo, brdf.is_spectral)
+    measured = compared_values(brdf, wi, wo, brdf.is_spectral)
+    logcos = hemisphere_logcos_rmse(resampled, measured, np.degrees(np.arccos(wi[:, 2])))
+    above = measured > 1e-3
+    median = float(np.median(np.abs(resampled[above] - measured[above]) / measured[above]))
+    shown = " x ".join(str(n) for n in nodes)
+    provenance = (
+        f"ground truth RGL measurement {path.name} ({brdf.description}; RGL material database, Dupuy & Jakob 2018, "
+        f"CC0): Mitsuba's measured plugin resampled on a {shown} table (theta_h, theta_d, phi_d"
+        f"{', wavelength' if brdf.is_spectral else ''}), f cos(theta_o) interpolated, negative values clipped to 0; "
+        f"hemisphere log-cos RMSE {logcos:.2g} against the plugin on {len(wi)} pairs"
+    )
+    details = {RESAMPLING_LOGCOS_KEY: f"{logcos:.6g}", RESAMPLING_MEDIAN_KEY: f"{median:.6g}",
+               RESAMPLING_PAIRS_KEY: str(len(wi)), TABLE_NODES_KEY: shown}
+    return Truth(module, brdf.name, provenance, wavelength_range, details)
+
+
+def describe_resampling(kind_metadata: dict[str, str]) -> str:
+    """One line on a resampled measurement's table and its error against the plugin (from its metadata)."""
+    return (f"resampling of Mitsuba's measured plugin on a {kind_metadata[TABLE_NODES_KEY]} table: hemisphere log-cos "
+            f"RMSE {float(kind_metadata[RESAMPLING_LOGCOS_KEY]):.2g}, median relative error "
+            f"{float(kind_metadata[RESAMPLING_MEDIAN_KEY]):.2g} (values > 1e-3 sr^-1) on "
+            f"{kind_metadata[RESAMPLING_PAIRS_KEY]} hemisphere pairs")
+
+
 def load_truth(source: str) -> Truth:
-    """The truth named by ``source`` (``virtual:NAME`` or an NBRDF ``NAME.h5``; module docstring)."""
+    """The truth named by ``source`` (module docstring)."""
     source = str(source)
     if source.startswith(VIRTUAL_PREFIX):
         material = get_material(source[len(VIRTUAL_PREFIX):])
@@ -179,10 +268,12 @@ def load_truth(source: str) -> Truth:
         provenance = (f"ground truth MERL measurement {path.name} (Matusik et al. 2003), nearest cell of its "
                       "90x90x180 table, unmeasured cells 0")
         return Truth(MerlTruth(brdf), brdf.name, provenance, None)
+    if path.suffix == RGL_SUFFIX:
+        return rgl_truth(path)
     if path.suffix not in (".h5", ".json"):
         raise InputError(
             f"unknown truth source {source!r}; expected virtual:NAME ({', '.join(MATERIALS)}), an NBRDF "
-            "weight file NAME.h5 or a MERL measurement NAME.binary"
+            "weight file NAME.h5, a MERL measurement NAME.binary or an RGL measurement NAME.bsdf"
         )
     network = NbrdfNetwork.load(path)
     provenance = (

@@ -10,7 +10,9 @@
   ``gold``, ``gonio``) with the shipped reference;
 * ``{nbrdf: FILE.h5}`` — an NBRDF proxy (docs/formats.md#nbrdf-proxy) sampled on ``plan`` (the entry's own
   ``plan`` key, else the data module's);
-* ``{merl: FILE.binary}`` — a MERL measurement, sampled on ``plan`` likewise.
+* ``{merl: FILE.binary}`` — a MERL measurement, sampled on ``plan`` likewise;
+* ``{rgl: FILE.bsdf}`` — an RGL measurement (spectral from ``NAME_spec.bsdf``, RGB from
+  ``NAME_rgb.bsdf``), sampled on ``plan`` likewise.
 
 Each may carry ``name`` (default: the file stem or virtual material), and a ``path`` may carry
 ``trust_units: true`` (read as it is where its numbers look like a unit slip,
@@ -228,6 +230,7 @@ class LatentFitData(pl.LightningDataModule):
                 reference=source.get("reference"),
                 nbrdf=source.get("nbrdf"),
                 merl=source.get("merl"),
+                rgl=source.get("rgl"),
                 virtual=source.get("virtual"),
                 plan=source.get("plan", self.plan),
                 eval_plan=self.eval_plan if "path" not in source else None,

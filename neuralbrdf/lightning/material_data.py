@@ -13,8 +13,8 @@ from neuralbrdf.sources import MaterialData, load_material
 class SingleMaterialData(pl.LightningDataModule):
     """One material from any source (the vocabulary of :mod:`neuralbrdf.sources`).
 
-    With no ``path``, ``nbrdf``, ``merl`` or ``virtual`` given, the shipped virtual ``gold`` DS1
-    measurement is used.  Every stage sees the same single item: the whole material.
+    With no ``path``, ``nbrdf``, ``merl``, ``rgl`` or ``virtual`` given, the shipped virtual
+    ``gold`` DS1 measurement is used.  Every stage sees the same single item: the whole material.
 
     Parameters
     ----------
@@ -24,12 +24,15 @@ class SingleMaterialData(pl.LightningDataModule):
         An NBRDF proxy ``NAME.h5`` (MERL-derived, RGB), sampled on ``plan``.
     merl:
         A MERL measurement ``NAME.binary`` (RGB), sampled on ``plan``.
+    rgl:
+        An RGL measurement ``NAME_spec.bsdf`` (spectral, 400–700 nm) or ``NAME_rgb.bsdf`` (RGB),
+        sampled on ``plan`` through Mitsuba's ``measured`` plugin.
     virtual:
         A shipped virtual stand-in (cyan, magenta, gold, gonio): its DS1 measurement.
     plan:
-        Sampling plan of an NBRDF proxy or MERL measurement: DS1, DS2, DS3, DS4 or low.
+        Sampling plan of an NBRDF proxy, MERL or RGL measurement: DS1, DS2, DS3, DS4 or low.
     eval_plan:
-        Plan on which NBRDF, MERL and virtual sources are compared with the fit (hemisphere
+        Plan on which NBRDF, MERL, RGL and virtual sources are compared with the fit (hemisphere
         log-cosine RMSE); ``None``: no such evaluation.
     name:
         Material name (default: the file stem or the virtual material).
@@ -44,6 +47,7 @@ class SingleMaterialData(pl.LightningDataModule):
         reference: str | None = None,
         nbrdf: str | None = None,
         merl: str | None = None,
+        rgl: str | None = None,
         virtual: str | None = None,
         plan: str = "DS1",
         eval_plan: str | None = "low",
@@ -52,10 +56,10 @@ class SingleMaterialData(pl.LightningDataModule):
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
-        if path is None and nbrdf is None and merl is None and virtual is None:
+        if path is None and nbrdf is None and merl is None and rgl is None and virtual is None:
             virtual = "gold"
-        self._kwargs = dict(path=path, reference=reference, nbrdf=nbrdf, merl=merl, virtual=virtual, plan=plan,
-                            eval_plan=eval_plan, name=name, trust_units=trust_units)
+        self._kwargs = dict(path=path, reference=reference, nbrdf=nbrdf, merl=merl, rgl=rgl, virtual=virtual,
+                            plan=plan, eval_plan=eval_plan, name=name, trust_units=trust_units)
         self.material: MaterialData | None = None
 
     def prepare_data(self) -> None:

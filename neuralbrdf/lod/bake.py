@@ -17,30 +17,7 @@ import torch
 
 from neuralbrdf.kinds import Exportable, contract_metadata
 from neuralbrdf.kinds.table import NAME, NODES_KEY, nodes_text
-from neuralbrdf.models.baked_table import BakedTable, lifted, node_directions
-
-#: Node pairs evaluated per onnxruntime call (bounds the memory of a spectral bake).
-CHUNK_PAIRS = 1 << 16
-
-
-def _values_in_chunks(evaluator, wi: np.ndarray, wo: np.ndarray, wavelength_nm: float | None) -> np.ndarray:
-    """The parent at every pair (at one wavelength for a spectral parent), :data:`CHUNK_PAIRS` per call."""
-    chunks = []
-    for start in range(0, len(wi), CHUNK_PAIRS):
-        a, b = wi[start:start + CHUNK_PAIRS], wo[start:start + CHUNK_PAIRS]
-        chunks.append(evaluator.values(a, b, None if wavelength_nm is None else np.full(len(a), wavelength_nm)))
-    return np.concatenate(chunks)
-
-
-def bake_values(evaluator, nodes: tuple[int, ...], wavelength_range_nm=None) -> np.ndarray:
-    """The parent's values ``[n_h, n_d, n_p, n_λ or 3]`` at the table's nodes (module docstring)."""
-    wi, wo = node_directions(tuple(nodes[:3]))
-    wi, wo = lifted(wi), lifted(wo)
-    if wavelength_range_nm is None:
-        return _values_in_chunks(evaluator, wi, wo, None).reshape(*nodes[:3], 3)
-    columns = [_values_in_chunks(evaluator, wi, wo, wavelength)
-               for wavelength in np.linspace(*wavelength_range_nm, nodes[3])]
-    return np.stack(columns, axis=-1).reshape(*nodes[:3], nodes[3])
+from neuralbrdf.models.baked_table import BakedTable, bake_values
 
 
 def bake_table(evaluator, nodes: tuple[int, ...], material: str, provenance: str) -> Exportable:

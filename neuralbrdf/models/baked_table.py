@@ -15,10 +15,19 @@ Table axes, each node grid uniform in its coordinate on ``[0, 1]``:
   (``f(φd) = f(−φd)`` by isotropy and ``= f(φd + π)`` by reciprocity);
 * ``a_λ = (λ − λ_min) / (λ_max − λ_min)``, clamped (spectral tables only).
 
+Measured data (``axes="measured"``: the resampled truth of an RGL measurement,
+:mod:`neuralbrdf.evaluation.truth`) is isotropic but not reciprocal — exchanging ``wi`` and ``wo``
+changes the value — and its values near retro-reflection (small ``θd``) change as fast as
+anywhere, so two axes change: ``a_d = θd / 90°`` (uniform in ``θd``, where ``cos θd`` puts its
+first node past 12° at 45 nodes) and ``a_p = (1 + cos φd) / 2`` (``φd`` over ``[0°, 180°]``;
+exchanging ``wi`` and ``wo`` maps ``a_p`` to ``1 − a_p``).
+
 All three angles come from ``s = wi + wo`` and ``t = wi − wo`` without ``atan2`` or ``acos``
-(unit vectors: ``|s| = 2 cos θd``, ``|t| = 2 sin θd``): ``cos θh = s_z / |s|``,
+(unit vectors: ``|s| = 2 cos θd``, ``|t| = 2 sin θd``, so ``θd = atan(|t| / |s|)``): ``cos θh = s_z / |s|``,
 ``1 − cos θh = sin²θh / (1 + cos θh)`` with ``sin²θh = |s_xy|² / |s|²`` (no cancellation near the
-mirror direction), and ``cos φd = (wi_z − cos θd cos θh) / (sin θd sin θh) = t_z |s| / (|t| |s_xy|)``.
+mirror direction), and ``cos φd = (cos θd cos θh − wi_z) / (sin θd sin θh) = −t_z |s| / (|t| |s_xy|)``
+(``d``, ``wi`` in the frame of ``h``, has ``φd = 0`` when ``wi`` leans further from the normal than
+``h``).
 
 Indices are computed in float32 (exact below 2^24 entries) and cast to integers only to read the
 table (ONNX ``Floor``, ``Cast``, ``Gather``; all interpreted by
@@ -44,8 +53,19 @@ _TINY = 1e-20
 MAX_ENTRIES = 2**24
 
 
-def table_coordinates(wi: torch.Tensor, wo: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+#: The table parametrisations (module docstring).
+AXES = ("reciprocal", "measured")
+
+
+def _check_axes(axes: str) -> None:
+    if axes not in AXES:
+        raise ValueError(f"unknown table axes {axes!r}; expected one of {AXES}")
+
+
+def table_coordinates(wi: torch.Tensor, wo: torch.Tensor,
+                      axes: str = "reciprocal") -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(a_h, a_d, a_p)`` in ``[0, 1]`` of unit direction pairs ``[N, 3]`` (module docstring)."""
+    _check_axes(axes)
     s, t = wi + wo, wi - wo
     s_xy2 = s[:, 0] * s[:, 0] + s[:, 1] * s[:, 1]
     s2 = torch.clamp(s_xy2 + s[:, 2] * s[:, 2], min=_TINY)
@@ -53,23 +73,26 @@ def table_coordinates(wi: torch.Tensor, wo: torch.Tensor) -> tuple[torch.Tensor,
     cos_h = torch.clamp(s[:, 2] / s_norm, 0.0, 1.0)
     one_minus_cos_h = torch.clamp(s_xy2 / s2 / (1.0 + cos_h), 0.0, 1.0)
     a_h = torch.sqrt(torch.sqrt(one_minus_cos_h))
-    a_d = torch.clamp(0.5 * s_norm, 0.0, 1.0)
     t_norm = torch.sqrt(t[:, 0] * t[:, 0] + t[:, 1] * t[:, 1] + t[:, 2] * t[:, 2])
-    a_p = torch.clamp(torch.abs(t[:, 2]) * s_norm / torch.clamp(t_norm * torch.sqrt(s_xy2), min=_TINY), 0.0, 1.0)
-    return a_h, a_d, a_p
+    ratio = t[:, 2] * s_norm / torch.clamp(t_norm * torch.sqrt(s_xy2), min=_TINY)  # −cos φd
+    if axes == "measured":
+        a_d = torch.clamp(torch.atan(t_norm / torch.clamp(s_norm, min=_TINY)) * (2.0 / math.pi), 0.0, 1.0)
+        return a_h, a_d, torch.clamp(0.5 - 0.5 * ratio, 0.0, 1.0)
+    return a_h, torch.clamp(0.5 * s_norm, 0.0, 1.0), torch.clamp(torch.abs(ratio), 0.0, 1.0)
 
 
-def node_directions(nodes: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+def node_directions(nodes: tuple[int, int, int], axes: str = "reciprocal") -> tuple[np.ndarray, np.ndarray]:
     """``wi, wo`` ``[n_h·n_d·n_p, 3]`` (float64, C order over the three axes) at the table's
     angular nodes: the inverse of :func:`table_coordinates` with ``φh = 0``.  Pairs that reach
     below the horizon are returned as they are (:func:`lifted` moves them up for baking)."""
+    _check_axes(axes)
     n_h, n_d, n_p = nodes
     a_h, a_d, a_p = np.meshgrid(*(np.linspace(0.0, 1.0, n) for n in nodes), indexing="ij")
     cos_h = 1.0 - a_h.ravel() ** 4
     sin_h = np.sqrt(np.clip(1.0 - cos_h**2, 0.0, None))
-    cos_d = a_d.ravel()
+    cos_d = np.cos(a_d.ravel() * np.pi / 2) if axes == "measured" else a_d.ravel()
     sin_d = np.sqrt(np.clip(1.0 - cos_d**2, 0.0, None))
-    cos_p = a_p.ravel()
+    cos_p = 2.0 * a_p.ravel() - 1.0 if axes == "measured" else a_p.ravel()
     sin_p = np.sqrt(np.clip(1.0 - cos_p**2, 0.0, None))
     d = np.stack([sin_d * cos_p, sin_d * sin_p, cos_d], axis=1)
     # rotate the difference vector by θh about y: the half vector (sin θh, 0, cos θh) becomes its pole
@@ -87,15 +110,44 @@ def lifted(w: np.ndarray, min_z: float = 1e-3) -> np.ndarray:
     return w / np.linalg.norm(w, axis=1, keepdims=True)
 
 
+#: Node pairs evaluated per call of the baked model (bounds the memory of a spectral bake).
+CHUNK_PAIRS = 1 << 16
+
+
+def _values_in_chunks(evaluator, wi: np.ndarray, wo: np.ndarray, wavelength_nm: float | None) -> np.ndarray:
+    """``evaluator`` at every pair (at one wavelength for a spectral one), :data:`CHUNK_PAIRS` per call."""
+    chunks = []
+    for start in range(0, len(wi), CHUNK_PAIRS):
+        a, b = wi[start:start + CHUNK_PAIRS], wo[start:start + CHUNK_PAIRS]
+        chunks.append(evaluator.values(a, b, None if wavelength_nm is None else np.full(len(a), wavelength_nm)))
+    return np.concatenate(chunks)
+
+
+def bake_values(evaluator, nodes: tuple[int, ...], wavelength_range_nm=None, axes: str = "reciprocal") -> np.ndarray:
+    """The values ``[n_h, n_d, n_p, n_λ or 3]`` of ``evaluator`` (anything with ``values(wi, wo,
+    wavelength)`` and ``is_spectral``, such as :class:`~neuralbrdf.evaluation.scores.OnnxEvaluator`)
+    at the nodes of a table (:func:`node_directions`, :func:`lifted`; ``n_λ`` wavelengths spread
+    evenly over ``wavelength_range_nm``)."""
+    wi, wo = node_directions(tuple(nodes[:3]), axes)
+    wi, wo = lifted(wi), lifted(wo)
+    if wavelength_range_nm is None:
+        return _values_in_chunks(evaluator, wi, wo, None).reshape(*nodes[:3], 3)
+    columns = [_values_in_chunks(evaluator, wi, wo, wavelength)
+               for wavelength in np.linspace(*wavelength_range_nm, nodes[3])]
+    return np.stack(columns, axis=-1).reshape(*nodes[:3], nodes[3])
+
+
 class BakedTable(nn.Module):
     """``f(wi, wo[, λ])`` by multilinear interpolation in ``values`` (module docstring).
 
     ``values``: ``[n_h, n_d, n_p, n_λ]`` (spectral, ``wavelength_range_nm`` given) or
     ``[n_h, n_d, n_p, 3]`` (linear sRGB), BRDF in sr⁻¹ at the nodes; every axis but the channel
-    axis of an RGB table needs at least 2 nodes.
+    axis of an RGB table needs at least 2 nodes.  ``axes``: ``"reciprocal"`` or ``"measured"``
+    (module docstring).
     """
 
-    def __init__(self, values: torch.Tensor, wavelength_range_nm: tuple[float, float] | None = None) -> None:
+    def __init__(self, values: torch.Tensor, wavelength_range_nm: tuple[float, float] | None = None,
+                 axes: str = "reciprocal") -> None:
         super().__init__()
         values = torch.as_tensor(values, dtype=torch.float32)
         spectral = wavelength_range_nm is not None
@@ -108,13 +160,15 @@ class BakedTable(nn.Module):
         if not torch.isfinite(values).all() or (values < 0).any():
             raise ValueError("table values must be finite and >= 0")
         self.nodes = tuple(int(n) for n in interpolated)
+        _check_axes(axes)
+        self.axes = axes
         self.wavelength_range_nm = None if not spectral else tuple(float(x) for x in wavelength_range_nm)
         self.register_buffer("flat", values.reshape(-1) if spectral else values.reshape(-1, 3))
         # strides of the interpolated axes in the flat table (RGB: rows of 3 channels)
         self.strides = tuple(int(math.prod(self.nodes[k + 1:])) for k in range(len(self.nodes)))
 
     def forward(self, wi: torch.Tensor, wo: torch.Tensor, wavelength: torch.Tensor | None = None) -> torch.Tensor:
-        coordinates = list(table_coordinates(wi, wo))
+        coordinates = list(table_coordinates(wi, wo, self.axes))
         if self.wavelength_range_nm is not None:
             low, high = self.wavelength_range_nm
             coordinates.append((wavelength - low) / (high - low))

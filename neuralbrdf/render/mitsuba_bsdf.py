@@ -149,7 +149,8 @@ def scene_load_error(error: RuntimeError, path) -> InputError:
 
 
 def register() -> None:
-    """Register the ``neuralbrdf`` BSDF plugin for the current Mitsuba variant (idempotent).
+    """Register the ``neuralbrdf`` BSDF plugin for the current Mitsuba variant (idempotent), and
+    ``neuralbrdf_measured`` (:mod:`~neuralbrdf.render.measured_bsdf`) beside it.
 
     Supported: JIT variants (``llvm_*``, ``cuda_*``) with RGB or spectral colour, unpolarised.
     """
@@ -164,8 +165,11 @@ def register() -> None:
             f"the neuralbrdf BSDF does not support Mitsuba variant {variant!r}; use an unpolarised "
             "RGB or spectral JIT variant (llvm_ad_rgb, llvm_ad_spectral, cuda_ad_rgb, cuda_ad_spectral)"
         )
+    from neuralbrdf.render.measured_bsdf import register_measured
+
     cls = _bsdf_class(variant)
     mi.register_bsdf(PLUGIN_NAME, lambda props: cls(props))
+    register_measured()
     _REGISTERED_VARIANTS.add(variant)
 
 

@@ -53,6 +53,9 @@ SCENE_FILE = SCENE_DIR / "material_preview.xml"
 NEURAL_MATERIAL = "materials/neuralbrdf.xml"
 #: The same, sampled with another model file's proposal (:attr:`Material.proposal`).
 NEURAL_MATERIAL_MATCHED = "materials/neuralbrdf_matched.xml"
+#: An RGL measurement through Mitsuba's ``measured`` plugin (:mod:`~neuralbrdf.render.measured_bsdf`),
+#: sampled with a model file's proposal.
+MEASURED_MATERIAL_MATCHED = "materials/measured_matched.xml"
 #: Built-in Mitsuba materials selectable with ``--reference-bsdf``: name -> scene file.
 REFERENCE_BSDFS = {"roughconductor": "materials/roughconductor.xml", "diffuse": "materials/diffuse.xml"}
 BACKENDS = ("drjit", "onnxruntime")
@@ -127,9 +130,10 @@ def set_variant(variant: str) -> None:
 
 @dataclass(frozen=True)
 class Material:
-    """What the sphere carries: a model file through a backend, or a built-in reference BSDF;
-    ``proposal``: another model file whose sampling proposal the model uses (the plugin's
-    ``proposal`` property: same expectation, paths matched to that file's renders)."""
+    """What the sphere carries: a model file through a backend, a built-in reference BSDF, or an RGL
+    ``measurement`` (``.bsdf``) through Mitsuba's ``measured`` plugin; ``proposal``: another model
+    file whose sampling proposal the model (or measurement: required) uses (the plugins' ``proposal``
+    property: same expectation, paths matched to that file's renders)."""
 
     model: Path | None = None
     backend: str = "drjit"
@@ -139,14 +143,17 @@ class Material:
     #: The plugin's ``fast`` and ``rgb_head`` properties (:mod:`neuralbrdf.render.fast_paths`).
     fast: bool = False
     rgb_head: bool = True
+    measurement: Path | None = None
 
     def __post_init__(self) -> None:
-        if (self.model is None) == (self.reference_bsdf is None):
-            raise InputError("give either a model file or a reference BSDF")
+        if sum(x is not None for x in (self.model, self.reference_bsdf, self.measurement)) != 1:
+            raise InputError("give one of a model file, a reference BSDF or a measurement")
+        if self.measurement is not None and self.proposal is None:
+            raise InputError("a measurement renders with a model file's sampling proposal")
         if self.backend not in BACKENDS:
             raise InputError(f"unknown backend {self.backend!r}; expected one of {', '.join(BACKENDS)}")
-        if self.proposal is not None and self.model is None:
-            raise InputError("a sampling proposal needs a model file")
+        if self.proposal is not None and self.model is None and self.measurement is None:
+            raise InputError("a sampling proposal needs a model file or a measurement")
         if self.reference_bsdf is not None and self.reference_bsdf not in REFERENCE_BSDFS:
             raise InputError(
                 f"unknown reference BSDF {self.reference_bsdf!r}; expected one of {', '.join(REFERENCE_BSDFS)}"
@@ -159,6 +166,9 @@ class Material:
     def scene_parameters(self) -> dict[str, str]:
         if self.reference_bsdf is not None:
             return {"material": REFERENCE_BSDFS[self.reference_bsdf]}
+        if self.measurement is not None:
+            return {"material": MEASURED_MATERIAL_MATCHED, "measurement": str(Path(self.measurement).resolve()),
+                    "proposal": str(Path(self.proposal).resolve())}
         parameters = {
             "material": NEURAL_MATERIAL,
             "model": str(Path(self.model).resolve()),
@@ -174,6 +184,8 @@ class Material:
     def describe(self) -> str:
         if self.reference_bsdf is not None:
             return f"built-in {self.reference_bsdf}"
+        if self.measurement is not None:
+            return f"{Path(self.measurement).name} (Mitsuba's measured plugin)"
         return f"{Path(self.model).name} ({self.backend}{', fast path' if self.fast else ''})"
 
 

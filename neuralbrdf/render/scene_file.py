@@ -8,7 +8,9 @@ A user's scene names the plugin like any Mitsuba BSDF (see ``export/README.md``)
     </bsdf>
 
 :class:`SceneFile` holds the parsed XML so that commands can change it before Mitsuba loads it:
-point a ``neuralbrdf`` BSDF at another model file (the selector's rungs), set plugin properties
+point a ``neuralbrdf`` BSDF at another model file (the selector's rungs) or replace it by an RGL
+measurement (:meth:`SceneFile.set_measurement`, the truth of ``neuralbrdf evaluate --truth
+NAME.bsdf``), set plugin properties
 (``backend``, ``rgb_tolerance``), the film resolution or the integrator's ``max_depth``.
 :func:`material_coverage` says which pixels each material covers (the level-of-detail
 selector's per-object error, docs/select.md).
@@ -117,6 +119,20 @@ class SceneFile:
         _property(material.element, "filename").set("value", str(Path(model).resolve()))
         for key, value in (properties or {}).items():
             self.set_property(material.element, key, value)
+
+    def set_measurement(self, name: str, measurement: Path, proposal: Path) -> None:
+        """Replace material ``name`` by the RGL ``measurement`` (``.bsdf``) through Mitsuba's ``measured``
+        plugin, sampled with ``proposal``'s proposal (the ``neuralbrdf_measured`` BSDF)."""
+        from neuralbrdf.render.measured_bsdf import PLUGIN_NAME
+
+        material = next((m for m in self.materials() if m.name == name), None)
+        if material is None:
+            raise KeyError(name)
+        for child in list(material.element):
+            material.element.remove(child)
+        material.element.set("type", PLUGIN_NAME)
+        for key, path in (("filename", measurement), ("proposal", proposal)):
+            ElementTree.SubElement(material.element, "string", name=key, value=str(Path(path).resolve()))
 
     def set_all(self, key: str, value: str) -> None:
         """Set property ``key`` of every ``neuralbrdf`` material."""

@@ -5,7 +5,8 @@
   file — and :data:`TRUTH_FORMAT`), so a profile that gives a material another truth under the
   same name gets a new file, never the old one.  Beside it ``NAME-HASH.sha256`` records the
   file's SHA-256 when it was written; a file that no longer matches (damaged, cut off, edited)
-  is exported again.  A truth given as ``.onnx`` is used where it is.
+  is exported again.  A truth given as ``.onnx`` (a reference model) or ``.bsdf`` (an RGL
+  measurement, scored and rendered through Mitsuba's ``measured`` plugin) is used where it is.
 * **Cell results** — ``cells/KEY/result.json`` is reused only when it is a JSON object of the
   expected fields and types that belongs to its cell: the same material, variant, plan, noise
   and seed, and, where it records them, the same key and truth (its SHA-256).  Anything else is
@@ -67,7 +68,7 @@ def truth_file(material: MaterialSpec, out_dir: Path, repairs: Repairs) -> tuple
     """The material's truth file and its SHA-256 (module docstring), exported when missing or damaged."""
     from neuralbrdf.evaluation.truth import export_truth
 
-    if not material.is_virtual and Path(material.truth).suffix == ".onnx":
+    if not material.is_virtual and Path(material.truth).suffix in (".onnx", ".bsdf"):  # a truth file as it is
         return Path(material.truth), sha256(Path(material.truth))
     source = hashlib.sha256(f"{TRUTH_FORMAT}:{file_digest(material.truth)}".encode()).hexdigest()[:12]
     path = out_dir / "truths" / f"{material.name}-{source}.onnx"

@@ -110,7 +110,7 @@ def write_data(spec: dict, out: Path) -> Path:
 
         table = virtual_measurement(material["truth"].split(":", 1)[1], cell["plan"], cell["noise"], cell["seed"],
                                     cell["seed"] + REFERENCE_SEED_OFFSET)
-    else:  # an NBRDF proxy or a MERL measurement
+    else:  # an NBRDF proxy, a MERL or an RGL measurement
         from neuralbrdf.sources import sample_file
 
         table = sample_file(material["truth"], cell["plan"])
@@ -265,9 +265,9 @@ def fast_path_alone(model_path: Path, output: str, out: Path) -> Path:
 
 @functools.lru_cache(maxsize=TRUTHS_KEPT)
 def _truth_evaluator(version: tuple):
-    from neuralbrdf.evaluation.scores import MemoEvaluator, OnnxEvaluator
+    from neuralbrdf.evaluation.scores import MemoEvaluator, truth_evaluator as open_truth
 
-    return MemoEvaluator(OnnxEvaluator(version[0]))
+    return MemoEvaluator(open_truth(version[0]))
 
 
 def truth_evaluator(truth: Path):
@@ -298,11 +298,18 @@ def per_angle(model: Path, truth: Path) -> dict:
 
 
 def render_variant(spec: dict, truth: Path) -> str:
-    from neuralbrdf.kinds import load_model
+    """The variant's own ``render_variant``, else the truth's kind of variant (spectral or RGB)."""
+    from neuralbrdf.evaluation.scores import is_measurement
 
     chosen = spec["variant"]["render_variant"]
     if chosen:
         return chosen
+    if is_measurement(truth):
+        from neuralbrdf.data.rgl_bsdf import RglBsdf
+
+        return RglBsdf.load(truth).variant
+    from neuralbrdf.kinds import load_model
+
     return "llvm_ad_spectral" if load_model(truth).is_spectral else "llvm_ad_rgb"
 
 

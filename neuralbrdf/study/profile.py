@@ -10,6 +10,8 @@ A profile is a YAML file (``configs/study/quick.yaml``, ``full.yaml``, or a user
       - {name: gold, truth: virtual:gold}      # virtual instrument: any plan, any noise
       - {name: nylon, truth: merl-nbrdf/nylon.h5}                  # NBRDF proxy sampled on the plan
       - {name: alum, truth: merl/alum-bronze.binary}                # MERL measurement sampled on the plan
+      - {name: felt, truth: rgl/acrylic_felt_green_spec.bsdf}       # RGL measurement: sampled, scored, rendered
+                                                                    # through Mitsuba's measured plugin
       - {name: mine, table: my_measurement.csv, truth: mine_truth.onnx}   # a user's measured table
                                                # (spherical or signed in-plane; trust_units: true reads it
                                                # as it is where its numbers look like a unit slip)
@@ -81,8 +83,9 @@ class CostSpec:
 
 @dataclass(frozen=True)
 class MaterialSpec:
-    """``truth``: ``virtual:NAME``, an NBRDF ``.h5``, a MERL ``.binary`` or a reference ``.onnx``; ``table``: a user's own
-    measurement (then plan and noise sweeps do not apply to it), read as it is with ``trust_units``."""
+    """``truth``: ``virtual:NAME``, an NBRDF ``.h5``, a MERL ``.binary``, an RGL ``.bsdf`` or a reference ``.onnx``;
+    ``table``: a user's own measurement (then plan and noise sweeps do not apply to it), read as it
+    is with ``trust_units``."""
 
     name: str
     truth: str
@@ -95,11 +98,16 @@ class MaterialSpec:
 
     @property
     def is_spectral(self) -> bool:
-        """Whether its samples are spectral (virtual instrument, or a user's table with wavelengths)."""
+        """Whether its samples are spectral (virtual instrument, a spectral RGL file, or a user's table
+        with wavelengths)."""
         if self.table is not None:
             from neuralbrdf.data.loading import read_brdf_table
 
             return read_brdf_table(self.table, self.trust_units).is_spectral
+        if Path(self.truth).suffix == ".bsdf":
+            from neuralbrdf.data.rgl_bsdf import RglBsdf
+
+            return RglBsdf.load(self.truth).is_spectral
         return self.is_virtual
 
 
@@ -175,16 +183,23 @@ class _Reader:
         return value
 
     def truth(self, value, key: str) -> str:
-        """A truth source: ``virtual:NAME`` of a shipped material, an NBRDF ``.h5``, a MERL ``.binary`` or a ground
-        truth ``.onnx``."""
+        """A truth source: ``virtual:NAME`` of a shipped material, an NBRDF ``.h5``, a MERL ``.binary``, an RGL
+        ``.bsdf`` or a ground truth ``.onnx``."""
         truth = self.file(value, key)
         if truth.startswith("virtual:"):
             if truth.split(":", 1)[1] not in MATERIALS:
                 self.fail(key, f"no virtual material {truth.split(':', 1)[1]!r}; expected one of "
                                f"{', '.join('virtual:' + name for name in MATERIALS)}")
             return truth
-        if Path(truth).suffix not in (".h5", ".binary", ".onnx"):
-            self.fail(key, "expected virtual:NAME, an NBRDF .h5, a MERL .binary or a reference .onnx")
+        if Path(truth).suffix not in (".h5", ".binary", ".bsdf", ".onnx"):
+            self.fail(key, "expected virtual:NAME, an NBRDF .h5, a MERL .binary, an RGL .bsdf or a reference .onnx")
+        if Path(truth).suffix == ".bsdf":
+            from neuralbrdf.data.rgl_bsdf import RglBsdf
+
+            try:
+                RglBsdf.load(truth)
+            except InputError as error:
+                self.fail(key, f"not a readable RGL measurement: {error.reason}")
         if Path(truth).suffix == ".onnx":
             from neuralbrdf.kinds import load_model
 
