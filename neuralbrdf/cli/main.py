@@ -19,6 +19,7 @@ from neuralbrdf.data.plans import PLAN_NAMES
 from neuralbrdf.errors import InputError
 from neuralbrdf.render import DEFAULT_VARIANT
 from neuralbrdf.study import command as study_command
+from neuralbrdf.explorer import command as explorer_command
 
 EPILOG = (
     "Conventions: angles in degrees. GCMS raw files hold signed in-plane angles theta_i, theta_r "
@@ -238,6 +239,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--spp", type=int, default=None, help="starting samples per pixel, raised for noise (config: select.spp)")
     p.add_argument("--max-spp", type=int, default=None, help="largest samples per pixel (config: select.max_spp)")
     p.add_argument("--seed", type=int, default=None, help="first render seed (config: select.seed)")
+
+    explorer_command.add_arguments(add("view", explorer_command.run, explorer_command.HELP, explorer_command.DESCRIPTION))
 
     p = add(
         "regenerate-default-data",
