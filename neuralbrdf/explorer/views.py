@@ -10,8 +10,8 @@ values did not change is answered "unchanged" to a page that already shows it.
   per model and the truth, and the measured samples at that ``θi`` when the plane is the plane of
   incidence (``φ = 0``);
 * ``hemisphere`` — every outgoing direction at that ``θi`` (:func:`~neuralbrdf.explorer.grids.hemisphere_disk`):
-  ``log10`` of the value, or the colour (linear sRGB scaled so its largest channel is 1: hue and
-  saturation without brightness, sRGB-encoded);
+  ``log10`` of the value and per model ``log10(model / truth)``, or the colour (linear sRGB scaled
+  so its largest channel is 1: hue and saturation without brightness, sRGB-encoded);
 * ``lobe`` — the same values on a ``θo × φo`` grid for the 3-D lobe (the page sets the radius);
 * ``halfdiff`` — ``log10`` of the value on the ``θh × θd`` image at ``φd``, and per model
   ``log10(model / truth)``;
@@ -311,9 +311,16 @@ class Scene:
                 measured = {"label": self.measured.label, "x": listed(self.measured.theta_r[rows]), "y": listed(values)}
         return {"x": listed(theta_r), "curves": curves, "measured": measured, "missing": self._missing(state)}
 
+    def _ratios(self, logs: dict[str, np.ndarray]) -> list[dict]:
+        """Per model with a value, ``log10(model / truth)`` from the ``log10`` images ``logs``."""
+        truth = logs.get(self.truth.label) if self.truth is not None else None
+        if truth is None:
+            return []
+        return [{"label": m.label, "z": typed(logs[m.label] - truth)} for m in self.models if m.label in logs]
+
     def _hemisphere(self, state: State) -> dict:
         image = grids.hemisphere_disk(state.theta_i)
-        maps = []
+        maps, logs = [], {}
         for source in self.sources:
             if state.hemisphere == "colour":
                 rgb = source.linear_srgb(image.wi, image.wo)
@@ -321,13 +328,10 @@ class Scene:
                 continue
             values = self._values(source, image.wi, image.wo, state)
             if values is not None:
-                maps.append({"label": source.label, "z": image.scatter(log10(values))})
-        zrange = log_range(*[m["z"] for m in maps if "z" in m])
-        for entry in maps:
-            if "z" in entry:
-                entry["z"] = typed(entry["z"])
+                logs[source.label] = image.scatter(log10(values))
+                maps.append({"label": source.label, "z": typed(logs[source.label])})
         axis = grids.disk_coordinates(grids.HEMISPHERE_SIZE)
-        return {"axis": listed(axis), "maps": maps, "zrange": zrange,
+        return {"axis": listed(axis), "maps": maps, "zrange": log_range(*logs.values()), "diffs": self._ratios(logs),
                 "missing": [] if state.hemisphere == "colour" else self._missing(state)}
 
     def _lobe(self, state: State) -> dict:
@@ -347,14 +351,8 @@ class Scene:
             values = self._values(source, image.wi, image.wo, state)
             if values is not None:
                 logs[source.label] = image.scatter(log10(values))
-        truth = logs.get(self.truth.label) if self.truth is not None else None
-        diffs = []
-        if truth is not None:
-            for model in self.models:
-                if model.label in logs:
-                    diffs.append({"label": model.label, "z": typed(logs[model.label] - truth)})
         return {"axis": listed(axis), "zrange": log_range(*logs.values()),
-                "maps": [{"label": label, "z": typed(z)} for label, z in logs.items()], "diffs": diffs,
+                "maps": [{"label": label, "z": typed(z)} for label, z in logs.items()], "diffs": self._ratios(logs),
                 "missing": self._missing(state)}
 
     def _sphere(self, state: State) -> dict:

@@ -14,7 +14,6 @@ const HOME = {theta_i: "global", wavelength: "global", channel: "global", cosine
 // Views redrawn without asking the server when only the scale changes.
 const SCALE_VIEWS = ["inplane", "lobe", "spectrum"];
 const TRUTH_COLOUR = "#000000";
-const LOBE_TRUTH_COLOUR = "#808080";  // a black translucent surface would hide the others
 const PALETTE = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf", "#8c564b", "#e377c2"];
 const CONFIG = {displaylogo: false, responsive: true};
 const SMALL = {...CONFIG, displayModeBar: false};  // small charts: their titles stay readable
@@ -321,13 +320,16 @@ function drawHemisphere(payload) {
   noteMissing("hemisphere", payload, "RGB files have no value at one wavelength");
   const divs = plotGrid("plots-hemisphere", payload.maps.length);
   const axes = {x: squareAxes("θo cos φo (°)"), y: squareAxes("θo sin φo (°)")};
-  return Promise.all(payload.maps.map((map, k) => {
+  const ratios = drawRatios("plots-hemisphere-diff", payload, axes, "%{x:.0f}°, %{y:.0f}°");
+  return Promise.all([...ratios, ...payload.maps.map((map, k) => {
     const layout = smallLayout(nameOf(map.label), axes);
     const traces = [];
     if (map.png) {
       layout.images = [{source: map.png, xref: "x", yref: "y", x: -90, y: 90, sizex: 180, sizey: 180,
                         sizing: "stretch", layer: "below"}];
-      traces.push({x: [-90, 90], y: [-90, 90], mode: "markers", marker: {opacity: 0}, hoverinfo: "skip"});
+      const zeros = payload.axis.map(() => payload.axis.map(() => 0));  // invisible: it takes the clicks
+      traces.push({type: "heatmap", x: payload.axis, y: payload.axis, z: zeros, opacity: 0, showscale: false,
+                   hovertemplate: "%{x:.0f}°, %{y:.0f}°<extra></extra>"});
     } else {
       traces.push({type: "heatmap", x: payload.axis, y: payload.axis, z: map.z, zmin: payload.zrange[0],
                    zmax: payload.zrange[1], colorscale: "Viridis", hoverongaps: false,
@@ -338,7 +340,7 @@ function drawHemisphere(payload) {
     traces.push(...hemisphereMarks());
     return Plotly.react(divs[k], traces, layout, SMALL).then(() =>
       pickOnClick(divs[k], (x, y) => Math.hypot(x, y) < 90 ? [Math.hypot(x, y), Math.atan2(y, x) * 180 / Math.PI] : null));
-  }));
+  })]);
 }
 
 function lobeRadius(value) {
@@ -363,12 +365,17 @@ function drawLobe(payload) {
       }
       xs.push(row[0]); ys.push(row[1]); zs.push(row[2]);
     }
-    const colour = role(surface.label) === "truth" ? LOBE_TRUTH_COLOUR : colours[surface.label];
+    const truth = role(surface.label) === "truth";
+    const colour = truth ? TRUTH_COLOUR : colours[surface.label];
+    const lines = {show: true, color: colour, width: 1, highlight: false};
     return {type: "surface", x: xs, y: ys, z: zs, name: nameOf(surface.label), showlegend: true, showscale: false,
-            opacity: role(surface.label) === "truth" ? 0.3 : 0.75, colorscale: [[0, colour], [1, colour]],
-            lighting: {ambient: 0.75, diffuse: 0.4, specular: 0.05}, hoverinfo: "name"};
+            colorscale: [[0, colour], [1, colour]], hoverinfo: "name",
+            // the truth as a wire cage (rings of equal height and of equal x), the models as tinted skins
+            ...(truth ? {hidesurface: true, contours: {z: {...lines, size: extentOf(zs) / 12, start: 0, end: extentOf(zs)},
+                                                       x: {...lines, size: extentOf(xs) / 8}}}
+                      : {opacity: 0.45, lighting: {ambient: 0.9, diffuse: 0.3, specular: 0.02}})};
   });
-  const extent = Math.max(1e-6, ...traces.map((t) => Math.max(...t.z.flat(), ...t.x.flat().map(Math.abs))));
+  const extent = Math.max(...traces.map((t) => Math.max(extentOf(t.z), extentOf(t.x))));
   const w = payload.incident;
   traces.push({type: "scatter3d", mode: "lines", x: [0, w[0] * extent], y: [0, w[1] * extent],
                z: [0, w[2] * extent], line: {color: "black", width: 5}, name: "incident direction", hoverinfo: "name"});
@@ -382,31 +389,40 @@ function drawLobe(payload) {
   return Plotly.react("plot-lobe", traces, layout, CONFIG);
 }
 
+function extentOf(rows) {
+  return Math.max(1e-9, ...rows.flat().map(Math.abs));
+}
+
 function decoded(typedArray) {  // plotly's {dtype: "f4", bdata} form as a flat Float32Array
   const bytes = Uint8Array.from(atob(typedArray.bdata), (c) => c.charCodeAt(0));
   return new Float32Array(bytes.buffer);
+}
+
+const RATIO = {zmid: 0, zmin: -1, zmax: 1, colorscale: "RdBu", reversescale: true,
+               colorbar: {thickness: 12, title: {text: "log₁₀(model / truth)", side: "right"}}};
+
+function drawRatios(container, payload, axes, hover) {
+  const divs = plotGrid(container, payload.diffs.length);
+  return payload.diffs.map((diff, k) => Plotly.react(divs[k], [{
+    type: "heatmap", x: payload.axis, y: payload.axis, z: diff.z, hoverongaps: false, ...RATIO,
+    hovertemplate: `${hover}: %{z:+.2f} decades<extra></extra>`}], smallLayout(`${diff.label} against the truth`, axes),
+    SMALL));
 }
 
 function drawHalfdiff(payload) {
   noteMissing("halfdiff", payload, "RGB files have no value at one wavelength");
   const axes = {x: {title: {text: "θh, half angle (°)"}, range: [0, 90], dtick: 15, constrain: "domain"},
                 y: {title: {text: "θd, difference angle (°)"}, range: [0, 90], dtick: 15}};
-  const heat = (z, heading, extra) => [{type: "heatmap", x: payload.axis, y: payload.axis, z, hoverongaps: false,
-                                        colorbar: {thickness: 12}, ...extra}];
+  const heat = (z, extra) => [{type: "heatmap", x: payload.axis, y: payload.axis, z, hoverongaps: false, ...extra}];
   const maps = plotGrid("plots-halfdiff", payload.maps.length);
-  const diffs = plotGrid("plots-halfdiff-diff", payload.diffs.length);
   const value = state.cosine === "f_cos" ? "f·cos θi" : "f";
   return Promise.all([
-    ...payload.maps.map((map, k) => Plotly.react(maps[k], heat(map.z, map.label, {
+    ...payload.maps.map((map, k) => Plotly.react(maps[k], heat(map.z, {
       zmin: payload.zrange[0], zmax: payload.zrange[1], colorscale: "Viridis",
       colorbar: {thickness: 12, title: {text: `log₁₀ ${value} (sr⁻¹)`, side: "right"}},
       hovertemplate: "θh %{x:.1f}°, θd %{y:.1f}°: 10^%{z:.2f} sr⁻¹<extra></extra>"}),
       smallLayout(`${nameOf(map.label)}, φd = ${state.phi_d}°`, axes), SMALL)),
-    ...payload.diffs.map((diff, k) => Plotly.react(diffs[k], heat(diff.z, diff.label, {
-      zmid: 0, zmin: -1, zmax: 1, colorscale: "RdBu", reversescale: true,
-      colorbar: {thickness: 12, title: {text: "log₁₀(model / truth)", side: "right"}},
-      hovertemplate: "θh %{x:.1f}°, θd %{y:.1f}°: %{z:+.2f} decades<extra></extra>"}),
-      smallLayout(`${diff.label} against the truth`, axes), SMALL)),
+    ...drawRatios("plots-halfdiff-diff", payload, axes, "θh %{x:.1f}°, θd %{y:.1f}°"),
   ]);
 }
 
@@ -429,11 +445,10 @@ function drawSphere(payload) {
     ...payload.diffs.map((diff, k) => {
       const deltaE = diff.kind === "delta_e2000";
       const trace = {type: "heatmap", x: payload.axis, y: payload.axis, z: diff.z, hoverongaps: false,
-                     colorbar: {thickness: 12, title: {text: deltaE ? "CIEDE2000 ΔE" : "log₁₀(model / truth)", side: "right"}},
                      ...(deltaE ? {zmin: 0, zmax: scene.delta_e_max, colorscale: MAGMA,
+                                   colorbar: {thickness: 12, title: {text: "CIEDE2000 ΔE", side: "right"}},
                                    hovertemplate: "ΔE %{z:.2f}<extra></extra>"}
-                                : {zmid: 0, zmin: -1, zmax: 1, colorscale: "RdBu", reversescale: true,
-                                   hovertemplate: "%{z:+.2f} decades<extra></extra>"})};
+                                : {...RATIO, hovertemplate: "%{z:+.2f} decades<extra></extra>"})};
       const heading = deltaE ? `${diff.label}: ΔE mean ${diff.mean.toFixed(2)}, p95 ${diff.p95.toFixed(2)}`
                              : `${diff.label} against the truth`;
       return Plotly.react(diffs[k], [trace], smallLayout(heading, axes), SMALL);
