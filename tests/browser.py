@@ -39,7 +39,7 @@ class Browser:
     def __init__(self, profile: Path, width: int = 1400, height: int = 1000) -> None:
         to_browser, self._commands = os.pipe()
         self._answers, from_browser = os.pipe()
-        command = chromium_command(profile, "--remote-debugging-pipe", "--enable-unsafe-swiftshader", "about:blank")
+        command = chromium_command(profile, "--remote-debugging-pipe", "about:blank")
         # the protocol reads fd 3 and writes fd 4 of the browser process
         self.process = subprocess.Popen(
             ["bash", "-c", f'exec "$@" 3<&{to_browser} 4>&{from_browser}', "chromium", *command],
@@ -115,9 +115,11 @@ class Browser:
 
     def drag_slider(self, selector: str, value: float, steps: int = 6) -> float:
         """Drag the thumb of the range input ``selector`` with the mouse, as a person does, towards
-        ``value`` in ``steps`` moves (one ``input`` event each); the value it reached."""
-        box = self.evaluate(f"(() => {{ const e = document.querySelector({json.dumps(selector)}); e.scrollIntoView("
-                            "{block: 'center'}); const r = e.getBoundingClientRect(); "
+        ``value`` in ``steps`` moves (one ``input`` event each; scrolled to first if off screen); the
+        value it reached."""
+        box = self.evaluate(f"(() => {{ const e = document.querySelector({json.dumps(selector)}); "
+                            "let r = e.getBoundingClientRect(); if (r.top < 0 || r.bottom > innerHeight) "
+                            "{ e.scrollIntoView({block: 'center'}); r = e.getBoundingClientRect(); } "
                             "return [r.left, r.top + r.height / 2, r.width, +e.min, +e.max, +e.value]; })()")
         left, y, width, low, high, start = box
         thumb = 16.0  # Chromium's thumb: its centre runs from left + 8 to right - 8 px

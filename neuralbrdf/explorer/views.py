@@ -280,6 +280,11 @@ class Scene:
                 self._cache.popitem(last=False)
         return payload
 
+    def forget(self) -> None:
+        """Drop every remembered view (the next requests compute them again)."""
+        with self._lock:
+            self._cache.clear()
+
     # ------------------------------------------------------------------ helpers
 
     def _values(self, source: ViewedModel, wi, wo, state: State) -> np.ndarray | None:

@@ -6,13 +6,18 @@
 // window.viewerTimings records every update: the server's, the network's and the drawing's time.
 "use strict";
 
-const SCALE_CHOICES = [["linear", "linear"], ["log", "log"]];
+// Controls the page applies itself (no request): what each looks like and the views it redraws.
+const LOCAL = {
+  scale: {label: "scale", choices: [["linear", "linear"], ["log", "log"]], default: "linear",
+          views: ["inplane", "lobe", "spectrum"]},
+  lobe_azimuth: {label: "camera azimuth", unit: "°", min: -180, max: 180, step: 5, default: -70, views: ["lobe"]},
+  lobe_elevation: {label: "camera elevation", unit: "°", min: 0, max: 90, step: 5, default: 20, views: ["lobe"]},
+};
 // Where each control sits: the sticky bar (views it feeds: several) or the one view it feeds.
 const HOME = {theta_i: "global", wavelength: "global", channel: "global", cosine: "global", scale: "global",
+              lobe_azimuth: "lobe", lobe_elevation: "lobe",
               plane_phi: "inplane", pick_theta: "spectrum", pick_phi: "spectrum", hemisphere: "hemisphere",
               phi_d: "halfdiff", light_theta: "sphere", light_phi: "sphere", exposure: "sphere", sphere: "sphere"};
-// Views redrawn without asking the server when only the scale changes.
-const SCALE_VIEWS = ["inplane", "lobe", "spectrum"];
 const TRUTH_COLOUR = "#000000";
 const PALETTE = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf", "#8c564b", "#e377c2"];
 const CONFIG = {displaylogo: false, responsive: true};
@@ -38,9 +43,13 @@ let busy = false;
 
 // ------------------------------------------------------------------ state and controls
 
+function controlOf(name) {
+  return scene.controls[name] || LOCAL[name];
+}
+
 function readUrl() {
   const query = new URLSearchParams(window.location.search);
-  for (const [name, control] of Object.entries(scene.controls)) {
+  for (const [name, control] of [...Object.entries(scene.controls), ...Object.entries(LOCAL)]) {
     state[name] = control.default;
     if (!query.has(name)) continue;
     const text = query.get(name);
@@ -50,21 +59,19 @@ function readUrl() {
       state[name] = Math.min(control.max, Math.max(control.min, Number(text)));
     }
   }
-  state.scale = query.get("scale") === "log" ? "log" : "linear";
 }
 
 function writeUrl() {
   const query = new URLSearchParams();
   for (const [name, value] of Object.entries(state)) {
-    const control = scene.controls[name];
-    if (control ? value !== control.default : value !== "linear") query.set(name, value);
+    if (value !== controlOf(name).default) query.set(name, value);
   }
   const text = query.toString();
   window.history.replaceState(null, "", text ? `?${text}` : window.location.pathname);
 }
 
 function formatted(name, value) {
-  const control = scene.controls[name];
+  const control = controlOf(name);
   return `${Number(value).toFixed(control.step < 1 ? 1 : 0)} ${control.unit}`;
 }
 
@@ -113,10 +120,11 @@ function apply(changes) {
     if (input && input.nextElementSibling) input.nextElementSibling.textContent = formatted(name, value);
   }
   const names = Object.keys(changes);
-  if (names.length === 1 && names[0] === "scale") {
+  if (names.every((name) => name in LOCAL)) {
     const since = performance.now();
-    for (const view of SCALE_VIEWS) if (last[view]) DRAW[view](last[view]);
-    timings.push({cause: "scale", views: SCALE_VIEWS, server_ms: 0, fetch_ms: 0, total_ms: performance.now() - since});
+    const views = [...new Set(names.flatMap((name) => LOCAL[name].views))].filter((view) => last[view]);
+    for (const view of views) DRAW[view](last[view]);
+    timings.push({cause: names.join("+"), views, server_ms: 0, fetch_ms: 0, total_ms: performance.now() - since});
     return;
   }
   const affected = Object.keys(scene.views).filter((view) => names.some((name) => scene.views[view].includes(name)));
@@ -348,43 +356,66 @@ function lobeRadius(value) {
   return value > 1e-3 ? Math.log10(value / 1e-3) : 0;
 }
 
+// An orthographic camera at azimuth az and elevation el (degrees): a point's position on the screen.
+function camera(az, el) {
+  const a = az * Math.PI / 180, e = el * Math.PI / 180;
+  const right = [-Math.sin(a), Math.cos(a), 0];
+  const up = [-Math.sin(e) * Math.cos(a), -Math.sin(e) * Math.sin(a), Math.cos(e)];
+  return (p) => [p[0] * right[0] + p[1] * right[1], p[0] * up[0] + p[1] * up[1] + p[2] * up[2]];
+}
+
+function niceStep(extent) {
+  const raw = extent / 4, power = 10 ** Math.floor(Math.log10(raw));
+  return [1, 2, 5, 10].map((m) => m * power).find((step) => step >= raw);
+}
+
+// The lobe as a wire cage (rings of equal θo, meridians of equal φo) seen through camera(): drawn as
+// 2-D lines, cheap on any machine (no WebGL); the camera sliders turn it.
 function drawLobe(payload) {
   noteMissing("lobe", payload, "RGB files have no value at one wavelength");
   const nTheta = payload.theta_o.length, nPhi = payload.phi_o.length;
-  const traces = payload.surfaces.map((surface) => {
+  const view = camera(state.lobe_azimuth, state.lobe_elevation);
+  const cages = payload.surfaces.map((surface) => {
     const r = decoded(surface.r);
-    const xs = [], ys = [], zs = [];
-    for (let i = 0; i < nTheta; i++) {
-      const t = payload.theta_o[i] * Math.PI / 180;
-      const row = [[], [], []];
-      for (let j = 0; j < nPhi; j++) {
-        const p = payload.phi_o[j] * Math.PI / 180, radius = lobeRadius(r[i * nPhi + j]);
-        row[0].push(radius * Math.sin(t) * Math.cos(p));
-        row[1].push(radius * Math.sin(t) * Math.sin(p));
-        row[2].push(radius * Math.cos(t));
-      }
-      xs.push(row[0]); ys.push(row[1]); zs.push(row[2]);
-    }
-    const truth = role(surface.label) === "truth";
-    const colour = truth ? TRUTH_COLOUR : colours[surface.label];
-    const lines = {show: true, color: colour, width: 1, highlight: false};
-    return {type: "surface", x: xs, y: ys, z: zs, name: nameOf(surface.label), showlegend: true, showscale: false,
-            colorscale: [[0, colour], [1, colour]], hoverinfo: "name",
-            // the truth as a wire cage (rings of equal height and of equal x), the models as tinted skins
-            ...(truth ? {hidesurface: true, contours: {z: {...lines, size: extentOf(zs) / 12, start: 0, end: extentOf(zs)},
-                                                       x: {...lines, size: extentOf(xs) / 8}}}
-                      : {opacity: 0.45, lighting: {ambient: 0.9, diffuse: 0.3, specular: 0.02}})};
+    const point = (i, j) => {
+      const t = payload.theta_o[i] * Math.PI / 180, p = payload.phi_o[j] * Math.PI / 180;
+      const radius = lobeRadius(r[i * nPhi + j]);
+      return [radius * Math.sin(t) * Math.cos(p), radius * Math.sin(t) * Math.sin(p), radius * Math.cos(t)];
+    };
+    const lines = [];
+    for (let i = 1; i < nTheta; i += 2) lines.push([...Array(nPhi).keys()].map((j) => point(i, j)));
+    for (let j = 0; j < nPhi - 1; j += 2) lines.push([...Array(nTheta).keys()].map((i) => point(i, j)));
+    return {label: surface.label, lines};
   });
-  const extent = Math.max(...traces.map((t) => Math.max(extentOf(t.z), extentOf(t.x))));
+  const extent = Math.max(1e-9, ...cages.flatMap((c) => c.lines.flat().map((p) => Math.hypot(...p))));
+  const trace = (lines, extra) => {
+    const xy = lines.flatMap((line) => [...line.map(view), [null, null]]);
+    return {type: "scatter", mode: "lines", x: xy.map((q) => q[0]), y: xy.map((q) => q[1]), ...extra};
+  };
+  const traces = cages.map((cage) => trace(cage.lines, {
+    name: nameOf(cage.label), hoverinfo: "name",
+    line: {color: role(cage.label) === "truth" ? TRUTH_COLOUR : colours[cage.label], width: 1,
+           dash: role(cage.label) === "truth" ? "dot" : "solid"}}));
+  const ground = [...Array(73).keys()].map((k) => [extent * Math.cos(k * Math.PI / 36), extent * Math.sin(k * Math.PI / 36), 0]);
+  const axes = [[[-extent, 0, 0], [extent, 0, 0]], [[0, -extent, 0], [0, extent, 0]], [[0, 0, 0], [0, 0, extent]]];
+  const step = niceStep(extent);
+  const ticks = [...Array(Math.floor(extent / step)).keys()].map((k) => [0, 0, (k + 1) * step]);
   const w = payload.incident;
-  traces.push({type: "scatter3d", mode: "lines", x: [0, w[0] * extent], y: [0, w[1] * extent],
-               z: [0, w[2] * extent], line: {color: "black", width: 5}, name: "incident direction", hoverinfo: "name"});
+  traces.push(trace([ground, ...axes], {line: {color: "#aaa", width: 1}, hoverinfo: "skip", showlegend: false}));
+  traces.push(trace([[[0, 0, 0], [w[0] * extent, w[1] * extent, w[2] * extent]]],
+                    {line: {color: "black", width: 3}, name: "incident direction", hoverinfo: "name"}));
+  const label = (p, text) => {
+    const [x, y] = view(p);
+    return {x, y, text, showarrow: false, font: {size: 12, color: "#555"}, xanchor: "left", yanchor: "bottom"};
+  };
   const unit = state.scale === "linear" ? "sr⁻¹" : "decades above 10⁻³ sr⁻¹";
   const layout = {
-    font: FONT, margin: {t: 36, r: 0, b: 0, l: 0}, title: title(`${quantity()} at θi = ${state.theta_i}° (${unit})`),
-    legend: {x: 0, y: 0.95}, uirevision: "lobe",
-    scene: {aspectmode: "data", xaxis: {title: {text: `x (${unit})`}}, yaxis: {title: {text: `y (${unit})`}},
-            zaxis: {title: {text: `z, the normal (${unit})`}}, camera: {eye: {x: 1.1, y: -1.5, z: 0.8}}},
+    font: FONT, margin: {t: 36, r: 10, b: 10, l: 10}, title: title(`${quantity()} at θi = ${state.theta_i}°: distance from the centre in ${unit}`),
+    legend: {x: 0, y: 1}, showlegend: true,
+    xaxis: {visible: false}, yaxis: {visible: false, scaleanchor: "x"},
+    annotations: [label([extent, 0, 0], "x (φ = 0°, towards the light)"), label([0, extent, 0], "y"),
+                  label([0, 0, extent], "z, the normal"),
+                  ...ticks.map((p) => label(p, `${+p[2].toPrecision(3)}`))],
   };
   return Plotly.react("plot-lobe", traces, layout, CONFIG);
 }
@@ -545,7 +576,7 @@ async function start() {
   readUrl();
   describeSources();
   for (const [name, control] of Object.entries(scene.controls)) addControl(name, control);
-  addControl("scale", {label: "scale", choices: SCALE_CHOICES, default: "linear"});
+  for (const [name, control] of Object.entries(LOCAL)) addControl(name, control);
   for (const view of Object.keys(scene.views)) stale.add(view);  // drawn when on screen
   markStale();
   await watchVisibility();
