@@ -204,17 +204,22 @@ def test_server_serves_the_page_plotly_and_views_and_refuses_bad_queries(scene):
 # --------------------------------------------------------------------------- command line
 
 
-@pytest.mark.parametrize("case", ["missing", "damaged", "truth of another kind", "port in use", "reference alone"])
+@pytest.mark.parametrize("case", ["missing", "damaged", "truth of another kind", "port in use", "reference alone",
+                                  "bad table"])
 def test_bad_input_is_one_line_and_exit_2_before_serving(files, tmp_path, capsys, case):
     damaged = tmp_path / "damaged.onnx"
     damaged.write_bytes(files.spectral.read_bytes()[:-200])
+    table = tmp_path / "table.csv"
+    table.write_text("theta_i,phi_i,theta_o,phi_o,R,G,B\n30,0,30,180,0.1,0.2,nan\n")
     args = {"missing": [str(tmp_path / "nothing.onnx")],
             "damaged": [str(damaged)],
             "truth of another kind": [str(files.spectral), "--truth", str(files.glossy)],
-            "reference alone": [str(files.spectral), "--reference", str(files.table)]}
+            "reference alone": [str(files.spectral), "--reference", str(files.table)],
+            "bad table": [str(files.spectral), "--table", str(table)]}
     expected = {"missing": "nothing.onnx: no such ONNX model file", "damaged": "damaged.onnx: not an ONNX model",
                 "truth of another kind": "glossy.onnx: is a model of kind 'nlb'; a truth must be kind 'reference'",
-                "port in use": "cannot listen on 127.0.0.1 port", "reference alone": "--reference goes with"}
+                "port in use": "cannot listen on 127.0.0.1 port", "reference alone": "--reference goes with",
+                "bad table": "table.csv, line 2"}
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
         taken.listen()

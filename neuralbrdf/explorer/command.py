@@ -42,7 +42,8 @@ def read_measurement(table: str, reference: str | None):
 
 
 def run(args) -> int:
-    """Check the files, bind, print the address, serve until Ctrl-C."""
+    """Check the files, bind, print the address, serve until Ctrl-C (exit 0; 130 when Ctrl-C comes
+    while the files are still being checked)."""
     import sys
 
     from neuralbrdf.errors import InputError
@@ -51,8 +52,12 @@ def run(args) -> int:
 
     if args.reference is not None and args.table is None:
         raise InputError("--reference goes with a GCMS raw --table", column="--reference")
-    table = read_measurement(args.table, args.reference) if args.table is not None else None
-    scene = open_scene(args.models, args.truth, table, args.table)
+    try:
+        table = read_measurement(args.table, args.reference) if args.table is not None else None
+        scene = open_scene(args.models, args.truth, table, args.table)
+    except KeyboardInterrupt:  # Ctrl-C while the files are checked: nothing was served
+        print("neuralbrdf view: interrupted", file=sys.stderr)
+        return 130
     viewer = Viewer(scene, args.host, args.port)
     try:
         print(f"serving {viewer.url}", flush=True)

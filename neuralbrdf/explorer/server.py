@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import errno
 import json
+import socket
+import socketserver
 import sys
 import threading
 import time
@@ -55,7 +57,14 @@ class _Server(ThreadingHTTPServer):
         self.scene = scene
         self.files = {path: ((STATIC / name).read_bytes(), kind) for path, (name, kind) in PAGE_FILES.items()}
         self.files[PLOTLY_PATH] = (plotly_js(), "text/javascript; charset=utf-8")
+        self.address_family = socket.AF_INET6 if ":" in address[0] else socket.AF_INET
         super().__init__(address, _Handler)
+
+    def server_bind(self) -> None:
+        """Bind without :class:`~http.server.HTTPServer`'s reverse name lookup of the host (a DNS query
+        that can hang on a machine without a network)."""
+        socketserver.TCPServer.server_bind(self)
+        self.server_name, self.server_port = self.server_address[:2]
 
 
 class _Handler(BaseHTTPRequestHandler):
