@@ -296,8 +296,10 @@ function squareAxes(text) {
   return {title: {text}, range: [-90, 90], dtick: 30, zeroline: false, constrain: "domain"};
 }
 
+// Small charts of one row share their colour scale: it is drawn beside the last one only (a colour
+// bar costs about as much to draw as its chart), in a right margin every chart keeps alike.
 function smallLayout(heading, axes) {
-  return {font: FONT, margin: {t: 30, r: 10, b: 46, l: 54}, title: title(heading), showlegend: false,
+  return {font: FONT, margin: {t: 30, r: 96, b: 46, l: 54}, title: title(heading), showlegend: false,
           xaxis: axes.x, yaxis: {...axes.y, scaleanchor: "x", constrain: "domain"}, images: []};
 }
 
@@ -341,6 +343,7 @@ function drawHemisphere(payload) {
     } else {
       traces.push({type: "heatmap", x: payload.axis, y: payload.axis, z: map.z, zmin: payload.zrange[0],
                    zmax: payload.zrange[1], colorscale: "Viridis", hoverongaps: false,
+                   showscale: k === payload.maps.length - 1,
                    colorbar: {title: {text: `log₁₀ ${state.cosine === "f_cos" ? "f·cos θi" : "f"} (sr⁻¹)`, side: "right"},
                               thickness: 12},
                    hovertemplate: "%{x:.0f}°, %{y:.0f}°: 10^%{z:.2f} sr⁻¹<extra></extra>"});
@@ -436,6 +439,7 @@ function drawRatios(container, payload, axes, hover) {
   const divs = plotGrid(container, payload.diffs.length);
   return payload.diffs.map((diff, k) => Plotly.react(divs[k], [{
     type: "heatmap", x: payload.axis, y: payload.axis, z: diff.z, hoverongaps: false, ...RATIO,
+    showscale: k === payload.diffs.length - 1,
     hovertemplate: `${hover}: %{z:+.2f} decades<extra></extra>`}], smallLayout(`${diff.label} against the truth`, axes),
     SMALL));
 }
@@ -449,7 +453,7 @@ function drawHalfdiff(payload) {
   const value = state.cosine === "f_cos" ? "f·cos θi" : "f";
   return Promise.all([
     ...payload.maps.map((map, k) => Plotly.react(maps[k], heat(map.z, {
-      zmin: payload.zrange[0], zmax: payload.zrange[1], colorscale: "Viridis",
+      zmin: payload.zrange[0], zmax: payload.zrange[1], colorscale: "Viridis", showscale: k === payload.maps.length - 1,
       colorbar: {thickness: 12, title: {text: `log₁₀ ${value} (sr⁻¹)`, side: "right"}},
       hovertemplate: "θh %{x:.1f}°, θd %{y:.1f}°: 10^%{z:.2f} sr⁻¹<extra></extra>"}),
       smallLayout(`${nameOf(map.label)}, φd = ${state.phi_d}°`, axes), SMALL)),
@@ -476,7 +480,7 @@ function drawSphere(payload) {
     ...payload.diffs.map((diff, k) => {
       const deltaE = diff.kind === "delta_e2000";
       const trace = {type: "heatmap", x: payload.axis, y: payload.axis, z: diff.z, hoverongaps: false,
-                     ...(deltaE ? {zmin: 0, zmax: scene.delta_e_max, colorscale: MAGMA,
+                     showscale: k === payload.diffs.length - 1, ...(deltaE ? {zmin: 0, zmax: scene.delta_e_max, colorscale: MAGMA,
                                    colorbar: {thickness: 12, title: {text: "CIEDE2000 ΔE", side: "right"}},
                                    hovertemplate: "ΔE %{z:.2f}<extra></extra>"}
                                 : {...RATIO, hovertemplate: "%{z:+.2f} decades<extra></extra>"})};
