@@ -45,18 +45,20 @@ import numpy as np
 
 from neuralbrdf.errors import InputError
 from neuralbrdf.evaluation.images import delta_e2000_map, displayed
-from neuralbrdf.geometry import spherical_to_vector
 from neuralbrdf.explorer import grids
 from neuralbrdf.explorer.measured import Measured
 from neuralbrdf.explorer.models import CHANNELS, ViewedModel
+from neuralbrdf.geometry import spherical_to_vector
+
+#: How the page names each channel (:data:`~neuralbrdf.explorer.models.CHANNELS`).
+CHANNEL_LABELS = {"wavelength": "f at λ", "Y": "luminance Y", "R": "red", "G": "green", "B": "blue"}
 
 #: The page's controls: ``name -> (label, unit, low, high, step)`` for numbers, ``(label, choices)``
 #: for choices, each choice ``(value, label)``.
 CONTROLS: dict[str, tuple] = {
     "theta_i": ("θi, incident polar angle", "°", 0.0, 89.0, 1.0),
     "wavelength": ("λ, wavelength", "nm", 360.0, 830.0, 5.0),
-    "channel": ("quantity", (("wavelength", "f at λ"), ("Y", "luminance Y"), ("R", "red"), ("G", "green"),
-                             ("B", "blue"))),
+    "channel": ("quantity", tuple((channel, CHANNEL_LABELS[channel]) for channel in CHANNELS)),
     "cosine": ("value", (("f", "f"), ("f_cos", "f · cos θi"))),
     "plane_phi": ("φ, slice plane's azimuth from the plane of incidence", "°", 0.0, 180.0, 5.0),
     "hemisphere": ("map shows", (("value", "log₁₀ value"), ("colour", "colour (hue)"))),
@@ -254,9 +256,7 @@ class Scene:
                         "theta_i": self.measured.incident_angles()}
         return {"sources": [s.describe() for s in self.sources], "measured": measured,
                 "controls": self.controls(), "views": {name: list(deps) for name, deps in VIEWS.items()},
-                "delta_e_max": DELTA_E_MAX, "log_decades": LOG_DECADES,
-                "grids": {"hemisphere": grids.HEMISPHERE_SIZE, "sphere": grids.SPHERE_SIZE,
-                          "lobe": list(grids.LOBE_SHAPE), "halfdiff": grids.HALF_DIFF_SIZE}}
+                "delta_e_max": DELTA_E_MAX}
 
     def view(self, name: str, state: State, known: str | None = None) -> dict:
         """The payload of view ``name`` at ``state`` (from the cache when it was computed before), with
