@@ -7,7 +7,7 @@ samples, and their deployment to ONNX and Mitsuba 3.  Conventions are those of d
 and are implemented in :mod:`neuralbrdf.geometry`.
 
 The Python API (:mod:`neuralbrdf.api`) is here at the top level: :func:`read`, :func:`fit`,
-:func:`export`, :func:`load`, :func:`truth`, :func:`evaluate`, :func:`render_image` (``render`` is
+:func:`export`, :func:`load`, :func:`truth`, :func:`evaluate`, :func:`render_image`, :func:`view` (``render`` is
 the rendering subpackage, :mod:`neuralbrdf.render`).  Its names are imported on first use, so
 ``import neuralbrdf`` stays light (no PyTorch, no Mitsuba).
 """
@@ -18,14 +18,14 @@ __version__ = "0.1.0"
 
 #: Names of :mod:`neuralbrdf.api` offered here, and the error types a caller catches.
 _API = ("FIT_KINDS", "FitResult", "Model", "RenderFailed", "Source", "evaluate", "export", "fit", "load", "read",
-        "render_image", "truth")
+        "render_image", "truth", "view")
 _ERRORS = ("EnvironmentFailure", "FitFailed", "InputError", "Interrupted")
 
 __all__ = [*_API, *_ERRORS]
 
 if TYPE_CHECKING:
     from neuralbrdf.api import (FIT_KINDS, FitResult, Model, RenderFailed, Source, evaluate, export, fit, load,
-                                read, render_image, truth)
+                                read, render_image, truth, view)
     from neuralbrdf.errors import EnvironmentFailure, FitFailed, InputError, Interrupted
 
 

@@ -226,3 +226,24 @@ def reflect(w):
     """Mirror direction of ``w`` about the normal: ``(-x, -y, z)``."""
     xp = array_namespace_of(w)
     return _stack3(xp, -w[..., 0], -w[..., 1], w[..., 2])
+
+
+def half_diff_to_vectors(theta_h_deg, theta_d_deg, phi_d_deg, phi_h_deg=0.0):
+    """``(wi, wo)`` of Rusinkiewicz angles (degrees): the inverse of :func:`half_diff_angles`.
+
+    ``d = (sin θd cos φd, sin θd sin φd, cos θd)`` is rotated by ``θh`` about ``y`` and then by
+    ``φh`` about ``z`` to give ``wi``; ``wo`` is ``wi`` mirrored about ``h``.  With the default
+    ``φh = 0`` this is the θh–θd image of MERL and the BRDF Explorer (at ``φd = 90°`` both
+    directions stay above the horizon for every ``θh, θd < 90°``).
+    """
+    xp = array_namespace_of(theta_h_deg, theta_d_deg, phi_d_deg, phi_h_deg)
+    phi_h_deg = phi_h_deg + 0.0 * theta_h_deg  # a number becomes an array of the angles' namespace
+    d = spherical_to_vector(theta_d_deg, phi_d_deg)
+    h = spherical_to_vector(theta_h_deg, phi_h_deg)
+    ch, sh = xp.cos(theta_h_deg * DEG), xp.sin(theta_h_deg * DEG)
+    x1 = ch * d[..., 0] + sh * d[..., 2]  # rotate by +θh about y
+    z1 = -sh * d[..., 0] + ch * d[..., 2]
+    cp, sp = xp.cos(phi_h_deg * DEG), xp.sin(phi_h_deg * DEG)  # then by +φh about z
+    wi = _stack3(xp, cp * x1 - sp * d[..., 1], sp * x1 + cp * d[..., 1], z1)
+    wo = 2.0 * dot(wi, h)[..., None] * h - wi
+    return wi, wo

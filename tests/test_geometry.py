@@ -151,3 +151,25 @@ def test_torch_and_numpy_agree_and_torch_differentiates():
     np.testing.assert_allclose(out[0].detach().numpy(), ref[0], atol=1e-9)
     out[0].sum().backward()
     assert torch.isfinite(t_ti.grad).all()
+
+
+def test_half_diff_to_vectors_inverts_half_diff_angles():
+    rng = np.random.default_rng(3)
+    theta_h, theta_d = rng.uniform(1, 89, 500), rng.uniform(1, 89, 500)
+    phi_d, phi_h = rng.uniform(1, 359, 500), rng.uniform(1, 359, 500)
+    wi, wo = g.half_diff_to_vectors(theta_h, theta_d, phi_d, phi_h)
+    np.testing.assert_allclose(np.linalg.norm(wi, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(wo, axis=1), 1.0, atol=1e-12)
+    back = g.half_diff_angles(wi, wo)
+    for got, want in zip(back, (theta_h, phi_h, theta_d, phi_d)):
+        np.testing.assert_allclose(got, want, atol=1e-8)
+
+
+def test_half_diff_to_vectors_at_phi_d_90_stays_above_the_horizon_and_in_plane_at_0():
+    theta_h, theta_d = (a.ravel() for a in np.meshgrid(np.linspace(0.5, 89.5, 90), np.linspace(0.5, 89.5, 90)))
+    wi, wo = g.half_diff_to_vectors(theta_h, theta_d, np.full_like(theta_h, 90.0))
+    assert np.all(wi[:, 2] > 0) and np.all(wo[:, 2] > 0)
+    wi, wo = g.half_diff_to_vectors(np.array([10.0]), np.array([30.0]), np.array([0.0]))  # in plane: ti = 40, tr = 20
+    ref_i, ref_o = g.inplane_to_vectors(np.array([40.0]), np.array([20.0]))
+    np.testing.assert_allclose(wi, ref_i, atol=1e-12)
+    np.testing.assert_allclose(wo, ref_o, atol=1e-12)

@@ -26,6 +26,7 @@ FLOORS = (
     {"kinds"},
     {"onnx_export", "render"},
     {"evaluation"},
+    {"explorer"},
     {"lightning"},
     {"study", "lod", "exporting", "cli", "api", "__main__"},
 )

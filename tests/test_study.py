@@ -11,6 +11,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
+from browser import CHROMIUM, chromium_command
 
 from neuralbrdf.cli.main import main as cli
 from neuralbrdf.errors import InputError
@@ -23,7 +24,6 @@ from neuralbrdf.shipped import resolve_pretrained
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "tests" / "data" / "study_tiny.yaml"
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 
 
 def _write(tmp_path: Path, text: str) -> Path:
@@ -509,10 +509,9 @@ def check_in_browser(out_dir: Path) -> dict:
         probe = Path(scratch) / "probe.html"
         probe.write_text(page.replace("<head>", "<head>" + base + PROBE, 1), encoding="utf-8")
         run = subprocess.run(
-            [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-             "--disable-component-update", "--disable-sync", "--no-first-run", f"--user-data-dir={scratch}/profile",
-             "--allow-file-access-from-files", "--hide-scrollbars", f"--window-size={PAGE_WIDTH_PX},1000",
-             "--enable-logging=stderr", "--v=0", "--virtual-time-budget=20000", "--dump-dom", probe.as_uri()],
+            chromium_command(Path(scratch) / "profile", "--allow-file-access-from-files",
+                             f"--window-size={PAGE_WIDTH_PX},1000", "--enable-logging=stderr", "--v=0",
+                             "--virtual-time-budget=20000", "--dump-dom", probe.as_uri()),
             capture_output=True, text=True, timeout=180)
     found = re.search(r'<pre id="probe">(.*?)</pre>', run.stdout, re.S)
     assert found, run.stderr[-2000:]

@@ -20,6 +20,7 @@ from neuralbrdf.errors import (ENVIRONMENT_ERRNOS, EXIT_BAD_INPUT, EXIT_ENVIRONM
                                InputError, error_line, exit_status)
 from neuralbrdf.render import DEFAULT_VARIANT
 from neuralbrdf.study import command as study_command
+from neuralbrdf.explorer import command as explorer_command
 
 EPILOG = (
     "Conventions: angles in degrees. GCMS raw files hold signed in-plane angles theta_i, theta_r "
@@ -253,6 +254,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--spp", type=int, default=None, help="starting samples per pixel, raised for noise (config: select.spp)")
     p.add_argument("--max-spp", type=int, default=None, help="largest samples per pixel (config: select.max_spp)")
     p.add_argument("--seed", type=int, default=None, help="first render seed (config: select.seed)")
+
+    explorer_command.add_arguments(add("view", explorer_command.run, explorer_command.HELP, explorer_command.DESCRIPTION))
 
     p = add(
         "regenerate-default-data",

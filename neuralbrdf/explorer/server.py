@@ -1,0 +1,175 @@
+"""The viewer's local web server: one page, plotly.js, and the views as JSON (the standard library's
+:class:`http.server.ThreadingHTTPServer`; nothing is fetched from the internet).
+
+=====================  ==================================================================
+path                   answer
+=====================  ==================================================================
+``/``                  the page (``static/index.html``, ``viewer.js``, ``viewer.css``)
+``/plotly.min.js``     plotly.js as the ``plotly`` Python package ships it
+``/api/scene``         the sources, the measurement, the controls and what each view depends on
+``/api/views``         ``?views=NAME,...&CONTROL=VALUE...[&known=NAME:KEY,...]``: those views at
+                       that state, each with its key and the server's time to compute it
+                       (``server_ms``); ``{"unchanged": true}`` for a view whose key is known
+=====================  ==================================================================
+
+A bad query is answered with status 400 and ``{"error": ONE LINE}``.  The server binds to
+``127.0.0.1`` unless told otherwise; port 0 asks the system for a free port.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import socket
+import socketserver
+import sys
+import threading
+import time
+from http import HTTPStatus
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from importlib import resources
+from pathlib import Path
+from urllib.parse import parse_qsl, urlsplit
+
+from neuralbrdf.errors import InputError, one_line
+from neuralbrdf.explorer.views import Scene
+
+STATIC = Path(__file__).with_name("static")
+#: Files of the page: URL path -> (file under ``static/``, content type).
+PAGE_FILES = {
+    "/": ("index.html", "text/html; charset=utf-8"),
+    "/viewer.js": ("viewer.js", "text/javascript; charset=utf-8"),
+    "/viewer.css": ("viewer.css", "text/css; charset=utf-8"),
+}
+PLOTLY_PATH = "/plotly.min.js"
+DEFAULT_HOST = "127.0.0.1"
+
+
+def plotly_js() -> bytes:
+    """The plotly.js bundle shipped inside the ``plotly`` package (for offline use)."""
+    return (resources.files("plotly") / "package_data" / "plotly.min.js").read_bytes()
+
+
+class _Server(ThreadingHTTPServer):
+    daemon_threads = True  # a browser's open connections never keep the process alive
+
+    def __init__(self, address, scene: Scene) -> None:
+        self.scene = scene
+        self.files = {path: ((STATIC / name).read_bytes(), kind) for path, (name, kind) in PAGE_FILES.items()}
+        self.files[PLOTLY_PATH] = (plotly_js(), "text/javascript; charset=utf-8")
+        self.address_family = socket.AF_INET6 if ":" in address[0] else socket.AF_INET
+        super().__init__(address, _Handler)
+
+    def server_bind(self) -> None:
+        """Bind without :class:`~http.server.HTTPServer`'s reverse name lookup of the host (a DNS query
+        that can hang on a machine without a network)."""
+        socketserver.TCPServer.server_bind(self)
+        self.server_name, self.server_port = self.server_address[:2]
+
+
+class _Handler(BaseHTTPRequestHandler):
+    server: _Server
+
+    def do_GET(self) -> None:  # noqa: N802 (the standard library's name)
+        try:
+            self._answer(urlsplit(self.path))
+        except (BrokenPipeError, ConnectionResetError):  # the page went away: nobody to answer
+            pass
+        except Exception as error:  # a defect: one line to the terminal and to the page, never a traceback
+            print(f"neuralbrdf view: error: {self.path}: {one_line(error)}", file=sys.stderr, flush=True)
+            self._json(HTTPStatus.INTERNAL_SERVER_ERROR, {"error": one_line(error)})
+
+    def _answer(self, url) -> None:
+        if url.path in self.server.files:
+            body, kind = self.server.files[url.path]
+            self._send(HTTPStatus.OK, body, kind, cache=url.path == PLOTLY_PATH)
+        elif url.path == "/api/scene":
+            self._json(HTTPStatus.OK, self.server.scene.describe())
+        elif url.path == "/api/views":
+            try:
+                self._json(HTTPStatus.OK, self._views(dict(parse_qsl(url.query))))
+            except InputError as error:
+                self._json(HTTPStatus.BAD_REQUEST, {"error": str(error)})
+        else:
+            self._json(HTTPStatus.NOT_FOUND, {"error": f"no such page {url.path!r}"})
+
+    def _views(self, query: dict[str, str]) -> dict:
+        scene = self.server.scene
+        state = scene.defaults.updated(query)
+        known = dict(entry.split(":", 1) for entry in query.get("known", "").split(",") if ":" in entry)
+        answer = {}
+        for name in filter(None, query.get("views", "").split(",")):
+            start = time.perf_counter()
+            payload = dict(scene.view(name, state, known.get(name)))
+            payload["server_ms"] = round(1e3 * (time.perf_counter() - start), 2)
+            answer[name] = payload
+        return {"views": answer}
+
+    def _json(self, status: HTTPStatus, payload: dict) -> None:
+        self._send(status, json.dumps(payload, allow_nan=False).encode("utf-8"), "application/json")
+
+    def _send(self, status: HTTPStatus, body: bytes, kind: str, cache: bool = False) -> None:
+        self.send_response(status)
+        self.send_header("Content-Type", kind)
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Cache-Control", "max-age=86400" if cache else "no-store")
+        self.end_headers()
+        self.wfile.write(body)
+
+    def log_message(self, format, *args) -> None:  # noqa: A002 (the standard library's signature)
+        """Requests are not logged: the terminal shows only the address and the stop."""
+
+
+class Viewer:
+    """A running viewer of ``scene`` at :attr:`url`: :meth:`serve_forever` in the calling thread
+    (the command line), or :meth:`start` in a background thread (Python), then :meth:`stop`."""
+
+    def __init__(self, scene: Scene, host: str = DEFAULT_HOST, port: int = 0) -> None:
+        if not 0 <= port <= 65535:
+            raise InputError(f"expected a port from 0 to 65535 (0: a free one), got {port}", column="--port")
+        try:
+            self._server = _Server((host, port), scene)
+        except OSError as error:
+            reason = "the port is in use (0 picks a free one)" if error.errno == errno.EADDRINUSE else (
+                error.strerror or str(error))
+            raise InputError(f"cannot listen on {host} port {port}: {reason}", column="--port") from None
+        self.scene = scene
+        self._thread: threading.Thread | None = None
+
+    @property
+    def address(self) -> tuple[str, int]:
+        """``(host, port)`` the socket is bound to."""
+        return self._server.server_address[:2]
+
+    @property
+    def url(self) -> str:
+        host, port = self.address
+        return f"http://{f'[{host}]' if ':' in host else host}:{port}/"
+
+    def serve_forever(self) -> None:
+        """Answer requests until :meth:`stop` (from another thread) or an exception (Ctrl-C)."""
+        self._server.serve_forever()
+
+    def start(self) -> Viewer:
+        """Answer requests in a background thread; returns at once."""
+        if self._thread is None:
+            self._thread = threading.Thread(target=self.serve_forever, name="neuralbrdf-view", daemon=True)
+            self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop answering and close the socket."""
+        if self._thread is not None:
+            self._server.shutdown()
+            self._thread.join()
+            self._thread = None
+        self._server.server_close()
+
+    def __enter__(self) -> Viewer:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def __repr__(self) -> str:
+        return f"Viewer({self.url!r}, {len(self.scene.sources)} sources)"
