@@ -146,7 +146,7 @@ def format_table(rows: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], allow_abbrev=False)
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "accuracy.json"))
     parser.add_argument("--work-dir", default=str(ROOT / "out" / "accuracy"))
     parser.add_argument("--quick", action="store_true")

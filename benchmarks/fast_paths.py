@@ -168,7 +168,7 @@ def mosaic(rows: list[tuple[str, np.ndarray, np.ndarray]], title: str, path: Pat
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], allow_abbrev=False)
     parser.add_argument("--work-dir", default=str(ROOT / "out" / "fast_paths"), help="models and logs (kept; reused)")
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "fast_paths.json"))
     parser.add_argument("--resolution", type=int, default=128)

@@ -87,7 +87,7 @@ def summarise(rows: list[dict], abc: dict | None) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], allow_abbrev=False)
     parser.add_argument("--checkpoints", default="nlb_latent32_blends,nlb_compact")
     parser.add_argument("--weights", default="0,0.001,0.003,0.01,0.03,0.1,1")
     parser.add_argument("--codes", default="all", choices=("measured", "all"), help="model.latent_prior_codes")

@@ -39,7 +39,7 @@ SCENE = ROOT / "export" / "scenes" / "lod_demo.xml"
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], allow_abbrev=False)
     parser.add_argument("--variant", default="llvm_ad_spectral")
     parser.add_argument("--out-dir", default=None)
     parser.add_argument("--resolution", type=int, default=128, help="width of the target renders (default 128)")

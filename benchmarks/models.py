@@ -299,7 +299,7 @@ def _print_nlb(results: dict) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], allow_abbrev=False)
     parser.add_argument("--quick", action="store_true", help="short runs: a smoke test, not the benchmark")
     parser.add_argument("--out", default=str(REPO / "benchmarks" / "models.json"), help="JSON output")
     parser.add_argument("--pretrain-run", help="run directory of the pretraining (wall time, validation curve)")

@@ -130,7 +130,7 @@ def print_table(results: dict) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], allow_abbrev=False)
     parser.add_argument("--bsdf", default=str(DEFAULT_FILE), help="the RGL measurement (default: the shared file)")
     parser.add_argument("--plans", default="DS1,DS3")
     parser.add_argument("--spp", type=int, default=64)

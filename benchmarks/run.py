@@ -456,7 +456,7 @@ def run(quick: bool, out: Path, repeats: int | None = None) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="benchmarks/run.py", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="benchmarks/run.py", description=__doc__.split("\n\n")[0], allow_abbrev=False)
     parser.add_argument("--quick", action="store_true", help="tiny scene, 2 epochs, short distillations (smoke test)")
     parser.add_argument("--repeats", type=int, default=None, help="timed renders per configuration (default 5; quick 2)")
     parser.add_argument("--out", default=str(ROOT / "benchmarks" / "results.json"), help="JSON results file")

@@ -237,7 +237,7 @@ def print_table(results: dict) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], allow_abbrev=False)
     parser.add_argument("--groups", default="rgl_validation,report,merl_held_out",
                         help=f"comma-separated, of {', '.join(GROUPS)}")
     parser.add_argument("--plans", default="DS1")

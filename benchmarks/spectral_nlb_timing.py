@@ -65,7 +65,7 @@ def fit_seconds(work: Path, method: str, tables: list[Path], label: str) -> floa
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], allow_abbrev=False)
     parser.add_argument("--batch", type=int, default=100, help="materials in the batched fits")
     parser.add_argument("--work", default=str(REPO / "runs" / "spectral_nlb_timing"))
     parser.add_argument("--out", default=str(REPO / "benchmarks" / "spectral_nlb_timing.json"))

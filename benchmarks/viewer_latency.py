@@ -171,7 +171,7 @@ def page_times(files: dict[str, Path], moves: int) -> dict:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], allow_abbrev=False)
     parser.add_argument("--work-dir", type=Path, default=ROOT / "out" / "viewer_latency")
     parser.add_argument("--moves", type=int, default=6)
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "viewer_latency.json")

@@ -850,7 +850,7 @@ def build() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], allow_abbrev=False)
     parser.add_argument("--check", action="store_true", help="exit 1 if docs/results.md differs from what is built")
     args = parser.parse_args(argv)
     readme = README.read_text(encoding="utf-8")

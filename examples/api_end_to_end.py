@@ -20,7 +20,7 @@ import neuralbrdf as nb
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], allow_abbrev=False)
     parser.add_argument("--out-dir", default="out/api", help="output folder (default out/api)")
     parser.add_argument("--quick", action="store_true", help="one epoch, no RGB head, 16-pixel renders at 2 spp")
     args = parser.parse_args(argv)

@@ -1,5 +1,6 @@
 """The ``neuralbrdf`` command line end to end: outputs, help, exit codes, atomic writes."""
 
+import re
 import csv
 import subprocess
 import sys
@@ -11,6 +12,8 @@ import pytest
 from neuralbrdf.cli.main import main
 from neuralbrdf.data.gcms import read_gcms
 from neuralbrdf.data.table import read_table
+
+ROOT = Path(__file__).resolve().parents[1]
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 NBRDF_DIR = SHARED_DATA / "merl-nbrdf"
@@ -213,3 +216,23 @@ def test_the_exit_statuses_are_documented_as_the_code_gives_them():
     assert errors.exit_status(errors.InputError("x")) == 2
     assert errors.exit_status(errors.EnvironmentFailure("x")) == 3
     assert errors.exit_status(errors.FitFailed("x")) == 1
+
+
+SCRIPTS_WITH_OPTIONS = sorted((ROOT / "benchmarks").glob("*.py")) + [ROOT / "docs" / "make_results.py",
+                                                                     *sorted((ROOT / "examples").glob("*.py"))]
+
+
+@pytest.mark.parametrize("script", SCRIPTS_WITH_OPTIONS, ids=lambda p: p.relative_to(ROOT).as_posix())
+def test_every_script_parser_refuses_abbreviations(script):
+    """The benchmark, docs and example scripts took ``--ou`` for ``--out`` like the commands once did:
+    every argument parser they build is made with ``allow_abbrev=False``."""
+    source = script.read_text(encoding="utf-8")
+    calls = re.findall(r"argparse\.ArgumentParser\((.*?)\)\n", source)
+    assert all("allow_abbrev=False" in call for call in calls), (script, calls)
+
+
+def test_a_script_refuses_an_abbreviated_option():
+    """docs/make_results.py --chec: refused by argparse (exit 2), not taken for --check."""
+    result = subprocess.run([sys.executable, str(ROOT / "docs" / "make_results.py"), "--chec"],
+                            capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert result.returncode == 2 and "unrecognized arguments: --chec" in result.stderr, result.stderr
