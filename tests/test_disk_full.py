@@ -131,6 +131,8 @@ def inputs(tmp_path_factory):
     write_lambert(folder / "lambert.onnx")
     assert cli(["simulate", "--material", "gold", "--plan", "DS2", "--truth", "--out", str(folder / "t.csv")]) == 0
     assert cli(["export-truth", "virtual:gold", "--out", str(folder / "gold.onnx")]) == 0
+    for material in ("gold", "munsell_n9"):  # a raw measurement and its white reference, to calibrate
+        assert cli(["simulate", "--material", material, "--plan", "DS2", "--out", str(folder / f"{material}.csv")]) == 0
     threads = torch.get_num_threads()
     assert train(["fit", "--config", "abc", "--data.path", str(folder / "t.csv"), "--run_dir", str(folder / "abc"),
                   "--model.n_starts", "1", "--data.eval_plan", "null", "--trainer.enable_progress_bar", "false"]) == 0
@@ -144,6 +146,9 @@ COMMANDS = {
     "to-rgb": (["to-rgb", "{inputs}/t.csv", "--out", "{disk}/rgb.csv"], "rgb.csv"),
     "plot": (["plot", "{inputs}/t.csv", "--out", "{disk}/plot.png"], "plot.png"),
     "export-truth": (["export-truth", "virtual:gold", "--out", "{disk}/truth.onnx"], "truth.onnx"),
+    "sample": (["sample", "virtual:gold", "--plan", "DS2", "--out", "{disk}/sampled.csv"], "sampled.csv"),
+    "calibrate": (["calibrate", "{inputs}/gold.csv", "--reference", "{inputs}/munsell_n9.csv", "--out",
+                   "{disk}/calibrated.csv"], "calibrated.csv"),
     "evaluate": (["evaluate", "{inputs}/lambert.onnx", "--truth", "{inputs}/lambert.onnx", "--out-dir", "{disk}/eval",
                   "--no-render"], "eval/evaluation.json"),
     "export": (["export", "--ckpt", "{inputs}/abc/checkpoints/best.ckpt", "--out", "{disk}/abc.onnx", "--no-rgb-head"],

@@ -137,13 +137,18 @@ KINDS = {
     "abc": ["--model.n_starts", "1", "--data.eval_plan", "null"],
     "nlb_spectral": ["--trainer.max_epochs", "1", "--data.steps_per_epoch", "2", "--data.eval_plan", "null",
                      "--model.init_starts", "1", "--model.init_candidates", "0"],
+    "nlb_latent": ["--trainer.max_epochs", "1", "--data.steps_per_epoch", "2", "--data.eval_plan", "null"],
 }
+#: The RGB NLB reads linear sRGB tables only.
+RGB_ONLY = {"nlb_latent"}
 
 
 @pytest.mark.parametrize("kind", KINDS)
 def test_an_all_zero_table_is_refused_for_every_model(gold, tmp_path, capsys, kind):
     """The spectral NLB fitted it with status "ok": a model of nothing."""
-    zeros = _changed(gold, "zeros", values=np.zeros_like(read_table(gold).values))
+    table = read_table(gold).to_rgb() if kind in RGB_ONLY else read_table(gold)
+    zeros = gold.parent / f"zeros_{kind}.csv"
+    write_table(dataclasses.replace(table, values=np.zeros_like(table.values)), zeros)
     line = refused(["fit", "--config", kind, "--data.path", str(zeros), *KINDS[kind]], tmp_path, capsys)
     assert line == (f"{zeros}: every BRDF value is 0 (185 rows): there is nothing to fit; check that the values are "
                     "the sample's (not an empty export, a dark frame or the wrong columns)")

@@ -166,8 +166,9 @@ def test_a_second_study_on_a_folder_in_use_is_refused_at_once(tmp_path, fake, ca
 
 
 def test_a_worker_still_running_its_cell_keeps_the_folder_locked(tmp_path):
-    """A study killed mid-cell: its worker finishes the cell (its result is kept) and, until it ends,
-    no new study can clear the cell it is writing."""
+    """A worker that outlives its study's own descriptor (the study process gone, the worker not yet
+    ended by the parent-death signal) still holds the folder's lock: until it ends, no new study can
+    clear the cell it is writing."""
     release = tmp_path / "release"
     waits = f"import os, sys, time\nsys.stdin.readline()\nwhile not os.path.exists({str(release)!r}): time.sleep(0.05)\n"
     with folder_lock(tmp_path / "study", "study") as lock:

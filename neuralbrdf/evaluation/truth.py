@@ -67,8 +67,8 @@ REFERENCE_KIND = "reference"
 #: (RGB) or 12 MB (spectral) of float32 in the ``.onnx`` file.
 RGL_TABLE_NODES = (90, 45, 24)
 #: ``(cos θ, φ)`` strata of the pairs on which the resampling is checked against the plugin:
-#: (10 · 14)² = 19 600 pairs of :func:`~neuralbrdf.evaluation.scores.hemisphere_pairs`.
-RESAMPLING_STRATA = (10, 14)
+#: (10 · 15)² = 22 500 pairs of :func:`~neuralbrdf.evaluation.scores.hemisphere_pairs`.
+RESAMPLING_STRATA = (10, 15)
 #: Metadata entries of a resampled measurement (the ``reference`` kind's own, ``neuralbrdf.reference.*``).
 RESAMPLING_LOGCOS_KEY = kind_key(REFERENCE_KIND, "resampling_logcos_rmse")
 RESAMPLING_MEDIAN_KEY = kind_key(REFERENCE_KIND, "resampling_median_rel_error")
