@@ -122,15 +122,27 @@ def virtual_measurement(material: str, plan: str, noise: float, seed: int, refer
     return calibrate(sample, reference)
 
 
+#: The files a material is sampled from, by their source key: how one is loaded (the result has a
+#: ``name``) and how it is sampled on a plan.
+SAMPLED_SOURCES = {
+    "nbrdf": (NbrdfNetwork.load, sample_plan),
+    "merl": (MerlBrdf.load, sample_merl),
+    "rgl": (RglBsdf.load, sample_rgl),
+}
+
+
+def _sampled_key(path: str | os.PathLike[str]) -> str:
+    suffix = Path(path).suffix
+    return "merl" if suffix == ".binary" else "rgl" if suffix == RGL_SUFFIX else "nbrdf"
+
+
 def sample_file(path: str | os.PathLike[str], plan: str, progress: bool = False) -> BrdfTable:
     """A MERL ``.binary`` measurement, an RGL ``.bsdf`` measurement (spectral or RGB as the file) or an
     NBRDF proxy ``.h5`` (RGB) sampled on ``plan`` (sr⁻¹); ``progress``: a progress bar while a network
     is evaluated."""
-    if Path(path).suffix == ".binary":
-        return sample_merl(MerlBrdf.load(path), plan)
-    if Path(path).suffix == RGL_SUFFIX:
-        return sample_rgl(RglBsdf.load(path), plan)
-    return sample_plan(NbrdfNetwork.load(path), plan, progress=progress)
+    key = _sampled_key(path)
+    load, sample = SAMPLED_SOURCES[key]
+    return sample(load(path), plan, **({"progress": progress} if key == "nbrdf" else {}))
 
 
 def load_material(
@@ -158,24 +170,14 @@ def load_material(
     _check_plan(eval_plan, "data.eval_plan")
     if path is not None:
         return MaterialData(name or Path(path).stem, load_fit_measurement(path, reference, trust_units), None)
-    if nbrdf is not None:
-        network = NbrdfNetwork.load(nbrdf)
-        fit = sample_plan(network, plan)
-        check_signal(fit, nbrdf)
-        truth = None if eval_plan is None else sample_plan(network, eval_plan)
-        return MaterialData(name or network.name, fit, truth)
-    if merl is not None:
-        brdf = MerlBrdf.load(merl)
-        fit = sample_merl(brdf, plan)
-        check_signal(fit, merl)
-        truth = None if eval_plan is None else sample_merl(brdf, eval_plan)
-        return MaterialData(name or brdf.name, fit, truth)
-    if rgl is not None:
-        measurement = RglBsdf.load(rgl)
-        fit = sample_rgl(measurement, plan)
-        check_signal(fit, rgl)
-        truth = None if eval_plan is None else sample_rgl(measurement, eval_plan)
-        return MaterialData(name or measurement.name, fit, truth)
+    for key, file in (("nbrdf", nbrdf), ("merl", merl), ("rgl", rgl)):
+        if file is not None:
+            load, sample = SAMPLED_SOURCES[key]
+            material = load(file)
+            fit = sample(material, plan)
+            check_signal(fit, file)
+            truth = None if eval_plan is None else sample(material, eval_plan)
+            return MaterialData(name or material.name, fit, truth)
     fit = load_measurement(default_data_path(virtual), default_data_path(REFERENCE_MATERIAL))
     truth = None if eval_plan is None else virtual_truth(virtual, eval_plan)
     return MaterialData(name or virtual, fit, truth)
