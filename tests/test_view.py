@@ -242,8 +242,11 @@ def _listening_address(port: int) -> str | None:
 
 def _start(args: list[str]) -> tuple[subprocess.Popen, str]:
     """``neuralbrdf view ARGS --port 0`` in a subprocess; it and its address (from its first line)."""
+    # SIGINT as a terminal gives it, also where this test was started in the background (a shell
+    # starts background jobs with SIGINT ignored, and Python then installs no handler for it)
     process = subprocess.Popen([sys.executable, "-m", "neuralbrdf", "view", *args, "--port", "0"],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     first = process.stdout.readline()
     found = re.fullmatch(r"serving (http://127\.0\.0\.1:(\d+)/)\n", first)
     if not found:
