@@ -53,8 +53,6 @@ FIT_KINDS: dict[str, str] = {
 }
 #: Source kinds with a ground truth everywhere (not only at measured directions).
 TRUTH_KINDS = ("nbrdf", "merl", "rgl", "virtual")
-#: File suffixes of the sampled sources -> their kind (each sampled on a plan).
-SAMPLED_SUFFIXES = {".h5": "nbrdf", ".json": "nbrdf", ".binary": "merl", ".bsdf": "rgl"}
 VIRTUAL_PREFIX = "virtual:"
 
 
@@ -114,7 +112,9 @@ class Source:
         :mod:`neuralbrdf.sources`)."""
         if self.kind == "virtual":
             return {"virtual": self.location}
-        if self.kind in SAMPLED_SUFFIXES.values():
+        from neuralbrdf.sources import SAMPLED_KEYS
+
+        if self.kind in SAMPLED_KEYS:
             return {self.kind: self.location, "plan": self.plan}
         return {"path": self.location, **({} if self.reference is None else {"reference": self.reference}),
                 **({"trust_units": True} if self.trust_units else {})}
@@ -140,7 +140,7 @@ def read(source: PathLike, reference: PathLike | None = None, *, plan: str | Non
     """
     from neuralbrdf.data.loading import load_measurement
     from neuralbrdf.data.plans import PLAN_NAMES
-    from neuralbrdf.sources import sample_file
+    from neuralbrdf.sources import SAMPLED_SUFFIXES, sample_file
 
     text = os.fspath(_path(source, "source", "a file path or 'virtual:NAME'"))
     if reference is not None:
@@ -226,7 +226,9 @@ def _data_arguments(config: str, source: Source) -> list[str]:
         return [argument for key, value in options.items() for argument in (f"--data.{key}", _option(value))]
     if "sources" in accepted:
         return ["--data.sources", json.dumps([options])]
-    takes = [key for key in ("path", "reference", *dict.fromkeys(SAMPLED_SUFFIXES.values()), "virtual") if key in accepted]
+    from neuralbrdf.sources import SAMPLED_KEYS
+
+    takes = [key for key in ("path", "reference", *SAMPLED_KEYS, "virtual") if key in accepted]
     raise InputError(f"the {Path(config).stem} config's data module takes {', '.join(takes)}; "
                      f"{source.location} is a {source.kind} source")
 

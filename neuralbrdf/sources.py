@@ -46,8 +46,16 @@ from neuralbrdf.virtual.materials import REFERENCE_MATERIAL, get_material
 
 #: Keys naming where a material comes from: exactly one per material.
 SOURCE_KEYS = ("path", "nbrdf", "merl", "rgl", "virtual")
-#: Source keys of files sampled on a plan (``plan`` applies to them).
-SAMPLED_KEYS = ("nbrdf", "merl", "rgl")
+#: The files a material is sampled from, by their source key: how one is loaded (the result has a
+#: ``name``) and how it is sampled on a plan (``plan`` applies to them).
+SAMPLED_SOURCES = {
+    "nbrdf": (NbrdfNetwork.load, sample_plan),
+    "merl": (MerlBrdf.load, sample_merl),
+    "rgl": (RglBsdf.load, sample_rgl),
+}
+SAMPLED_KEYS = tuple(SAMPLED_SOURCES)
+#: File suffixes of the sampled sources -> their source key.
+SAMPLED_SUFFIXES = {".h5": "nbrdf", ".json": "nbrdf", ".binary": "merl", RGL_SUFFIX: "rgl"}
 #: Every key a material source may have.
 MATERIAL_KEYS = (*SOURCE_KEYS, "reference", "plan", "name", "trust_units")
 
@@ -122,25 +130,11 @@ def virtual_measurement(material: str, plan: str, noise: float, seed: int, refer
     return calibrate(sample, reference)
 
 
-#: The files a material is sampled from, by their source key: how one is loaded (the result has a
-#: ``name``) and how it is sampled on a plan.
-SAMPLED_SOURCES = {
-    "nbrdf": (NbrdfNetwork.load, sample_plan),
-    "merl": (MerlBrdf.load, sample_merl),
-    "rgl": (RglBsdf.load, sample_rgl),
-}
-
-
-def _sampled_key(path: str | os.PathLike[str]) -> str:
-    suffix = Path(path).suffix
-    return "merl" if suffix == ".binary" else "rgl" if suffix == RGL_SUFFIX else "nbrdf"
-
-
 def sample_file(path: str | os.PathLike[str], plan: str, progress: bool = False) -> BrdfTable:
     """A MERL ``.binary`` measurement, an RGL ``.bsdf`` measurement (spectral or RGB as the file) or an
     NBRDF proxy ``.h5`` (RGB) sampled on ``plan`` (sr⁻¹); ``progress``: a progress bar while a network
     is evaluated."""
-    key = _sampled_key(path)
+    key = SAMPLED_SUFFIXES.get(Path(path).suffix, "nbrdf")  # any other file: read as an NBRDF proxy, which names it
     load, sample = SAMPLED_SOURCES[key]
     return sample(load(path), plan, **({"progress": progress} if key == "nbrdf" else {}))
 
