@@ -106,6 +106,31 @@ def test_python_scalars_evaluate_like_one_row(files):
     assert value == pytest.approx(float(reference[0][0]), rel=1e-5)
 
 
+@pytest.mark.parametrize("name", ["nlb_like", "op_zoo_spectral"])
+def test_one_graph_serves_plain_and_ad_arrays_in_turn(files, name):
+    """Weights and coefficients become literals of each array type once (drjit_onnx._affine): a graph
+    called with AD, then plain, then AD columns again returns each call's own type (no literal of
+    another type leaks in) and the same values."""
+    from drjit.llvm.ad import Float as AdFloat
+
+    model = load_model(files[name])
+    graph = DrJitGraph.from_model(model)
+
+    def call(array):
+        wavelength = array(WAVELENGTHS) if model.is_spectral else None
+        return graph([array(WI[:, k]) for k in range(3)], [array(WO[:, k]) for k in range(3)], wavelength)
+
+    types = (AdFloat, Float, AdFloat)
+    results = [call(array) for array in types]
+    for columns, array in zip(results, types):
+        assert all(isinstance(c, (float, array)) for c in columns)
+        assert any(isinstance(c, array) for c in columns)
+    for columns in results[1:]:
+        for ours, first in zip(columns, results[0]):
+            if not isinstance(first, float):
+                np.testing.assert_array_equal(ours.numpy(), first.numpy())
+
+
 # --------------------------------------------------------------------------- refusals
 
 

@@ -258,11 +258,12 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
         index = (samples.material + n * torch.arange(n_starts)[:, None]).reshape(-1)
         pre = network.shared_pre_activation(wi, wo, shared.reshape(-1, shared.shape[-1]), index)
         scale, shift = network.film(torch.einsum("ck,snkd->sncd", self._interpolation, nodes))  # [S, n, C, width]
-        if n == 1:
-            scale, shift = (t.expand(-1, len(samples.f), -1, -1).reshape(-1, *t.shape[2:]) for t in (scale, shift))
+        if n == 1:  # broadcast [S, 1, C, width] against [S, N, 1, width]: no per-sample copies
+            log1p_f = network.decode(pre.reshape(n_starts, len(samples.f), 1, -1), scale, shift)
         else:
             scale, shift = (t.reshape(-1, *t.shape[2:])[index] for t in (scale, shift))
-        pred = masked_brdf(wi, wo, network.decode(pre[:, None, :], scale, shift))
+            log1p_f = network.decode(pre[:, None, :], scale, shift)
+        pred = masked_brdf(wi, wo, log1p_f.reshape(len(wi), -1))
         return pred.reshape(n_starts, len(samples.f), -1)
 
     def sample_errors(self, samples: FitSamples, codes: list[torch.Tensor]) -> torch.Tensor:

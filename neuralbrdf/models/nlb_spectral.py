@@ -140,7 +140,9 @@ class SpectralNlbNetwork(nn.Module):
 
     def decode(self, shared_pre: torch.Tensor, scale: torch.Tensor, shift: torch.Tensor) -> torch.Tensor:
         """``ln(1 + f)`` ``[...]`` from ``a_L`` and a channel's FiLM ``(scale, shift)``, broadcast together."""
-        x = F.relu(shared_pre * scale + shift)
+        # one fused pass for the modulation and the ReLU in place: the [pairs, channels, width]
+        # tensors are the bulk of a spectral fit's arithmetic (docs/design.md#the-spectral-nlbs-fit-time)
+        x = F.relu(torch.addcmul(shift, shared_pre, scale), inplace=True)
         for layer in self.hidden_layers[self.config.channel_layer:]:
             x = F.relu(layer(x))
         return log1p_output(self.output_layer(x))[..., 0]

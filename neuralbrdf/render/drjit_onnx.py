@@ -237,10 +237,23 @@ _TANH_DENOMINATOR = (
 _TANH_CLAMP = 9.0
 
 
-def _horner(x, coefficients: Sequence[float]):
+#: Dr.Jit literals of the rational ``tanh``'s coefficients, per array type (as :func:`_affine`'s weights).
+_COEFFICIENT_LITERALS: dict[tuple[type, tuple[float, ...]], list[Any]] = {}
+
+
+def _horner(x, coefficients: tuple[float, ...]):
     """``Σ_k c_k x^k`` by Horner's rule (``dr.fma`` for arrays, plain arithmetic for floats)."""
-    result = coefficients[-1]
-    for c in reversed(coefficients[:-1]):
+    if isinstance(x, (int, float)):
+        result = coefficients[-1]
+        for c in reversed(coefficients[:-1]):
+            result = dr.fma(x, result, c)
+        return result
+    key = (type(x), coefficients)
+    if key not in _COEFFICIENT_LITERALS:
+        _COEFFICIENT_LITERALS[key] = [type(x)(c) for c in coefficients]
+    literals = _COEFFICIENT_LITERALS[key]
+    result = literals[-1]
+    for c in reversed(literals[:-1]):
         result = dr.fma(x, result, c)
     return result
 
@@ -789,12 +802,26 @@ def _reduce_cells(kind: str, count: int) -> Callable:
 
 def _affine(bias: float, weights: Sequence[float]) -> Callable:
     """``bias + Σ_i x_i w_i`` as one operation on the columns ``x_i``: ``dr.fma`` per column in
-    order, Python arithmetic where a column is a Python float."""
+    order, Python arithmetic where a column is a Python float.
+
+    The weights are made Dr.Jit literals of the columns' array type once, at the first call with
+    that type, not converted from Python floats at every trace: tracing is paid per render pass
+    and a float argument costs ~50 % more per ``dr.fma`` (``benchmarks/README.md``, design measurements).
+    The kernel is the same."""
+    literals: dict[type, tuple[Any, list[Any]]] = {}
 
     def run(*columns):
-        acc = bias
-        for x, w in zip(columns, weights):
-            acc = acc + x * w if isinstance(x, (int, float)) else dr.fma(x, w, acc)
+        kind = next((type(x) for x in columns if not isinstance(x, (int, float))), None)
+        if kind is None:
+            acc = bias
+            for x, w in zip(columns, weights):
+                acc = acc + x * w
+            return acc
+        if kind not in literals:
+            literals[kind] = (kind(bias), [kind(w) for w in weights])
+        acc, terms = literals[kind]
+        for x, w, literal in zip(columns, weights, terms):
+            acc = acc + x * w if isinstance(x, (int, float)) else dr.fma(x, literal, acc)
         return acc
 
     return run
