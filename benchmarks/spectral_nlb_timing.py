@@ -14,9 +14,12 @@ NLB, the baseline measured in the same run), through ``neuralbrdf train fit`` as
 * **single, RGB** and **batched, RGB**: the same tables in linear sRGB (what the RGB NLB reads;
   the spectral NLB fits them per channel).
 
-Reported: ``fit/wall_time_s`` of each run (the latent fit proper: the screening of starts and the
-optimiser, not the Python start-up or the loading of the tables), per material, and the spectral NLB over the RGB NLB.  The tables are
-kept in ``--work``; the runs are redone every time.
+Reported: ``fit/wall_time_s`` (the latent fit proper: the screening of starts and the optimiser,
+not the Python start-up or the loading of the tables) of ``--repeats`` runs of each fit, taken in
+turn with the RGB NLB's (so that load from elsewhere hits both alike); their median per material,
+every run's time, and the spectral NLB over the RGB NLB.  On this project's virtual 2-core machine
+one fit's time varies by ±25 % from minute to minute, so one run says little.  The tables are kept
+in ``--work``; the runs are redone every time.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ import argparse
 import json
 import os
 import platform
+import statistics
 import sys
 from pathlib import Path
 
@@ -67,6 +71,7 @@ def fit_seconds(work: Path, method: str, tables: list[Path], label: str) -> floa
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], allow_abbrev=False)
     parser.add_argument("--batch", type=int, default=100, help="materials in the batched fits")
+    parser.add_argument("--repeats", type=int, default=3, help="runs of each fit (the median is reported)")
     parser.add_argument("--work", default=str(REPO / "runs" / "spectral_nlb_timing"))
     parser.add_argument("--out", default=str(REPO / "benchmarks" / "spectral_nlb_timing.json"))
     args = parser.parse_args(argv)
@@ -78,14 +83,20 @@ def main(argv: list[str] | None = None) -> int:
     for colour in ("spectral", "rgb"):
         for label, members in batches.items():
             tables = [measurement(work, m, seed, colour == "rgb") for m, seed in members]
+            runs = {method: [] for method in CONFIGS}
+            for repeat in range(args.repeats):
+                for method in CONFIGS:
+                    runs[method].append(fit_seconds(work, method, tables, f"{colour}_{label}_run{repeat}"))
             row = {"materials": len(tables)}
-            for method in CONFIGS:
-                seconds = fit_seconds(work, method, tables, f"{colour}_{label}")
-                row[method] = {"fit_s": seconds, "fit_s_per_material": seconds / len(tables)}
+            for method, seconds in runs.items():
+                median = statistics.median(seconds)
+                row[method] = {"fit_s": median, "fit_s_per_material": median / len(tables), "runs_s": seconds}
             row["nlb_spectral_over_nlb"] = row["nlb_spectral"]["fit_s"] / row["nlb"]["fit_s"]
             results[f"{colour} {label}"] = row
     output = {
-        "command": "python benchmarks/spectral_nlb_timing.py" + (f" --batch {args.batch}" if args.batch != 100 else ""),
+        "command": "python benchmarks/spectral_nlb_timing.py" + (f" --batch {args.batch}" if args.batch != 100 else "")
+                   + (f" --repeats {args.repeats}" if args.repeats != 3 else ""),
+        "repeats": args.repeats,
         "machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
                     "python": platform.python_version(), "load_average_before": load_before,
                     "load_average_after": os.getloadavg()},
