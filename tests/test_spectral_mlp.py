@@ -232,6 +232,30 @@ def test_training_batches_cover_the_train_split_once_per_epoch(gcms_session):
     torch.testing.assert_close(whole.brdf, data.test_samples.brdf)
 
 
+def test_a_small_split_is_drawn_again_until_the_epoch_holds_min_steps_batches(gcms_session):
+    plain = MeasurementDataModule(*map(str, gcms_session), batch_size=1000)
+    plain.setup("fit")
+    n = len(plain.train_samples.brdf)
+    steps = -(-n // 1000)
+    unchanged = MeasurementDataModule(*map(str, gcms_session), batch_size=1000, min_steps_per_epoch=steps)
+    unchanged.setup("fit")
+    torch.manual_seed(3)
+    (expected,) = list(plain.train_dataloader())
+    torch.manual_seed(3)
+    (same,) = list(unchanged.train_dataloader())  # already that many batches: the same draws
+    assert [torch.equal(a.brdf, b.brdf) for a, b in zip(same, expected)] == [True] * steps
+    data = MeasurementDataModule(*map(str, gcms_session), batch_size=1000, min_steps_per_epoch=3 * steps)
+    data.setup("fit")
+    (batches,) = list(data.train_dataloader())
+    assert [len(b.brdf) for b in batches] == [1000] * (3 * steps)
+    seen = torch.cat([b.brdf for b in batches])
+    # successive permutations: every sample in each of the first full passes over the split
+    for k in range(2):
+        torch.testing.assert_close(seen[k * n:(k + 1) * n].sort().values, data.train_samples.brdf.sort().values)
+    with pytest.raises(InputError, match="data.min_steps_per_epoch"):
+        MeasurementDataModule(*map(str, gcms_session), min_steps_per_epoch=0)
+
+
 def test_evaluation_batches_hold_whole_direction_pairs(gcms_session):
     data = MeasurementDataModule(*map(str, gcms_session), eval_batch_size=100)
     data.setup("test")

@@ -182,6 +182,9 @@ class MeasurementDataModule(pl.LightningDataModule):
     batch_size:
         Training samples per optimiser step (drawn without replacement, reshuffled every epoch; the
         loader gives an epoch's batches together, :class:`EpochOfBatches`).
+    min_steps_per_epoch:
+        Least optimiser steps per epoch: a smaller training split is drawn again, reshuffled, until
+        the epoch holds this many full batches (a sparse plan otherwise gets a few steps per epoch).
     eval_batch_size:
         Samples per validation/test step, rounded up to whole direction pairs (every wavelength
         of a pair in one batch, so an evaluation cut short by ``limit_val_batches`` or the
@@ -203,11 +206,14 @@ class MeasurementDataModule(pl.LightningDataModule):
         eval_batch_size: int | None = None,
         num_workers: int = 0,
         trust_units: bool = False,
+        min_steps_per_epoch: int = 1,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()  # recorded in checkpoints: where the model's data came from
         if batch_size < 1 or (eval_batch_size is not None and eval_batch_size < 1):
             raise InputError(f"batch_size and eval_batch_size must be >= 1, got {batch_size} and {eval_batch_size}")
+        if isinstance(min_steps_per_epoch, bool) or not isinstance(min_steps_per_epoch, int) or min_steps_per_epoch < 1:
+            raise InputError(f"must be a positive integer, got {min_steps_per_epoch!r}", key="data.min_steps_per_epoch")
         if test_split not in TEST_SPLITS:
             raise InputError(f"test_split must be one of {', '.join(TEST_SPLITS)}, got {test_split!r}")
         if path is None:
@@ -219,6 +225,7 @@ class MeasurementDataModule(pl.LightningDataModule):
         #: The rule applied (``auto`` resolved against the measured angles), set by :meth:`setup`.
         self.resolved_test_split: str | None = None
         self.batch_size = batch_size
+        self.min_steps_per_epoch = min_steps_per_epoch
         self.eval_batch_size = eval_batch_size
         self.num_workers = num_workers
         self.trust_units = trust_units
@@ -282,8 +289,14 @@ class MeasurementDataModule(pl.LightningDataModule):
         return self._loader(self.test_samples, whole_pairs, shuffle=False)
 
     def train_dataloader(self) -> DataLoader:
-        """One item per epoch: the epoch's shuffled batches of ``batch_size`` (:class:`EpochOfBatches`)."""
-        order = RandomSampler(InMemorySamples(self.train_samples))
+        """One item per epoch: the epoch's shuffled batches of ``batch_size`` (:class:`EpochOfBatches`),
+        at least ``min_steps_per_epoch`` of them."""
+        dataset = InMemorySamples(self.train_samples)
+        if -(-len(dataset) // self.batch_size) < self.min_steps_per_epoch:
+            # without replacement, RandomSampler draws successive permutations when asked for more samples than it holds
+            order = RandomSampler(dataset, num_samples=self.min_steps_per_epoch * self.batch_size)
+        else:
+            order = RandomSampler(dataset)
         epoch = EpochOfBatches(self.train_samples, BatchSampler(order, self.batch_size, drop_last=False))
         return DataLoader(epoch, batch_size=None, collate_fn=identity_collate, num_workers=self.num_workers,
                           persistent_workers=self.num_workers > 0)
