@@ -23,7 +23,7 @@ Each fit is exported and scored by ``neuralbrdf evaluate --truth FILE``: hemisph
 material-preview scene against the plugin's own render (``--resolution`` px, ``--spp``, the file's
 kind of variant, matched seeds, the truth-against-truth noise stated).  The comparison images of
 the first plan are copied beside the JSON (``rgl_real_PLAN_METHOD.png``).  Cells are kept in
-``--work`` and reused when the script runs again with the same settings.  Writes JSON (``--out``)
+``--work`` and reused when the script runs again with the same settings and config file contents.  Writes JSON (``--out``)
 and prints a table.
 """
 
@@ -86,7 +86,8 @@ def data_args(method: str, bsdf: Path, plan: str, spectral_table: Path) -> list[
 
 def run_cell(method: str, bsdf: Path, plan: str, settings: RenderSettings, work: Path) -> dict:
     """Fit, export and evaluate one method on one plan (kept in ``work``)."""
-    key = hashlib.sha256(json.dumps([method, str(bsdf), bsdf.stat().st_size, plan, vars(settings)]).encode())
+    config = (REPO / "configs" / CONFIGS[method]).read_text()
+    key = hashlib.sha256(json.dumps([method, str(bsdf), bsdf.stat().st_size, plan, vars(settings), config]).encode())
     cell = work / f"{plan}_{method}_{key.hexdigest()[:12]}"
     done = cell / "scores.json"
     if done.is_file():

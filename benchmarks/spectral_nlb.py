@@ -2,8 +2,8 @@
 no pretraining saw (docs/models.md#spectral-nlb, docs/evaluate.md).
 
     python benchmarks/spectral_nlb.py [--groups rgl_validation,report,merl_held_out] [--plans DS1]
-        [--noise 0.01] [--no-render] [--work DIR] [--out benchmarks/spectral_nlb.json]
-        [--spectral-args ARG ...]
+        [--noise 0.01] [--no-render] [--methods M,...] [--mlp-args "ARG ..."] [--work DIR]
+        [--out benchmarks/spectral_nlb.json] [--spectral-args ARG ...]
 
 For every material of the chosen groups and every plan:
 
@@ -12,7 +12,8 @@ For every material of the chosen groups and every plan:
   settings sweep);
 * ``nlb`` — ``configs/nlb_latent.yaml``, the RGB NLB's default fit, one batch;
 * ``abc`` — ``configs/abc.yaml``, the in-plane ABC fit of the same samples, one per material;
-* ``spectral_mlp`` — ``configs/spectral_mlp.yaml`` (virtual groups: it needs spectra);
+* ``spectral_mlp`` — ``configs/spectral_mlp.yaml`` (virtual groups: it needs spectra), plus
+  ``--mlp-args`` (one quoted string of overrides: a settings sweep);
 
 each fit exported (``neuralbrdf export``) and scored by ``neuralbrdf evaluate`` against the
 material's truth (``neuralbrdf export-truth``): the hemisphere log-cosine RMSE (102 400 pairs),
@@ -31,8 +32,9 @@ stated).  A fit that fails is recorded as such.  Groups:
 * ``virtual`` — the four virtual stand-ins (gold, gonio, cyan, magenta), the test materials of
   the study, measured with ``--noise``.
 
+``--methods`` runs only some of the methods (the summary's comparisons need ``nlb_spectral``).
 Every cell (material × plan × method) is kept in ``--work`` (default ``runs/spectral_nlb``) and
-reused when the script runs again with the same settings.  Writes JSON (``--out``) and prints a
+reused when the script runs again with the same settings and the same config file contents.  Writes JSON (``--out``) and prints a
 table with each group's medians and the spectral NLB's wins over ABC and the RGB NLB.
 """
 
@@ -42,8 +44,10 @@ import argparse
 import hashlib
 import json
 import platform
+import shlex
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -155,15 +159,17 @@ def _fit(group: Group, method: str, run_dir: Path, extra: list[str]) -> tuple[di
     return checkpoints, times
 
 
-def run_group(group: Group, work: Path, render: bool, spectral_args: list[str]) -> dict:
-    """Every method on every material of ``group``: ``{material: {method: scores}}``."""
-    settings = {method: spectral_args if method == "nlb_spectral" else [] for method in METHODS[group.kind]}
+def run_group(group: Group, work: Path, render: bool, spectral_args: list[str], mlp_args: list[str] = (),
+              methods: Sequence[str] | None = None) -> dict:
+    """Every method (of ``methods``, default all) on every material of ``group``: ``{material: {method: scores}}``."""
+    extra = {"nlb_spectral": list(spectral_args), "spectral_mlp": list(mlp_args)}
+    settings = {method: extra.get(method, []) for method in METHODS[group.kind] if methods is None or method in methods}
     rows: dict[str, dict] = {name: {} for name in group.materials}
     renders: dict = {}
     render_settings = RENDER[group.kind]
-    for method in METHODS[group.kind]:
+    for method in settings:
         key = _digest(group.name, group.plan, method, settings[method], render, vars(render_settings),
-                      [group.sources[m] for m in group.materials])
+                      [group.sources[m] for m in group.materials], (REPO / "configs" / CONFIGS[method]).read_text())
         cell_dir = work / f"{group.name}_{group.plan}_{method}_{key}"
         done = cell_dir / "scores.json"
         if not done.is_file():
@@ -193,6 +199,7 @@ def summarise(rows: dict) -> dict:
     spectral NLB's share of wins against each other method, and failures per method."""
     methods = list(next(iter(rows.values())))
     summary = {"failed": {m: sum("failed" in r[m] for r in rows.values()) for m in methods}}
+    others = [m for m in methods if m != "nlb_spectral"] if "nlb_spectral" in methods else []
     fitted = [r for r in rows.values() if not any("failed" in r[m] for m in methods)]
     for metric in ("hemisphere_logcos_rmse", "image_delta_e2000_mean"):
         if not fitted or any(r[m].get(metric) is None for r in fitted for m in methods):
@@ -202,10 +209,9 @@ def summarise(rows: dict) -> dict:
             "materials": len(fitted),
             "median": {m: float(np.median(v)) for m, v in values.items()},
             "mean": {m: float(np.mean(v)) for m, v in values.items()},
-            "nlb_spectral_beats": {m: float(np.mean(values["nlb_spectral"] < v)) for m, v in values.items()
-                                   if m != "nlb_spectral"},
-            "median_nlb_spectral_over": {m: float(np.median(values["nlb_spectral"]) / np.median(v))
-                                         for m, v in values.items() if m != "nlb_spectral"},
+            "nlb_spectral_beats": {m: float(np.mean(values["nlb_spectral"] < values[m])) for m in others},
+            "median_nlb_spectral_over": {m: float(np.median(values["nlb_spectral"]) / np.median(values[m]))
+                                         for m in others},
         }
     return summary
 
@@ -227,10 +233,12 @@ def print_table(results: dict) -> None:
         for metric in ("hemisphere_logcos_rmse", "image_delta_e2000_mean"):
             if metric in summary:
                 s = summary[metric]
-                print(f"  {metric} over {s['materials']}: medians "
-                      + ", ".join(f"{m} {v:.4g}" for m, v in s["median"].items())
-                      + "; nlb_spectral beats " + ", ".join(f"{m} on {v:.0%}" for m, v in s["nlb_spectral_beats"].items())
-                      + "; median nlb_spectral / " + ", ".join(f"{m} {v:.2f}" for m, v in s["median_nlb_spectral_over"].items()))
+                line = f"  {metric} over {s['materials']}: medians " + ", ".join(f"{m} {v:.4g}" for m, v in s["median"].items())
+                if s["nlb_spectral_beats"]:
+                    line += ("; nlb_spectral beats " + ", ".join(f"{m} on {v:.0%}" for m, v in s["nlb_spectral_beats"].items())
+                             + "; median nlb_spectral / "
+                             + ", ".join(f"{m} {v:.2f}" for m, v in s["median_nlb_spectral_over"].items()))
+                print(line)
         failed = {m: n for m, n in summary["failed"].items() if n}
         if failed:
             print(f"  failed fits: {failed}")
@@ -243,6 +251,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--plans", default="DS1")
     parser.add_argument("--noise", type=float, default=0.01, help="relative noise of virtual measurements")
     parser.add_argument("--no-render", action="store_true", help="hemisphere and in-plane scores only (no images)")
+    parser.add_argument("--methods", default=None, help=f"comma-separated, of {', '.join(CONFIGS)} (default: all)")
+    parser.add_argument("--mlp-args", default="", help='overrides of the spectral MLP fit, one quoted string, e.g. '
+                                                       '"--data.min_steps_per_epoch 164"')
     parser.add_argument("--spectral-args", nargs=argparse.REMAINDER, default=[],
                         help="overrides of the spectral NLB fit (last on the command line), e.g. "
                              "--model.channel_prior_weight 0.1")
@@ -252,17 +263,22 @@ def main(argv: list[str] | None = None) -> int:
     unknown = sorted(set(args.groups.split(",")) - set(GROUPS))
     if unknown:
         parser.error(f"unknown groups {unknown}; expected some of {', '.join(GROUPS)}")
+    methods = None if args.methods is None else args.methods.split(",")
+    if methods is not None and sorted(set(methods) - set(CONFIGS)):
+        parser.error(f"unknown methods {sorted(set(methods) - set(CONFIGS))}; expected some of {', '.join(CONFIGS)}")
+    mlp_args = shlex.split(args.mlp_args)
     started = time.perf_counter()
     work = Path(args.work)
     results = {"machine": {"platform": platform.platform()}, "noise": args.noise,
                "render": None if args.no_render else {kind: vars(r) for kind, r in RENDER.items()},
-               "spectral_args": args.spectral_args, "groups": {}}
+               "spectral_args": args.spectral_args, "mlp_args": mlp_args, "methods": methods, "groups": {}}
     for name in args.groups.split(","):
         if name in PROXY_GROUPS and not PROXY_GROUPS[name][0].is_dir():
             print(f"skipping {name}: {PROXY_GROUPS[name][0]} not found")
             continue
         for plan in args.plans.split(","):
-            rows = run_group(Group(name, plan, args.noise, work), work, not args.no_render, args.spectral_args)
+            rows = run_group(Group(name, plan, args.noise, work), work, not args.no_render, args.spectral_args,
+                             mlp_args, methods)
             results["groups"][f"{name} {plan}"] = {"materials": rows, "summary": summarise(rows)}
     results["wall_time_s"] = time.perf_counter() - started
     with atomic_write(args.out) as handle:
