@@ -669,6 +669,13 @@ def spectral_nlb_section() -> list[str]:
     return lines
 
 
+def _fit_time_cell(row: dict, method: str) -> str:
+    """A method's median fit time per material and, with several runs, their range."""
+    runs = [seconds / row["materials"] for seconds in row[method].get("runs_s", [])]
+    spread = f" ({min(runs):.3f}–{max(runs):.3f})" if len(runs) > 1 else ""
+    return f"{row[method]['fit_s_per_material']:.3f}{spread}"
+
+
 def spectral_timing_lines(data: dict) -> list[str]:
     """The fit times of ``benchmarks/spectral_nlb_timing.json`` against their targets."""
     repeats = data.get("repeats", 1)
@@ -687,13 +694,7 @@ def spectral_timing_lines(data: dict) -> list[str]:
     for label, row in data["fits"].items():
         target = targets["single_s_per_material" if row["materials"] == 1 else "batched_s_per_material"]
         value = row["nlb_spectral"]["fit_s_per_material"]
-
-        def per_material(method: str) -> str:
-            runs = [s / row["materials"] for s in row[method].get("runs_s", [])]
-            spread = f" ({min(runs):.3f}–{max(runs):.3f})" if len(runs) > 1 else ""
-            return f"{row[method]['fit_s_per_material']:.3f}{spread}"
-
-        rows.append([label, str(row["materials"]), per_material("nlb_spectral"), per_material("nlb"),
+        rows.append([label, str(row["materials"]), _fit_time_cell(row, "nlb_spectral"), _fit_time_cell(row, "nlb"),
                      f"{row['nlb_spectral_over_nlb']:.2f}", f"≤ {target:g}", "met" if value <= target else "**missed**"])
     lines += table(["fit", "materials", "spectral NLB s/material", "RGB NLB s/material", "ratio", "target", ""], rows)
     return lines + [""]

@@ -237,23 +237,36 @@ _TANH_DENOMINATOR = (
 _TANH_CLAMP = 9.0
 
 
-#: Dr.Jit literals of the rational ``tanh``'s coefficients, per array type (as :func:`_affine`'s weights).
-_COEFFICIENT_LITERALS: dict[tuple[type, tuple[float, ...]], list[Any]] = {}
+class _Literals:
+    """Constants (Python floats) and, per Dr.Jit array type, the same constants as literals of that
+    type, made at the first call with it.  An operation given a literal array, not a float, skips
+    the conversion at every trace: tracing is paid per render pass and a float argument costs ~50 %
+    more per ``dr.fma`` (``benchmarks/README.md``, design measurements).  The kernel is the same."""
+
+    __slots__ = ("values", "by_type")
+
+    def __init__(self, values: Sequence[float]) -> None:
+        self.values = tuple(values)
+        self.by_type: dict[type, list[Any]] = {}
+
+    def of(self, kind: type | None) -> Sequence[Any]:
+        """The constants as literals of array type ``kind``; the floats themselves for ``None``."""
+        if kind is None:
+            return self.values
+        if kind not in self.by_type:
+            self.by_type[kind] = [kind(v) for v in self.values]
+        return self.by_type[kind]
 
 
-def _horner(x, coefficients: tuple[float, ...]):
-    """``Σ_k c_k x^k`` by Horner's rule (``dr.fma`` for arrays, plain arithmetic for floats)."""
-    if isinstance(x, (int, float)):
-        result = coefficients[-1]
-        for c in reversed(coefficients[:-1]):
-            result = dr.fma(x, result, c)
-        return result
-    key = (type(x), coefficients)
-    if key not in _COEFFICIENT_LITERALS:
-        _COEFFICIENT_LITERALS[key] = [type(x)(c) for c in coefficients]
-    literals = _COEFFICIENT_LITERALS[key]
-    result = literals[-1]
-    for c in reversed(literals[:-1]):
+_TANH_NUMERATOR_LITERALS = _Literals(_TANH_NUMERATOR)
+_TANH_DENOMINATOR_LITERALS = _Literals(_TANH_DENOMINATOR)
+
+
+def _horner(x, coefficients: _Literals):
+    """``Σ_k c_k x^k`` by Horner's rule (``dr.fma``; for arrays on literals of their type)."""
+    terms = coefficients.of(None if isinstance(x, (int, float)) else type(x))
+    result = terms[-1]
+    for c in reversed(terms[:-1]):
         result = dr.fma(x, result, c)
     return result
 
@@ -262,7 +275,7 @@ def tanh(x):
     """Rational tanh (module docstring); ``x`` a Dr.Jit array or a Python float."""
     x = dr.clip(x, -_TANH_CLAMP, _TANH_CLAMP)
     x2 = x * x
-    return x * _horner(x2, _TANH_NUMERATOR) / _horner(x2, _TANH_DENOMINATOR)
+    return x * _horner(x2, _TANH_NUMERATOR_LITERALS) / _horner(x2, _TANH_DENOMINATOR_LITERALS)
 
 
 def _sigmoid(x):
@@ -802,26 +815,15 @@ def _reduce_cells(kind: str, count: int) -> Callable:
 
 def _affine(bias: float, weights: Sequence[float]) -> Callable:
     """``bias + Σ_i x_i w_i`` as one operation on the columns ``x_i``: ``dr.fma`` per column in
-    order, Python arithmetic where a column is a Python float.
-
-    The weights are made Dr.Jit literals of the columns' array type once, at the first call with
-    that type, not converted from Python floats at every trace: tracing is paid per render pass
-    and a float argument costs ~50 % more per ``dr.fma`` (``benchmarks/README.md``, design measurements).
-    The kernel is the same."""
-    literals: dict[type, tuple[Any, list[Any]]] = {}
+    order (on literals of the columns' array type, :class:`_Literals`), Python arithmetic where a
+    column is a Python float."""
+    constants = _Literals((bias, *weights))
 
     def run(*columns):
         kind = next((type(x) for x in columns if not isinstance(x, (int, float))), None)
-        if kind is None:
-            acc = bias
-            for x, w in zip(columns, weights):
-                acc = acc + x * w
-            return acc
-        if kind not in literals:
-            literals[kind] = (kind(bias), [kind(w) for w in weights])
-        acc, terms = literals[kind]
-        for x, w, literal in zip(columns, weights, terms):
-            acc = acc + x * w if isinstance(x, (int, float)) else dr.fma(x, literal, acc)
+        acc, *terms = constants.of(kind)
+        for x, w, term in zip(columns, weights, terms):
+            acc = acc + x * w if isinstance(x, (int, float)) else dr.fma(x, term, acc)
         return acc
 
     return run
