@@ -466,6 +466,31 @@ def test_screening_sees_at_most_init_screen_values_of_each_material_and_of_all(t
         fit_module(pretrained_file(tmp_path, network), init_screen_values=0)
 
 
+def test_candidates_scored_in_chunks_start_each_material_from_its_lowest_loss_candidate(tmp_path, monkeypatch):
+    """With one start, each material starts from the candidate of lowest loss on its own samples,
+    whatever the chunks the candidates are scored in (here 3, which does not divide their number):
+    two materials made from two of the candidates each start from their own."""
+    from neuralbrdf.lightning import latent_only
+
+    network = random_network(seed=5)
+    fit = fit_module(pretrained_file(tmp_path, network), init_candidates=6, init_starts=1)
+    fit.set_channels(np.asarray(WAVELENGTHS))
+    candidates = fit.start_candidates()
+    assert len(candidates[0]) % 3 != 0
+    made_from = [4, 2]
+    paths = [network_table(network, candidates[0][k], candidates[1][k], fit.node_wavelengths_nm, "DS3",
+                           tmp_path / f"m{i}.csv") for i, k in enumerate(made_from)]
+    data = LatentFitData(sources=[{"path": str(path)} for path in paths], spectral=True, eval_plan=None)
+    data.setup()
+    fit._set_channel_scale(data.train_samples, 2)
+    monkeypatch.setattr(latent_only, "CANDIDATE_CHUNK", 3)
+    fit._candidates = candidates
+    fit.build_codes(data.material_names)
+    fit.choose_starts(data.train_samples)
+    torch.testing.assert_close(fit.latents.shared.detach(), candidates[0][made_from])
+    torch.testing.assert_close(fit.latents.channels.detach(), candidates[1][made_from])
+
+
 def test_spectral_fit_refuses_rgb_sources_and_mixed_wavelength_grids(tmp_path):
     network = random_network()
     node_nm = [400.0, 500.0, 600.0, 700.0]

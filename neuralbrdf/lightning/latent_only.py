@@ -59,6 +59,10 @@ LBFGS_HISTORY = 10
 #: several starts (:meth:`LatentOnlyFit.screening_samples`, unless a subclass says otherwise).
 SCREEN_SAMPLES = 65536
 
+#: Candidate starts scored together (:meth:`LatentOnlyFit.choose_starts`): one evaluation of this many
+#: sets of codes instead of one per candidate (a single material has ~120 candidates).
+CANDIDATE_CHUNK = 16
+
 
 def theta_i_deg(wi: torch.Tensor) -> torch.Tensor:
     """Incident polar angle (degrees) of unit directions ``[N, 3]``."""
@@ -173,9 +177,11 @@ class LatentOnlyFit(pl.LightningModule):
         n = len(self.material_names)
         candidates = self._candidates
         samples = self.screening_samples(samples)
-        with torch.no_grad():
-            losses = torch.cat([self.material_losses(samples, [c[k].expand(1, n, *c.shape[1:]) for c in candidates])
-                                for k in range(len(candidates[0]))])
+        count = len(candidates[0])
+        with torch.no_grad():  # [K, n]: candidates scored CANDIDATE_CHUNK at a time, as so many starts
+            losses = torch.cat([self.material_losses(samples, [c[k:k + CANDIDATE_CHUNK, None].expand(-1, n, *c.shape[1:])
+                                                               for c in candidates])
+                                for k in range(0, count, CANDIDATE_CHUNK)])
         starts = self.hparams.init_starts
         if starts == 1:
             with torch.no_grad():
