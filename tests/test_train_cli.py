@@ -371,6 +371,36 @@ def test_a_failed_fit_exits_1_with_its_cause_and_no_best_checkpoint(tmp_path, gc
     _assert_failed_run(run_dir, cause, capsys)
 
 
+@pytest.mark.parametrize("scores, fails", [
+    ({"val/rel_rmse_glossy": [1.0]}, True),                    # a dead network: predicting 0 exactly
+    ({"val/rel_rmse_glossy": [0.98, 0.95]}, True),             # a non-fit: too few steps
+    ({"val/rel_rmse_glossy": [1.6, 1.3]}, True),               # overshoots, worse than predicting 0
+    ({"val/rel_rmse_glossy": [1.3, 0.89]}, False),             # came below the line once: kept
+    ({"val/rel_rmse_glossy": [0.95], "val/rel_rmse_glossy_median": [0.5]}, True),   # each must come below
+    ({"val/rel_rmse_glossy": [0.6], "val/rel_rmse_glossy_median": [0.95, 0.4]}, False),
+    ({"val/rel_rmse_glossy": [0.95], "val/rel_rmse_excluded": [0.0]}, True),  # excluded pairs do not count
+])
+def test_fit_health_fails_a_fit_no_better_than_predicting_zero(scores, fails):
+    """A fit fails when a validation relative error stayed at or above NO_BETTER_THAN_ZERO (0.9;
+    predicting 0 scores 1) at its best over the validations."""
+    from types import SimpleNamespace
+
+    from neuralbrdf.lightning.run import NO_BETTER_THAN_ZERO, FitFailed, FitHealth
+
+    assert NO_BETTER_THAN_ZERO == 0.9
+    health = FitHealth()
+    for epoch in range(max(len(values) for values in scores.values())):
+        metrics = {name: torch.tensor(values[min(epoch, len(values) - 1)]) for name, values in scores.items()}
+        trainer = SimpleNamespace(sanity_checking=False, state=SimpleNamespace(fn="fit"), callback_metrics=metrics,
+                                  checkpoint_callbacks=[], current_epoch=epoch)
+        health.on_validation_end(trainer, None)
+    if fails:
+        with pytest.raises(FitFailed, match="no better than predicting 0"):
+            health.on_train_end(trainer, object())
+    else:
+        health.on_train_end(trainer, object())
+
+
 @pytest.mark.parametrize("name, value", [("gamma", "-1"), ("gamma", "-1e-12"), ("rel_rmse_floor", "-1e-4")])
 def test_parameters_outside_their_domain_fail_before_a_run_exists(tmp_path, gcms_session, capsys, name, value):
     run_dir = tmp_path / "run"

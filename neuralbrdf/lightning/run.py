@@ -228,9 +228,12 @@ class MetricsJson(pl.Callback):
 #: Validation metrics whose name holds this are relative errors (report Eq. 4.3): predicting 0
 #: everywhere scores exactly 1 ...
 RELATIVE_ERROR_MARK = "rel_rmse"
-#: ... so best scores all within this of 1 mark a model whose output collapsed to 0 (a model that
-#: overshoots scores above 1 and is merely bad, not dead).
-ZERO_PREDICTION_BAND = 1e-3
+#: ... so a best score at or above this marks a model no better than predicting 0: one whose
+#: output collapsed to 0 (a dead network), or one that never came within 10 % of the signal (too few
+#: optimiser steps; an output that overshoots scores above 1).  The full study's worst kept fit
+#: scores 0.56 at its best; the 3x10 spectral MLP fitted to the RGL felt's 57 DS3 pairs in 30 Adam
+#: steps (a grey sphere, image ΔE2000 7.3) scores 0.99.
+NO_BETTER_THAN_ZERO = 0.9
 
 
 class FitHealth(pl.Callback):
@@ -238,9 +241,9 @@ class FitHealth(pl.Callback):
 
     Checks, in order of occurrence: every training loss is finite; some parameter gradient is
     non-zero in every epoch (automatic optimisation only); the monitored metric of every
-    validation is finite; after training, the best validation relative error (``val/*rel_rmse*``,
-    monitored or not) is not within :data:`ZERO_PREDICTION_BAND` of 1 (the score of predicting 0:
-    the mark of a dead network) and the module's optional ``fit_failure()`` returns no reason.  On any error of a started fit (except bad input) it removes the ``best*``
+    validation is finite; after training, every validation relative error (``val/*rel_rmse*``,
+    monitored or not) came below :data:`NO_BETTER_THAN_ZERO` at its best (predicting 0 scores 1),
+    and the module's optional ``fit_failure()`` returns no reason.  On any error of a started fit (except bad input) it removes the ``best*``
     checkpoints and writes ``metrics.json`` with ``"status": "failed"`` and ``"cause"``.
     """
 
@@ -290,13 +293,13 @@ class FitHealth(pl.Callback):
                 )
 
     def on_train_end(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
-        if self._best_relative_errors and all(
-            abs(best - 1.0) <= ZERO_PREDICTION_BAND for best in self._best_relative_errors.values()
-        ):
-            name, best = min(self._best_relative_errors.items(), key=lambda item: item[1])
+        worst = max(self._best_relative_errors.items(), key=lambda item: item[1], default=None)
+        if worst is not None and worst[1] >= NO_BETTER_THAN_ZERO:
+            name, best = worst
             raise FitFailed(
-                f"the model is no better than predicting 0 (best {name} = {best:.4g}): "
-                "the network stopped learning (dead or saturated units, e.g. a too-large learning rate)"
+                f"the model is no better than predicting 0 (best {name} = {best:.4g}, where predicting 0 "
+                f"scores 1 and a fit must come below {NO_BETTER_THAN_ZERO:g}): dead or saturated units (e.g. a "
+                "too-large learning rate) or too few optimiser steps for the data"
             )
         fit_failure = getattr(pl_module, "fit_failure", None)
         reason = fit_failure() if fit_failure is not None else None
