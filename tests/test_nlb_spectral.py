@@ -469,7 +469,8 @@ def test_screening_sees_at_most_init_screen_values_of_each_material_and_of_all(t
 def test_candidates_scored_in_chunks_start_each_material_from_its_lowest_loss_candidate(tmp_path, monkeypatch):
     """With one start, each material starts from the candidate of lowest loss on its own samples,
     whatever the chunks the candidates are scored in (here 3, which does not divide their number):
-    two materials made from two of the candidates each start from their own."""
+    two materials made from two of the candidates, one of them in the last, shorter chunk, each
+    start from their own."""
     from neuralbrdf.lightning import latent_only
 
     network = random_network(seed=5)
@@ -477,13 +478,13 @@ def test_candidates_scored_in_chunks_start_each_material_from_its_lowest_loss_ca
     fit.set_channels(np.asarray(WAVELENGTHS))
     candidates = fit.start_candidates()
     assert len(candidates[0]) % 3 != 0
-    made_from = [4, 2]
+    made_from = [len(candidates[0]) - 1, 2]
     paths = [network_table(network, candidates[0][k], candidates[1][k], fit.node_wavelengths_nm, "DS3",
                            tmp_path / f"m{i}.csv") for i, k in enumerate(made_from)]
     data = LatentFitData(sources=[{"path": str(path)} for path in paths], spectral=True, eval_plan=None)
     data.setup()
     fit._set_channel_scale(data.train_samples, 2)
-    monkeypatch.setattr(latent_only, "CANDIDATE_CHUNK", 3)
+    monkeypatch.setattr(latent_only, "CANDIDATE_VALUES", 3 * data.train_samples.f.numel())  # 3 to an evaluation
     fit._candidates = candidates
     fit.build_codes(data.material_names)
     fit.choose_starts(data.train_samples)

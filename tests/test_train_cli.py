@@ -378,7 +378,8 @@ def test_a_failed_fit_exits_1_with_its_cause_and_no_best_checkpoint(tmp_path, gc
     ({"val/rel_rmse_glossy": [1.3, 0.89]}, False),             # came below the line once: kept
     ({"val/rel_rmse_glossy": [0.95], "val/rel_rmse_glossy_median": [0.5]}, True),   # each must come below
     ({"val/rel_rmse_glossy": [0.6], "val/rel_rmse_glossy_median": [0.95, 0.4]}, False),
-    ({"val/rel_rmse_glossy": [0.95], "val/rel_rmse_excluded": [0.0]}, True),  # excluded pairs do not count
+    ({"val/rel_rmse_glossy": [0.9]}, True),                    # the line itself fails
+    ({"val/rel_rmse_glossy": [0.5], "val/rel_rmse_excluded": [12.0]}, False),  # a count of left-out entries
 ])
 def test_fit_health_fails_a_fit_no_better_than_predicting_zero(scores, fails):
     """A fit fails when a validation relative error stayed at or above NO_BETTER_THAN_ZERO (0.9;
@@ -390,7 +391,8 @@ def test_fit_health_fails_a_fit_no_better_than_predicting_zero(scores, fails):
     assert NO_BETTER_THAN_ZERO == 0.9
     health = FitHealth()
     for epoch in range(max(len(values) for values in scores.values())):
-        metrics = {name: torch.tensor(values[min(epoch, len(values) - 1)]) for name, values in scores.items()}
+        metrics = {name: torch.tensor(values[min(epoch, len(values) - 1)], dtype=torch.float64)
+                   for name, values in scores.items()}
         trainer = SimpleNamespace(sanity_checking=False, state=SimpleNamespace(fn="fit"), callback_metrics=metrics,
                                   checkpoint_callbacks=[], current_epoch=epoch)
         health.on_validation_end(trainer, None)

@@ -59,9 +59,11 @@ LBFGS_HISTORY = 10
 #: several starts (:meth:`LatentOnlyFit.screening_samples`, unless a subclass says otherwise).
 SCREEN_SAMPLES = 65536
 
-#: Candidate starts scored together (:meth:`LatentOnlyFit.choose_starts`): one evaluation of this many
-#: sets of codes instead of one per candidate (a single material has ~120 candidates).
-CANDIDATE_CHUNK = 16
+#: Candidate starts are scored together (:meth:`LatentOnlyFit.choose_starts`), as many to an
+#: evaluation as keep it within about this many values (candidates × samples × channels; at least
+#: one candidate): a single spectral material screened on 2048 values has its ~120 candidates scored
+#: 16 at a time, a fit that scores them on every sample of a large table one at a time.
+CANDIDATE_VALUES = 2**15
 
 
 def theta_i_deg(wi: torch.Tensor) -> torch.Tensor:
@@ -177,11 +179,11 @@ class LatentOnlyFit(pl.LightningModule):
         n = len(self.material_names)
         candidates = self._candidates
         samples = self.screening_samples(samples)
-        count = len(candidates[0])
-        with torch.no_grad():  # [K, n]: candidates scored CANDIDATE_CHUNK at a time, as so many starts
-            losses = torch.cat([self.material_losses(samples, [c[k:k + CANDIDATE_CHUNK, None].expand(-1, n, *c.shape[1:])
+        count, chunk = len(candidates[0]), max(1, CANDIDATE_VALUES // samples.f.numel())
+        with torch.no_grad():  # [K, n]: candidates scored `chunk` at a time, as so many starts
+            losses = torch.cat([self.material_losses(samples, [c[k:k + chunk, None].expand(-1, n, *c.shape[1:])
                                                                for c in candidates])
-                                for k in range(0, count, CANDIDATE_CHUNK)])
+                                for k in range(0, count, chunk)])
         starts = self.hparams.init_starts
         if starts == 1:
             with torch.no_grad():
