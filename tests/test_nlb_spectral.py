@@ -47,7 +47,7 @@ WAVELENGTHS = np.arange(400.0, 701.0, 10.0)
 
 def random_network(seed=0, **kwargs):
     torch.manual_seed(seed)
-    config = dict(shared_dim=4, channel_dim=3, width=16, depth=3, **kwargs)
+    config = dict(shared_dim=4, channel_dim=3, width=16, depth=3) | kwargs
     network = SpectralNlbNetwork(**config)
     with torch.no_grad():
         network.output_layer.weight.normal_(0.0, 0.5)
@@ -106,15 +106,20 @@ def test_zero_below_the_horizon_and_configuration_checked():
 
 
 @pytest.mark.parametrize("channel_layer", [0, 1, 2])
-def test_exported_module_equals_the_network_with_its_codes_rgb_and_interpolated_in_wavelength(channel_layer):
-    network = random_network(channel_layer=channel_layer)
+@pytest.mark.parametrize("channel_dim", [3, 8])
+def test_exported_module_equals_the_network_with_its_codes_rgb_and_interpolated_in_wavelength(channel_layer,
+                                                                                              channel_dim):
+    """Both ways of interpolating in wavelength: the code (3 dimensions, 4 nodes, 16 units: 108
+    multiply-adds per wavelength against the tables' 128) and the scale and shift tables (8 dimensions)."""
+    network = random_network(channel_layer=channel_layer, channel_dim=channel_dim)
     wi, wo = unit_pairs(300, seed=3)
-    shared, nodes = torch.randn(4), torch.randn(4, 3)
+    shared, nodes = torch.randn(4), torch.randn(4, channel_dim)
     node_nm = [400.0, 500.0, 600.0, 700.0]
     with torch.no_grad():
         rgb = SpectralNlbWithCodes(network, shared, nodes[:3])(wi, wo)
         torch.testing.assert_close(rgb, network(wi, wo, shared, nodes[:3]))
         spectral = SpectralNlbWithCodes(network, shared, nodes, node_nm)
+        assert spectral.interpolates_codes == (channel_dim == 3)
         # at a node: that node's code; between nodes: the linear interpolation of the two codes;
         # outside the range: the end node (clamped)
         for wavelength, code in ((500.0, nodes[1]), (530.0, 0.7 * nodes[1] + 0.3 * nodes[2]), (380.0, nodes[0]),
@@ -130,12 +135,13 @@ def silenced(network, units=(0, 3, 5)):
     return network
 
 
-@pytest.mark.parametrize("spectral", [True, False])
-def test_a_module_without_its_silent_units_is_the_same_function(spectral):
+@pytest.mark.parametrize("spectral, channel_dim", [(True, 3), (True, 8), (False, 3)])
+def test_a_module_without_its_silent_units_is_the_same_function(spectral, channel_dim):
     """Units whose ReLU input never exceeds 0 contribute nothing: removing them (their rows and the
-    next layer's columns) leaves f unchanged to float32 rounding; removing a live unit does not."""
-    network = silenced(random_network(seed=2))
-    shared, nodes = torch.randn(4), torch.randn(4 if spectral else 3, 3)
+    next layer's columns, and their FiLM rows whether the code or the tables are interpolated) leaves
+    f unchanged to float32 rounding; removing a live unit does not."""
+    network = silenced(random_network(seed=2, channel_dim=channel_dim))
+    shared, nodes = torch.randn(4), torch.randn(4 if spectral else 3, channel_dim)
     module = SpectralNlbWithCodes(network, shared, nodes, [400.0, 500.0, 600.0, 700.0] if spectral else None)
     peaks = module.unit_peaks(*unit_pairs(4000, seed=1))
     assert [len(p) for p in peaks] == [16, 16, 16]

@@ -200,7 +200,11 @@ class SpectralNlbWithCodes(nn.Module):
       shared pre-activation;
     * spectral: ``forward(wi, wo, wavelength) -> [N]``, the FiLM scale and shift interpolated
       linearly in wavelength between the nodes (clamped to their range, :class:`LinearInWavelength`)
-      — the same interpolation as the fit's.
+      — the same interpolation as the fit's.  The FiLM is affine in the code and the interpolation
+      weights sum to 1, so interpolating the node tables (``2 K units`` multiply-adds per
+      wavelength) and applying the FiLM to the interpolated code (``K channel_dim + 2 channel_dim
+      units``) give the same values; :attr:`interpolates_codes` picks the cheaper, which is the code
+      when it has fewer dimensions than there are nodes.
 
     **Units this material never uses.**  A material's codes leave many ReLU units of the shared
     network inactive over the whole hemisphere (for the shipped network and the four virtual
@@ -246,6 +250,11 @@ class SpectralNlbWithCodes(nn.Module):
             self.register_buffer(f"bias_{i}", bias.detach().clone())
         self.register_buffer("film_scale", scale.detach().clone())
         self.register_buffer("film_shift", shift.detach().clone())
+        # the FiLM itself, ``scale = G c + 1`` and ``shift = U c``, for codes interpolated in wavelength
+        self.register_buffer("node_codes", channels.clone())
+        self.register_buffer("film_scale_weight", network.channel_scale.weight.detach().clone())
+        self.register_buffer("film_scale_bias", torch.ones(scale.shape[-1]))
+        self.register_buffer("film_shift_weight", network.channel_shift.weight.detach().clone())
 
     def _layer(self, i: int) -> tuple[torch.Tensor, torch.Tensor]:
         return getattr(self, f"weight_{i}"), getattr(self, f"bias_{i}")
@@ -271,8 +280,22 @@ class SpectralNlbWithCodes(nn.Module):
         if wavelength is None:
             raise ValueError("a spectral fit needs wavelengths")
         weights = self.interpolation_weights(wavelength)
-        log1p_f = self._decode(pre, weights @ self.film_scale, weights @ self.film_shift)
+        if self.interpolates_codes:
+            code = weights @ self.node_codes
+            scale = F.linear(code, self.film_scale_weight, self.film_scale_bias)
+            shift = F.linear(code, self.film_shift_weight)
+        else:
+            scale, shift = weights @ self.film_scale, weights @ self.film_shift
+        log1p_f = self._decode(pre, scale, shift)
         return masked_brdf(wi, wo, log1p_f[:, None])[:, 0]
+
+    @property
+    def interpolates_codes(self) -> bool:
+        """Whether a spectral query interpolates the channel code and applies the FiLM to it (fewer
+        multiply-adds than interpolating the scale and shift tables; class docstring)."""
+        nodes, code_dim = self.node_codes.shape
+        units = self.film_scale.shape[-1]
+        return nodes * code_dim + 2 * code_dim * units < 2 * nodes * units
 
     @property
     def units(self) -> list[int]:
@@ -304,6 +327,9 @@ class SpectralNlbWithCodes(nn.Module):
                 weight = weight[:, keep[i - 1]]
             setattr(pruned, f"weight_{i}", weight.clone())
             setattr(pruned, f"bias_{i}", bias.clone())
-        pruned.film_scale = self.film_scale[:, keep[self.channel_layer]].clone()
-        pruned.film_shift = self.film_shift[:, keep[self.channel_layer]].clone()
+        film_units = keep[self.channel_layer]
+        for name in ("film_scale", "film_shift"):
+            setattr(pruned, name, getattr(self, name)[:, film_units].clone())
+        for name in ("film_scale_weight", "film_scale_bias", "film_shift_weight"):
+            setattr(pruned, name, getattr(self, name)[film_units].clone())
         return pruned
