@@ -555,6 +555,9 @@ DDP_SCRIPT = textwrap.dedent(
                   "val": float(trainer.callback_metrics["val/logcos_rmse"])}
         with open(f"{out}/rank{trainer.global_rank}.json", "w") as handle:
             json.dump(report, handle)
+        # torch asks for this before exit: a process group left to the interpreter's teardown
+        # can abort the process (SIGABRT) after the work is done
+        torch.distributed.destroy_process_group()
     """
 )
 
