@@ -822,7 +822,7 @@ def main_job_caption(scores: dict) -> str:
         f"{CAPTION_START} (`out/demo/gold_eval/comparison.png`, committed as "
         f"`docs/gold_truth_vs_model.png` with its scores, [`{MAIN_JOB}`]({MAIN_JOB})): left, the ground truth "
         "of the virtual gold, a glossy gold sphere on a grey checkerboard floor under a key and a rim light; "
-        "middle, the 3×10 spectral MLP trained on the 1001 shipped DS1 samples, indistinguishable at this size; "
+        "middle, the 3×10 spectral MLP trained on 677 of the 1001 shipped DS1 samples (the other 324, at the report's Table 5.1 incident angles, choose its checkpoint), indistinguishable at this size; "
         "right, their per-pixel CIEDE2000 on a 0–10 scale, black over the floor and most of the sphere "
         f"(ΔE mean {scores['image_delta_e2000_mean']:.2f}, p95 {scores['image_delta_e2000_p95']:.2f}, against a "
         f"render noise of {scores['noise']['image_delta_e2000_mean']:.2f} between two seeds of the truth; "

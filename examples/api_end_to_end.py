@@ -22,7 +22,7 @@ import neuralbrdf as nb
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], allow_abbrev=False)
     parser.add_argument("--out-dir", default="out/api", help="output folder (default out/api)")
-    parser.add_argument("--quick", action="store_true", help="one epoch, no RGB head, 16-pixel renders at 2 spp")
+    parser.add_argument("--quick", action="store_true", help="one epoch, no RGB head, evaluation at 16 pixels and 2 spp, last render at 32 pixels and 8 spp")
     args = parser.parse_args(argv)
     out = Path(args.out_dir)
 

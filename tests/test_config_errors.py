@@ -31,6 +31,12 @@ def test_a_misspelt_model_option_on_the_command_line(tmp_path, capsys):
     assert "(valid: bounds, max_evaluations, n_starts, seed)" in line
 
 
+def test_a_single_source_option_of_a_latent_fit_points_to_its_sources_list(tmp_path, capsys):
+    line = run_fails(["fit", "--config", "nlb_spectral", "--data.virtual", "gold"], tmp_path, capsys)
+    assert line.startswith("neuralbrdf train: error: --data.virtual: LatentFitData has no option 'virtual'; "
+                           "one virtual source is a list of one: --data.sources '[{\"virtual\": ...}]'")
+
+
 def test_a_misspelt_key_in_a_config_file_names_the_file(tmp_path, capsys):
     overlay = tmp_path / "mine.yaml"
     overlay.write_text("model:\n  init_args:\n    n_start: 4\n")

@@ -42,7 +42,7 @@ OUTSIDE = re.compile(r"\.\./shared\b|/work/shared\b")
 #: The only places of the user docs that name that folder, each for a reason: where the shipped
 #: configs and study profiles look for the reference data.  Each must still be there.
 OUTSIDE_ALLOWED = {
-    "README.md": ("`../shared/data/{merl-nbrdf,rgl-nbrdf,abc-low2012}` beside the checkout",),
+    "README.md": ("`../shared/data/{merl-nbrdf,rgl-nbrdf,abc-low2012}` relative to the folder",),
     "docs/study.md": ("those starting with `../shared/` are\n  relative to the repository root",),
 }
 #: The source files whose text users and maintainers read: the package, configs, scenes, scripts, tests.

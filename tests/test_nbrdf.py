@@ -364,6 +364,8 @@ def test_missing_json_sibling(copy_pair):
     expect_error(h5, str(js), "not found")
 
 
-def test_nonexistent_path_and_wrong_suffix(tmp_path):
+def test_nonexistent_path_and_wrong_suffix(tmp_path, monkeypatch):
     expect_error(tmp_path / "nothing.h5", str(tmp_path / "nothing.h5"), "not found")
+    monkeypatch.chdir(tmp_path)  # a relative path: the error says where it looked
+    expect_error(Path("data/nothing.h5"), f"not found at {tmp_path / 'data' / 'nothing.h5'} (relative to the folder")
     expect_error(tmp_path / "brass.csv", str(tmp_path / "brass.csv"), "NAME.h5")

@@ -98,10 +98,9 @@ class NbrdfNetwork:
         h5_path, json_path = path.with_suffix(".h5"), path.with_suffix(".json")
         for file in (h5_path, json_path):
             if not file.is_file():
-                raise InputError(
-                    "file not found (an NBRDF network needs both NAME.h5 and NAME.json)",
-                    path=file,
-                )
+                where = "" if file.is_absolute() else f" at {file.resolve()} (relative to the folder the command runs in)"
+                raise InputError(f"file not found{where}; an NBRDF network needs both NAME.h5 and NAME.json",
+                                 path=file)
         note_input(h5_path)
         note_input(json_path)
         check_file_size(json_path, MAX_JSON_BYTES, "NBRDF architecture file")

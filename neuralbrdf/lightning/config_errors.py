@@ -148,11 +148,17 @@ def _names(bad: str, valid: Sequence[str]) -> str:
     return hint
 
 
+#: Single-source options of the other data modules; the latent fits take such a source as a list of one.
+_SOURCE_OPTIONS = ("nbrdf", "merl", "rgl", "virtual")
+
+
 def _unknown(key: str, owner: str, valid: Sequence[str], args, configs) -> InputError:
     config, shown = where(key, args, configs)
     bad = key.rsplit(".", 1)[-1]
     prefix = f"{shown}: " if config is not None else ""
     what = f"{owner} has no option {bad!r}" if owner else f"no option {bad!r}"
+    if "sources" in valid and bad in _SOURCE_OPTIONS:
+        what += f"; one {bad} source is a list of one: --data.sources '[{{\"{bad}\": ...}}]'"
     return InputError(f"{prefix}{what}{_names(bad, valid)}", path=config if config is not None else shown)
 
 

@@ -52,7 +52,8 @@ def run(args) -> int:
     health = study["health"]
     above = sum(1 for p in study["points"] if p["failure"] == "error_above_2x_ds1")
     print(f"{len(study['points'])} cells ({study['run']['cells_run']} run, {study['run']['cells_cached']} cached; "
-          f"{len(health['failed'])} failed, {len(health['crashed'])} crashed, {above} with an error above 2x DS1) in "
+          f"{len(health['failed'])} failed to fit or score, {len(health['crashed'])} crashed, {above} failed by an error "
+          f"above twice their DS1 error; the failure map shows all three) in "
           f"{study['run']['wall_time_s']:.0f} s -> {args.out}/index.html")
     print("Pareto (ΔE vs render cost, pooled): " + (", ".join(study["pareto"]["render_ratio"]["pooled"]) or "none"))
     if health["status"] != "complete":
