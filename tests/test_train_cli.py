@@ -454,6 +454,8 @@ def test_a_fit_ends_with_a_summary_that_says_how_to_export(tmp_path, gcms_sessio
     err = capsys.readouterr().err
     best = run_dir / "checkpoints" / "best.ckpt"
     assert f"run: {run_dir}" in err and "metrics: fit/" in err and f"checkpoint: {best}" in err
+    score = json.loads((run_dir / "metrics.json").read_text())["fit/best_model_score"]
+    assert f"(chosen on val/loss: {score:.4g}; the fit/val metrics above are the last epoch's)" in err
     assert f"export: neuralbrdf export --ckpt {best} --out MODEL.onnx" in err
     assert "GPU available" not in err and "Tip" not in err  # quiet without --verbose
 

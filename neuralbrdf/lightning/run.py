@@ -742,7 +742,11 @@ def _summary(cli: NeuralBrdfCLI) -> str:
                      + (f" (+{len(shown) - 12} more in {path})" if len(shown) > 12 else ""))
     best = fitted_checkpoint(cli.run_dir) if cli.subcommand == "fit" else None
     if best is not None:
-        lines.append(f"checkpoint: {best}")
+        chosen = getattr(cli.trainer, "checkpoint_callback", None)
+        score = getattr(chosen, "best_model_score", None)
+        on = f" (chosen on {chosen.monitor}: {float(score):.4g}; the fit/val metrics above are the last epoch's)" if (
+            score is not None and chosen.monitor and best.stem == "best") else ""
+        lines.append(f"checkpoint: {best}{on}")
     if best is not None and isinstance(cli.model, WritesKind):  # a fitted model, not a pretraining
         names = list(getattr(cli.model, "material_names", None) or [])
         material = f" --material NAME (one file per material: {', '.join(names)})" if len(names) > 1 else ""
