@@ -365,7 +365,7 @@ def select(scene_path: str | Path, out_xml: str | Path, settings: SelectSettings
                 "error_contribution": error.whole, "on_object_delta_e2000": on_object, "time_s": seconds,
             })
             log(f"{material.name} -> {rung.name}: dE2000 {error.whole:.3f} (on the object "
-                f"{'-' if on_object is None else f'{on_object:.3f}'}), {seconds:.2f} s (full {reference_s:.2f} s)")
+                f"{'-' if on_object is None else f'{on_object:.3f}'}), {seconds:.2f} s (all full {reference_s:.2f} s; error renders, wavefront)")
 
     phase_done("rungs")
 
