@@ -460,6 +460,14 @@ def test_a_fit_ends_with_a_summary_that_says_how_to_export(tmp_path, gcms_sessio
     assert "GPU available" not in err and "Tip" not in err  # quiet without --verbose
 
 
+def test_an_epoch_line_says_when_the_fit_stops_before_its_last_epoch():
+    from neuralbrdf.lightning.progress import epoch_line
+
+    assert epoch_line(0, 6, {"train/loss": 0.5}, 2.2) == "epoch 1/6 train/loss=0.5 time_s=2.2"
+    assert epoch_line(0, 6, {}, 2.2, stopping=True).startswith("epoch 1/6 time_s=2.2; the fit is done: it stopped before")
+    assert epoch_line(5, 6, {}, 2.2, stopping=True) == "epoch 6/6 time_s=2.2"  # the last epoch: nothing to say
+
+
 def test_off_a_terminal_a_fit_logs_one_line_per_epoch(tmp_path, gcms_session, capfd):
     """pytest's output is no terminal: Lightning's bar gives way to ``epoch E/N key=value`` lines."""
     args = ["fit", "--config", "spectral_mlp", *data_args(gcms_session), "--trainer.max_epochs", "2",

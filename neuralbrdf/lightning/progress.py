@@ -26,12 +26,17 @@ def _value(value) -> float | None:
     return float(value) if isinstance(value, (int, float)) else None
 
 
-def epoch_line(epoch: int, max_epochs: int | None, metrics: dict, seconds: float) -> str:
-    """``epoch E/N key=value ... time_s=S`` (module docstring)."""
-    total = f"/{max_epochs}" if max_epochs is not None and max_epochs > 0 else ""
+def epoch_line(epoch: int, max_epochs: int | None, metrics: dict, seconds: float, stopping: bool = False) -> str:
+    """``epoch E/N key=value ... time_s=S`` (module docstring); ``stopping``: the fit ends with this
+    epoch, so a line ``epoch 1/6`` does not read as a fit cut short."""
+    has_total = max_epochs is not None and max_epochs > 0
+    total = f"/{max_epochs}" if has_total else ""
     pairs = [(name, _value(value)) for name, value in sorted(metrics.items())]
     shown = [f"{name}={value:.4g}" for name, value in pairs if value is not None][:MAX_METRICS_PER_LINE]
-    return " ".join([f"epoch {epoch + 1}{total}", *shown, f"time_s={seconds:.1f}"])
+    line = " ".join([f"epoch {epoch + 1}{total}", *shown, f"time_s={seconds:.1f}"])
+    if stopping and has_total and epoch + 1 < max_epochs:
+        line += "; the fit is done: it stopped before its last epoch (early stopping, or a small fit's L-BFGS run)"
+    return line
 
 
 class EpochLines(ProgressBar):
@@ -56,5 +61,5 @@ class EpochLines(ProgressBar):
         if not (self._enabled and trainer.is_global_zero):
             return
         line = epoch_line(trainer.current_epoch, trainer.max_epochs, dict(trainer.callback_metrics),
-                          time.perf_counter() - self._epoch_started)
+                          time.perf_counter() - self._epoch_started, stopping=trainer.should_stop)
         print(line, file=self.file if self.file is not None else sys.stderr, flush=True)
