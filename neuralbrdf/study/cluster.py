@@ -132,7 +132,7 @@ class ClusterCells:
 
     def run(self, specs: list[dict], cells_dir: Path, finished: Callable[[int, dict], None],
             say: Callable[[str], None]) -> None:
-        """Run the cells of ``specs`` as tasks, calling ``finished(index, result)`` as each ends."""
+        """:meth:`~neuralbrdf.study.runner.Cells.run`: each cell as a task (module docstring)."""
         out_dir = cells_dir.parent
         run_id = secrets.token_hex(8)
         with atomic_write(out_dir / MARK, encoding="ascii") as handle:

@@ -35,6 +35,7 @@ from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import asdict
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import Protocol
 
 from neuralbrdf.atomic import atomic_write
 from neuralbrdf.console import progress as progress_bar
@@ -61,6 +62,18 @@ def cell_spec(cell: Cell, key: str, profile: Profile, truth: tuple[Path, str]) -
             "render": asdict(profile.render), "cost": asdict(profile.cost)}
 
 
+class Cells(Protocol):
+    """Where a study's cells run: ``jobs`` at a time, on the Dask cluster at ``cluster`` or (``None``)
+    on this machine; ``run`` runs the cells of ``specs``, calling ``finished(index, result)`` as each
+    ends (``say``: a line for the user, beside the progress bar)."""
+
+    jobs: int
+    cluster: str | None
+
+    def run(self, specs: list[dict], cells_dir: Path, finished: Callable[[int, dict], None],
+            say: Callable[[str], None]) -> None: ...
+
+
 class LocalCells:
     """``--jobs N``: the cells run in N :class:`~neuralbrdf.study.workers.CellWorker` processes
     of the study's own, which inherit ``keep_fds`` (the study folder's lock)."""
@@ -73,7 +86,7 @@ class LocalCells:
 
     def run(self, specs: list[dict], cells_dir: Path, finished: Callable[[int, dict], None],
             say: Callable[[str], None]) -> None:
-        """Run the cells of ``specs``, calling ``finished(index, result)`` as each ends."""
+        """:meth:`Cells.run`."""
         workers: queue.SimpleQueue[CellWorker] = queue.SimpleQueue()
         for _ in range(self.jobs):
             workers.put(CellWorker(keep_fds=self.keep_fds))
@@ -95,7 +108,7 @@ class LocalCells:
                 workers.get().close()
 
 
-def run_cells(profile: Profile, out_dir: Path, cells: LocalCells, repairs: Repairs,
+def run_cells(profile: Profile, out_dir: Path, cells: Cells, repairs: Repairs,
               progress: bool = True) -> tuple[list[dict], int]:
     """Every cell's result in :func:`plan_cells` order, and how many ran now: each cell whose
     folder holds a finished result of it is reused (:func:`~neuralbrdf.study.cache.cached_result`),
@@ -173,7 +186,7 @@ def run_study(profile_name: str, out_dir: str | Path, jobs: int = 1, command: st
         return _run_locked(profile, profile_name, Path(out_dir), cells, command, progress, allow_failures)
 
 
-def _run_locked(profile: Profile, profile_name: str, out_dir: Path, cells: LocalCells, command: str | None,
+def _run_locked(profile: Profile, profile_name: str, out_dir: Path, cells: Cells, command: str | None,
                 progress: bool, allow_failures: bool) -> dict:
     from neuralbrdf.study.cost import machine
 
