@@ -77,6 +77,7 @@ STUDIES = (
 SPECTRAL_NLB = (("benchmarks/spectral_nlb.json", "python benchmarks/spectral_nlb.py"),
                 ("benchmarks/spectral_nlb_virtual.json", "python benchmarks/spectral_nlb.py --groups virtual "
                  "--plans DS1,DS3,DS4 --out benchmarks/spectral_nlb_virtual.json"))
+STUDY_CLUSTER = "benchmarks/study_cluster.json"
 SPECTRAL_NLB_VALIDATION = "benchmarks/spectral_nlb_validation.json"
 SPECTRAL_NLB_TIMING = "benchmarks/spectral_nlb_timing.json"
 SPECTRAL_PRETRAIN = "benchmarks/nlb_spectral_pretrain.json"
@@ -624,7 +625,30 @@ def studies_section() -> list[str]:
     for relative, report in STUDIES:
         if (ROOT / relative).is_file():
             lines += study_section(relative, report)
+    if (ROOT / STUDY_CLUSTER).is_file():
+        lines += study_cluster_section()
     return lines
+
+
+def study_cluster_section() -> list[str]:
+    """The quick profile on a two-worker local Dask cluster against ``--jobs 2`` (benchmarks/study_cluster.py)."""
+    data = load(STUDY_CLUSTER)
+    load_average = data["load_average"]
+    lines = ["### The study on a cluster", "",
+             f"The `{data['profile']}` profile ({data['cells']} cells) from an empty cache, run by `neuralbrdf study "
+             "--cluster` on a local Dask cluster of two one-thread workers (started before the command, as a cluster "
+             "is there before a study is submitted) and by `--jobs 2`, on the same machine, in turn. Wall time of "
+             "each command, from start to exit; the target: the cluster within "
+             f"{data['target']:.2f}× of `--jobs 2` ([study.md](study.md#on-a-cluster)).", ""]
+    rows = [[str(number + 1), f"`{'--jobs 2' if r['first'] == 'jobs' else '--cluster'}`", f"{r['jobs_2']['wall_s']:.1f}",
+             f"{r['cluster']['wall_s']:.1f}", f"{r['ratio']:.3f}", f"{r['cluster']['cluster_start_s']:.1f}"]
+            for number, r in enumerate(data["repeats"])]
+    lines += table(["repeat", "first", "`--jobs 2` s", "`--cluster` s", "cluster ÷ jobs 2", "cluster start s"], rows)
+    verdict = "within" if data["ratio_median"] <= data["target"] else "above"
+    lines += [f"Median ratio {data['ratio_median']:.3f}, {verdict} the target. Every cell's metrics (all but the "
+              f"timings) {'are the same' if data['same_metrics'] else 'differ'} on the cluster and with `--jobs 2`. "
+              f"Load average (1 min) {load_average['before'][0]:.2f} before, {load_average['after'][0]:.2f} after.", ""]
+    return lines + source_lines(STUDY_CLUSTER, data["command"], data.get("machine"))
 
 
 # -- the spectral NLB (benchmarks/nlb_spectral_pretrain.json, benchmarks/spectral_nlb.json) ----------

@@ -93,6 +93,10 @@ class LineProgress:
     def set_postfix_str(self, text: str, refresh: bool = True) -> None:
         self.postfix = text
 
+    def write(self, line: str, file=None) -> None:
+        """``line`` on its own line (``tqdm.write``)."""
+        print(line, file=file if file is not None else self.file, flush=True)
+
     def close(self) -> None:
         pass
 

@@ -172,11 +172,13 @@ def test_every_output_on_a_full_disk_is_one_line_naming_it(inputs, disk, capsys,
 def test_a_study_on_a_full_disk_is_one_line_naming_the_file(tmp_path, disk, capsys, monkeypatch):
     """The study's own writes (a new cell's cell.json here; its truths, results and report go the
     same way) on a disk that filled since its last run."""
+    import sys
+
     from test_study_robustness import ABC, FAKE_WORKER, profile
 
-    from neuralbrdf.study import runner
+    from neuralbrdf.study import workers
 
-    monkeypatch.setattr(runner, "WORKER_COMMAND", (runner.sys.executable, "-c", FAKE_WORKER))
+    monkeypatch.setattr(workers, "WORKER_COMMAND", (sys.executable, "-c", FAKE_WORKER))
     path = profile(tmp_path, variants=ABC)
     out = disk / "study"
     assert cli(["study", "--profile", str(path), "--out", str(out), "--no-progress"]) == 0

@@ -619,30 +619,33 @@ def test_report_only_and_missing_profile_are_one_line_errors(tmp_path, capsys):
     assert not (tmp_path / "index.html").exists()
 
 
-def test_killed_cell_is_rerun(tmp_path):
-    """A cell folder without result.json (a killed run) is cleared and rerun; one with its result is reused."""
-    from neuralbrdf.study.cache import Repairs
-    from neuralbrdf.study.runner import run_one
+def test_a_cell_that_ends_without_a_result_replaces_what_was_in_its_folder_with_its_log(tmp_path):
+    """A cell that ended without result.json (here a real worker given a spec it cannot run) is
+    ``cell_crashed``, and its folder holds its own record (cell.json, log.txt) in place of what an
+    earlier run left there; nothing of its attempt folder stays beside it."""
+    from neuralbrdf.study.workers import CellWorker, run_in_worker
 
     cell = Cell("gold", "abc", "DS1", 0.0, 0)
-    spec = {"key": "k", "truth_sha256": "t", "is_main": True}
+    spec = {"cell": vars(cell), "key": "k", "truth_sha256": "t", "is_main": True, "not": "a cell"}
     folder = tmp_path / "k"
     folder.mkdir()
     (folder / "stale.txt").write_text("left over")
-    cached = {**vars(cell), "is_main": True, "key": "k", "truth_sha256": "t", "failure": None, "message": None,
-              "cost": {}, "error": {}}
-    (folder / "result.json").write_text(json.dumps(cached))
-    assert run_one(cell, spec, tmp_path, Repairs(tmp_path)) == (cached, False)
-    (folder / "result.json").unlink()
-    result, ran = run_one(cell, {**spec, "not": "a cell"}, tmp_path, Repairs(tmp_path))
-    assert ran and result["failure"] == "cell_crashed" and not (folder / "stale.txt").exists()
+    worker = CellWorker()
+    try:
+        result = run_in_worker(spec, tmp_path, worker)
+    finally:
+        worker.close()
+    assert result["failure"] == "cell_crashed" and "cells/k/log.txt" in result["message"]
     assert result["is_main"]  # as the spec said: a crashed main cell still marks its (material, variant)
+    assert sorted(p.name for p in folder.iterdir()) == ["cell.json", "log.txt"]
+    assert "KeyError" in (folder / "log.txt").read_text()
+    assert [p.name for p in tmp_path.iterdir()] == ["k"]
 
 
-FAKE_CELL = ("import os, sys; from pathlib import Path; import neuralbrdf.study.cell as c; "
+FAKE_CELL = ("import json, os, sys; from pathlib import Path; import neuralbrdf.study.cell as c; "
              "c._import_fitting = lambda: None; "
-             "c.run_cell = lambda folder: os._exit(3) if folder.name == 'crash' else "
-             "(folder / 'result.json').write_text('{\"pid\": %d}' % os.getpid()); c.serve()")
+             "c.run_cell = lambda folder: os._exit(3) if json.loads((folder / 'cell.json').read_text())['key'] == 'crash' "
+             "else (folder / 'result.json').write_text('{\"pid\": %d}' % os.getpid()); c.serve()")
 
 
 def test_a_cell_that_kills_its_worker_is_reported_and_the_worker_replaced(tmp_path):
@@ -650,24 +653,47 @@ def test_a_cell_that_kills_its_worker_is_reported_and_the_worker_replaced(tmp_pa
     cell runs in a new process, and a worker serves several cells."""
     import sys
 
-    from neuralbrdf.study.cache import Repairs
-    from neuralbrdf.study.runner import CellWorker, run_one
+    from neuralbrdf.study.workers import CellWorker, run_in_worker
 
-    def spec(key):
-        return {"key": key, "truth_sha256": "t", "is_main": False}
+    def spec(key, cell):
+        return {"cell": vars(cell), "key": key, "truth_sha256": "t", "is_main": False}
 
     worker = CellWorker((sys.executable, "-c", FAKE_CELL))
-    repairs = Repairs(tmp_path)
     try:
-        first, ran = run_one(Cell("gold", "abc", "DS1", 0.0, 0), spec("ok1"), tmp_path, repairs, worker)
-        second, _ = run_one(Cell("gold", "abc", "DS1", 0.0, 1), spec("ok2"), tmp_path, repairs, worker)
-        assert ran and first["pid"] == second["pid"]  # one process ran both
-        crashed, ran = run_one(Cell("gold", "abc", "DS2", 0.0, 0), spec("crash"), tmp_path, repairs, worker)
-        assert ran and crashed["failure"] == "cell_crashed" and "worker process died" in crashed["message"]
-        after, _ = run_one(Cell("gold", "abc", "DS3", 0.0, 0), spec("ok3"), tmp_path, repairs, worker)
+        first = run_in_worker(spec("ok1", Cell("gold", "abc", "DS1", 0.0, 0)), tmp_path, worker)
+        second = run_in_worker(spec("ok2", Cell("gold", "abc", "DS1", 0.0, 1)), tmp_path, worker)
+        assert first["pid"] == second["pid"]  # one process ran both
+        crashed = run_in_worker(spec("crash", Cell("gold", "abc", "DS2", 0.0, 0)), tmp_path, worker)
+        assert crashed["failure"] == "cell_crashed" and "worker process died" in crashed["message"]
+        after = run_in_worker(spec("ok3", Cell("gold", "abc", "DS3", 0.0, 0)), tmp_path, worker)
         assert after["pid"] != first["pid"]
     finally:
         worker.close()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["crash", "ok1", "ok2", "ok3"]
+
+
+def test_a_stopped_cell_leaves_nothing(tmp_path):
+    """A cell stopped while it runs (its cluster task cancelled) has its worker killed and its
+    attempt folder removed: no cell folder appears."""
+    import sys
+    import time
+
+    from neuralbrdf.study.workers import CellStopped, CellWorker, run_in_worker
+
+    started = tmp_path / "started"
+    endless = ("import sys, time\nfor line in sys.stdin:\n    open(%r, 'w').write(line)\n    time.sleep(600)\n"
+               % str(started))
+    worker = CellWorker((sys.executable, "-c", endless))
+    cells = tmp_path / "cells"
+    deadline = time.monotonic() + 60
+    try:
+        with pytest.raises(CellStopped):
+            run_in_worker({"cell": {}, "key": "k", "is_main": False}, cells, worker,
+                          should_stop=lambda: started.is_file() or time.monotonic() > deadline)
+        assert worker.process is None
+    finally:
+        worker.close()
+    assert started.is_file() and list(cells.iterdir()) == []
 
 
 def test_worker_logs_each_cell_and_answers_once(tmp_path, monkeypatch):

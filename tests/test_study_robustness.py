@@ -17,7 +17,7 @@ import pytest
 from neuralbrdf.cli.main import main as cli
 from neuralbrdf.errors import InputError
 from neuralbrdf.folder_lock import folder_lock
-from neuralbrdf.study import runner
+from neuralbrdf.study import workers
 from neuralbrdf.study.cells import MAIN_SEED, Cell, cell_key, plan_cells
 from neuralbrdf.study.profile import load_profile
 
@@ -69,7 +69,7 @@ def fake(monkeypatch):
         Path(out).parent.mkdir(parents=True, exist_ok=True)
         Path(out).write_text(f"truth of {source}\n")
 
-    monkeypatch.setattr(runner, "WORKER_COMMAND", (sys.executable, "-c", FAKE_WORKER))
+    monkeypatch.setattr(workers, "WORKER_COMMAND", (sys.executable, "-c", FAKE_WORKER))
     monkeypatch.setattr(truth, "export_truth", export_truth)
     return exported
 
@@ -140,6 +140,26 @@ def test_a_damaged_or_foreign_cached_result_is_said_in_one_line_and_the_cell_rer
     assert json.loads(target.read_text())["seed"] == 1
 
 
+def test_what_a_killed_run_left_among_the_cells_is_cleared_and_the_cell_reruns(tmp_path, fake):
+    """A cell folder without its result (a run killed while the cell was published) and the attempt
+    folders of cells that were running are removed; the cell runs again and its folder is whole."""
+    from neuralbrdf.atomic import TEMP_MARKER
+
+    out, path = tmp_path / "study", profile(tmp_path)
+    assert study(path, out) == 0
+    keys = sorted(p.name for p in (out / "cells").iterdir())
+    folder = out / "cells" / keys[0]
+    (folder / "result.json").unlink()
+    (folder / "stray.txt").write_text("left over")
+    attempt = out / "cells" / f".{keys[1]}{TEMP_MARKER}99999999-0a1b2c3d"
+    attempt.mkdir()
+    (attempt / "log.txt").write_text("half a cell")
+    assert study(path, out) == 0
+    assert json.loads((out / "study.json").read_text())["run"]["cells_run"] == 1
+    assert sorted(p.name for p in (out / "cells").iterdir()) == keys
+    assert sorted(p.name for p in folder.iterdir()) == ["cell.json", "result.json"]
+
+
 def test_a_cut_off_run_log_is_repaired_and_its_damaged_line_kept(tmp_path, fake, capsys):
     out, path = tmp_path / "study", profile(tmp_path)
     assert study(path, out) == 0
@@ -173,7 +193,7 @@ def test_a_worker_still_running_its_cell_keeps_the_folder_locked(tmp_path):
     waits = f"import os, sys, time\nsys.stdin.readline()\nwhile not os.path.exists({str(release)!r}): time.sleep(0.05)\n"
     with folder_lock(tmp_path / "study", "study") as lock:
         (tmp_path / "study" / "cells").mkdir()
-        worker = runner.CellWorker((sys.executable, "-c", waits), keep_fds=(lock.fd,))
+        worker = workers.CellWorker((sys.executable, "-c", waits), keep_fds=(lock.fd,))
         worker._start()
         worker.process.stdin.write("cell\n")
         worker.process.stdin.flush()
@@ -331,14 +351,14 @@ import sys
 from pathlib import Path
 
 from neuralbrdf.evaluation import truth
-from neuralbrdf.study import runner
+from neuralbrdf.study import workers
 
 def export_truth(source, out):
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     Path(out).write_text(f"truth of {source}\n")
 
 truth.export_truth = export_truth
-runner.WORKER_COMMAND = (sys.executable, "-c", sys.argv[1])  # the real worker loop, a cell that never ends
+workers.WORKER_COMMAND = (sys.executable, "-c", sys.argv[1])  # the real worker loop, a cell that never ends
 from neuralbrdf.cli.main import main
 sys.exit(main(sys.argv[2:]))
 """

@@ -17,7 +17,7 @@ from neuralbrdf.cli import commands
 from neuralbrdf.console import clean_warnings
 from neuralbrdf.data.plans import PLAN_NAMES
 from neuralbrdf.errors import (ENVIRONMENT_ERRNOS, EXIT_BAD_INPUT, EXIT_ENVIRONMENT, EXIT_OK, EnvironmentFailure,
-                               InputError, error_line, exit_status)
+                               InputError, Interrupted, error_line, exit_status)
 from neuralbrdf.render import DEFAULT_VARIANT
 from neuralbrdf.study import command as study_command
 from neuralbrdf.explorer import command as explorer_command
@@ -306,7 +306,7 @@ def _run(args: argparse.Namespace) -> int:
     try:
         with command_inputs():
             status = args.func(args)  # a command that can fail after its work returns its exit status
-    except (InputError, EnvironmentFailure) as error:
+    except (InputError, EnvironmentFailure, Interrupted) as error:
         print(error_line(prog, error), file=sys.stderr)
         return exit_status(error)
     except OSError as error:  # one that no reader or writer named: its file, if the OS gave one

@@ -348,12 +348,18 @@ def _renders_section(study: dict, figs: dict, rerun: str) -> str:
     return _section("Renders", "".join(parts))
 
 
+def _on_cluster(run: dict) -> str:
+    """`` on the Dask cluster at ADDRESS`` for a study whose cells ran there, else ``""``."""
+    return f" on the Dask cluster at {html.escape(run['cluster'])}" if run.get("cluster") else ""
+
+
 def _machine_section(study: dict, rerun: str) -> str:
     machine, run = study["machine"], study["run"]
     versions = ", ".join(f"{k} {v}" for k, v in machine["versions"].items())
     return _section("Machine and how to reproduce", (
         f"<p>{html.escape(machine['cpu'])}, {machine['cores']} cores, {html.escape(machine['platform'])}, "
-        f"Python {machine['python']}; {html.escape(versions)}. {run['jobs']} cell{'s' if run['jobs'] != 1 else ''} at a time; seeds "
+        f"Python {machine['python']}; {html.escape(versions)}. {run['jobs']} cell{'s' if run['jobs'] != 1 else ''} at a time"
+        f"{_on_cluster(run)}; seeds "
         f"{html.escape(', '.join(str(s) for s in run['seeds']))}; hemisphere metrics over {run['hemisphere_pairs']} "
         "direction pairs.</p>"
         f"<p>Run the study again (finished cells in the output folder's <code>cells/</code> are reused, new or "
@@ -377,7 +383,8 @@ def write_report(study: dict, figs: dict, out_dir: str | Path) -> Path:
         f"<title>neuralbrdf study: which model to use</title><style>{STYLE}</style></head><body><main>",
         "<h1>neuralbrdf study: which model to use</h1>",
         f"<p>Profile <code>{html.escape(run['profile'])}</code>, run {html.escape(_when(run['started']))}: {len(study['points'])} "
-        f"cells on {html.escape(study['machine']['cpu'])} ({study['machine']['cores']} cores). "
+        f"cells{_on_cluster(run) + ', submitted from' if run.get('cluster') else ' on'} "
+        f"{html.escape(study['machine']['cpu'])} ({study['machine']['cores']} cores). "
         'Data: <a href="study.json">study.json</a>.</p>',
         _status(study),
         "<h2>Which model to use</h2>",
