@@ -120,12 +120,13 @@ class Source:
                 **({"trust_units": True} if self.trust_units else {})}
 
 
-def read(source: PathLike, reference: PathLike | None = None, *, plan: str | None = None,
+def read(source: PathLike, reference: PathLike | None = None, *, plan: str | PathLike | None = None,
          name: str | None = None, trust_units: bool = False) -> Source:
     """Read a material: a BRDF table (spherical or signed in-plane), a GCMS raw file with its
     Munsell N9 ``reference``, an NBRDF proxy ``NAME.h5``, a MERL ``NAME.binary`` or an RGL
     ``NAME.bsdf`` (spectral from a ``NAME_spec.bsdf``, RGB from a ``NAME_rgb.bsdf``; all three
-    sampled on ``plan``, default DS1), or ``virtual:NAME`` (``cyan``, ``magenta``, ``gold``,
+    sampled on ``plan``: DS1 (default) to DS4, ``low``, or a plan file such as
+    :func:`design_plan` writes), or ``virtual:NAME`` (``cyan``, ``magenta``, ``gold``,
     ``gonio``: the shipped DS1 measurement).  A measurement whose numbers look like a unit slip
     (angles in radians, wavelengths in µm, ... :mod:`neuralbrdf.data.units`) is refused unless
     ``trust_units``.
@@ -139,20 +140,21 @@ def read(source: PathLike, reference: PathLike | None = None, *, plan: str | Non
     neuralbrdf.errors.InputError: unknown virtual material 'silver'; expected one of munsell_n9, cyan, magenta, gold, gonio, ...
     """
     from neuralbrdf.data.loading import load_measurement
-    from neuralbrdf.data.plans import PLAN_NAMES
+    from neuralbrdf.data.plans import check_plan
     from neuralbrdf.sources import SAMPLED_SUFFIXES, sample_file
 
     text = os.fspath(_path(source, "source", "a file path or 'virtual:NAME'"))
     if reference is not None:
         _path(reference, "reference")
-    _text("plan", plan)
+    if plan is not None and not isinstance(plan, (str, os.PathLike)):
+        raise InputError(f"plan: expected a plan name or a plan file path, got {type(plan).__name__} {plan!r}")
     _text("name", name)
     suffix = Path(text).suffix
     sampled = not text.startswith(VIRTUAL_PREFIX) and suffix in SAMPLED_SUFFIXES
     if plan is not None and not sampled:
         raise InputError(f"plan {plan!r} applies to NBRDF (.h5), MERL (.binary) and RGL (.bsdf) files, not to {text}")
-    if plan is not None and plan not in PLAN_NAMES:
-        raise InputError(f"unknown plan {plan!r}; expected one of {', '.join(PLAN_NAMES)}")
+    if plan is not None:
+        plan = check_plan(plan, "plan")
     if reference is not None and (text.startswith(VIRTUAL_PREFIX) or sampled):
         raise InputError(f"a Munsell reference goes with a GCMS raw file, not with {text}")
     if trust_units and (text.startswith(VIRTUAL_PREFIX) or sampled):

@@ -36,7 +36,7 @@ from neuralbrdf.data.merl_binary import MerlBrdf, sample_merl
 from neuralbrdf.data.nbrdf import NbrdfNetwork, sample_plan
 from neuralbrdf.data.rgl_bsdf import SUFFIX as RGL_SUFFIX
 from neuralbrdf.data.rgl_bsdf import RglBsdf, sample_rgl
-from neuralbrdf.data.plans import PLAN_NAMES, plan_spherical
+from neuralbrdf.data.plans import PLAN_HELP, check_plan, plan_label, plan_spherical
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
 from neuralbrdf.geometry import spherical_pair_to_vectors
@@ -70,15 +70,15 @@ class MaterialData:
 
 
 def _check_plan(plan: str | None, key: str) -> None:
-    if plan is not None and plan not in PLAN_NAMES:
-        raise InputError(f"unknown plan {plan!r}; expected one of {', '.join(PLAN_NAMES)}", key=key)
+    if plan is not None:
+        check_plan(plan, key)
 
 
 def virtual_truth(material: str, plan: str) -> BrdfTable:
     """Noiseless spectral BRDF of a virtual stand-in on any plan (400–700 nm, sr⁻¹)."""
     angles = plan_spherical(plan)
     values = get_material(material).brdf(*spherical_pair_to_vectors(*angles), GROUND_TRUTH_WAVELENGTHS_NM)
-    return BrdfTable(*angles, values, GROUND_TRUTH_WAVELENGTHS_NM.copy(), source=f"virtual {material} on {plan}")
+    return BrdfTable(*angles, values, GROUND_TRUTH_WAVELENGTHS_NM.copy(), source=f"virtual {material} on {plan_label(plan)}")
 
 
 def load_fit_measurement(path, reference=None, trust_units: bool = False) -> BrdfTable:
@@ -190,9 +190,11 @@ def check_source(source, where: str) -> dict[str, str | bool]:
         raise InputError(f"needs exactly one of {', '.join(SOURCE_KEYS)}, got {given or 'none'}", key=where)
     if "reference" in source and given[0] != "path":
         raise InputError("'reference' goes with a GCMS raw 'path'", key=where)
-    if "plan" in source and (given[0] not in SAMPLED_KEYS or source["plan"] not in PLAN_NAMES):
-        raise InputError(f"'plan' is for nbrdf, merl and rgl sources, one of {', '.join(PLAN_NAMES)}; got "
-                         f"{source['plan']!r}", key=where)
+    if "plan" in source:
+        if given[0] not in SAMPLED_KEYS:
+            raise InputError(f"'plan' is for nbrdf, merl and rgl sources ({PLAN_HELP}); got {source['plan']!r}",
+                             key=where)
+        check_plan(source["plan"], f"{where}.plan")
     if "trust_units" in source and (given[0] != "path" or not isinstance(source["trust_units"], bool)):
         raise InputError(f"'trust_units' is true or false, for a 'path'; got {source['trust_units']!r}", key=where)
     return {k: v if k == "trust_units" else str(v) for k, v in source.items()}

@@ -88,3 +88,81 @@ def test_every_third_theta_i_split_reproduces_table_5_1_on_ds1_and_generalises()
 def test_unknown_plan_is_rejected_with_the_valid_names():
     with pytest.raises(InputError, match="DS1"):
         plans.plan_spherical("DS9")
+
+
+# --------------------------------------------------------------------------- plan files
+
+
+def _write(path, text):
+    path.write_text(text)
+    return str(path)
+
+
+@pytest.mark.parametrize("name", ["DS3", "DS4", "low"])
+def test_a_plan_file_written_by_the_plan_command_is_that_plan(tmp_path, name):
+    from neuralbrdf.cli.main import main
+
+    out = tmp_path / f"{name}.csv"
+    assert main(["plan", name, "--out", str(out)]) == 0
+    for got, expected in zip(plans.plan_spherical(str(out)), plans.plan_spherical(name)):
+        np.testing.assert_allclose(got, expected, atol=1e-6)
+    if name != "low":
+        for got, expected in zip(plans.in_plane_plan(out), plans.in_plane_plan(name)):
+            np.testing.assert_allclose(got, expected, atol=1e-6)
+    assert plans.check_plan(out) == str(out) and plans.plan_label(out) == name
+
+
+def test_a_plan_file_keeps_its_own_pairs_and_signs(tmp_path):
+    path = _write(tmp_path / "mine.csv", "theta_i,theta_r\n30,20\n-10,5\n0,-45\n")
+    ti, tr = plans.in_plane_plan(path)
+    assert ti.tolist() == [30.0, -10.0, 0.0] and tr.tolist() == [20.0, 5.0, -45.0]
+    from neuralbrdf.geometry import spherical_to_inplane
+
+    back = spherical_to_inplane(*plans.plan_spherical(path))
+    np.testing.assert_allclose(back[0], ti, atol=1e-9)
+    np.testing.assert_allclose(back[1], tr, atol=1e-9)
+
+
+@pytest.mark.parametrize("text, match", [
+    ("theta_i,theta_r\n30,20\n-10,5\n30,20\n", r"line 4: the pair \(30°, 20°\) is listed twice \(first on line 2\)"),
+    ("theta_i,theta_r\n30,95\n", r"line 2, column 'theta_r': angle 95° outside \[-90, 90\]"),
+    ("theta_i,theta_o\n30,20\n", "a plan file needs the columns theta_i,theta_r"),
+    ("theta_i,theta_r,R\n30,20,1\n", "column 'R': unexpected column in a plan file"),
+    ("theta_i,theta_r\n30,nan\n", "line 2, column 'theta_r': non-finite"),
+    ("theta_i,phi_i,theta_o,phi_o\n30,0,20,360\n", r"column 'phi_o': angle 360° outside \[0, 360\)"),
+])
+def test_a_bad_plan_file_is_refused_naming_line_and_column(tmp_path, text, match):
+    path = _write(tmp_path / "bad.csv", text)
+    with pytest.raises(InputError, match=match):
+        plans.check_plan(path, "--plan")
+
+
+def test_an_out_of_plane_plan_is_refused_where_the_instrument_measures(tmp_path):
+    path = _write(tmp_path / "sph.csv", "theta_i,phi_i,theta_o,phi_o\n30,0,20,180\n30,0,20,90\n")
+    assert len(plans.plan_spherical(path)[0]) == 2  # a truth can be sampled anywhere
+    with pytest.raises(InputError, match="1 of 2 pairs lie out of the plane of incidence .the first on data row 2."):
+        plans.check_plan(path, "--plan", in_plane=True)
+    with pytest.raises(InputError, match="the low set is out of the plane"):
+        plans.check_plan("low", "--plan", in_plane=True)
+
+
+def test_a_name_that_is_no_plan_and_no_file_names_the_choices():
+    with pytest.raises(InputError, match="option '--plan': unknown plan 'DS9'; expected DS1, DS2, DS3, DS4, low, or a "
+                                         "plan file"):
+        plans.check_plan("DS9", "--plan")
+    with pytest.raises(InputError, match="missing.csv: file not found"):
+        plans.check_plan("missing.csv", "--plan")
+
+
+def test_every_plan_option_takes_a_plan_file(tmp_path, capsys):
+    from neuralbrdf.cli.main import main
+    from neuralbrdf.data.gcms import read_gcms
+    from neuralbrdf.data.table import read_table
+
+    plan = _write(tmp_path / "three.csv", "theta_i,theta_r\n30,30\n-20,40\n50,-50\n")
+    assert main(["sample", "virtual:gold", "--plan", plan, "--out", str(tmp_path / "t.csv")]) == 0
+    assert read_table(tmp_path / "t.csv").n_rows == 3
+    assert main(["simulate", "--material", "gold", "--plan", plan, "--out", str(tmp_path / "raw.csv")]) == 0
+    raw = read_gcms(tmp_path / "raw.csv")
+    assert raw.theta_i.tolist() == [30.0, -20.0, 50.0] and raw.theta_r.tolist() == [30.0, 40.0, -50.0]
+    assert "on three (3 pairs)" in capsys.readouterr().out

@@ -273,7 +273,7 @@ def test_instrument_rejects_bad_input():
         instrument.measure("gold", [10.0, 20.0], [10.0])
     with pytest.raises(InputError, match="unknown virtual material"):
         instrument.measure_plan("chrome", "DS1")
-    with pytest.raises(InputError, match="unknown in-plane plan"):
+    with pytest.raises(InputError, match="unknown plan .DS9.; expected DS1"):
         instrument.measure_plan("gold", "DS9")
     assert instrument.measure_plan("gonio", "DS4").n_rows == 6
 

@@ -42,15 +42,15 @@ def plan(args) -> None:
 
 
 def simulate(args) -> None:
-    theta_i, theta_r = plans.in_plane_plan(args.plan)
+    theta_i, theta_r = plans.in_plane_plan(plans.check_plan(args.plan, "--plan", in_plane=True))
     if args.truth:
         table = instrument.VirtualGoniospectrophotometer().ground_truth(args.material, theta_i, theta_r)
         write_table(table, args.out)
-        print(f"ground truth of {args.material} on {args.plan}: {table.n_rows} rows -> {args.out}")
+        print(f"ground truth of {args.material} on {plans.plan_label(args.plan)}: {table.n_rows} rows -> {args.out}")
         return
     device = instrument.VirtualGoniospectrophotometer(noise_rel=args.noise, noise_abs=args.noise_abs, seed=args.seed)
     write_gcms(device.measure(args.material, theta_i, theta_r), args.out)
-    print(f"GCMS raw measurement of {args.material} on {args.plan} -> {args.out}")
+    print(f"GCMS raw measurement of {args.material} on {plans.plan_label(args.plan)} ({len(theta_i)} pairs) -> {args.out}")
 
 
 #: The option of the commands that read a measurement as it is where its numbers look like a unit slip.
@@ -75,13 +75,14 @@ def to_rgb(args) -> None:
 
 
 def sample(args) -> None:
+    plans.check_plan(args.plan, "--plan")
     source = str(args.material)
     if source.startswith("virtual:"):
         table = virtual_truth(source[len("virtual:"):], args.plan)
     else:
         table = sample_file(source, args.plan, progress=True)
     write_table(table, args.out)
-    print(f"{source} on {args.plan}: {table.n_rows} rows -> {args.out}")
+    print(f"{source} on {plans.plan_label(args.plan)}: {table.n_rows} rows -> {args.out}")
 
 
 def plot(args) -> None:

@@ -15,7 +15,7 @@ import sys
 from neuralbrdf.atomic import command_inputs
 from neuralbrdf.cli import commands
 from neuralbrdf.console import clean_warnings
-from neuralbrdf.data.plans import PLAN_NAMES
+from neuralbrdf.data.plans import PLAN_HELP, PLAN_NAMES
 from neuralbrdf.errors import (ENVIRONMENT_ERRNOS, EXIT_BAD_INPUT, EXIT_ENVIRONMENT, EXIT_OK, EnvironmentFailure,
                                InputError, Interrupted, error_line, exit_status)
 from neuralbrdf.render import DEFAULT_VARIANT
@@ -85,7 +85,8 @@ def build_parser() -> argparse.ArgumentParser:
         "(1/sr, 400-700 nm).",
     )
     p.add_argument("--material", required=True, help="cyan, magenta, gold, gonio or munsell_n9")
-    p.add_argument("--plan", default="DS1", choices=[n for n in PLAN_NAMES if n != "low"])
+    p.add_argument("--plan", default="DS1", help="DS1 (default), DS2, DS3, DS4 or an in-plane plan file (CSV of "
+                   "theta_i,theta_r, as 'neuralbrdf plan' writes)")
     p.add_argument("--noise", type=float, default=0.0, help="relative (multiplicative) noise, std dev (default 0)")
     p.add_argument("--noise-abs", type=float, default=0.0, help="additive noise on beta, std dev (default 0)")
     p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
@@ -130,7 +131,7 @@ def build_parser() -> argparse.ArgumentParser:
             "(spectral, 400-700 nm).",
         )
         p.add_argument("material", help="NAME.binary, NAME.bsdf, NAME.h5 (or NAME.json) or virtual:NAME")
-        p.add_argument("--plan", required=True, choices=PLAN_NAMES)
+        p.add_argument("--plan", required=True, help=PLAN_HELP)
         p.add_argument("--out", required=True, help="output BRDF table CSV")
 
     p = add(

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from neuralbrdf.atomic import note_input
-from neuralbrdf.data.plans import plan_spherical
+from neuralbrdf.data.plans import plan_label, plan_spherical
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
 from neuralbrdf.geometry import half_diff_angles, spherical_pair_to_vectors
@@ -102,7 +102,7 @@ def sample_merl(brdf: MerlBrdf, plan_name: str) -> BrdfTable:
     """RGB :class:`BrdfTable` of a MERL measurement on a sampling plan of docs/measure.md#sampling-plans."""
     angles = plan_spherical(plan_name)
     values = brdf.evaluate(*spherical_pair_to_vectors(*angles))
-    return BrdfTable(*angles, values=values, source=f"merl:{brdf.name}:{plan_name}")
+    return BrdfTable(*angles, values=values, source=f"merl:{brdf.name}:{plan_label(plan_name)}")
 
 
 def write_merl(values_sr: np.ndarray, path: str | PathLike[str]) -> None:

@@ -39,7 +39,7 @@ from array_api_compat import array_namespace, device
 from tqdm.auto import tqdm
 
 from neuralbrdf.atomic import note_input
-from neuralbrdf.data.plans import plan_spherical
+from neuralbrdf.data.plans import plan_label, plan_spherical
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
 from neuralbrdf.limits import MAX_JSON_BYTES, check_file_size
@@ -186,7 +186,7 @@ def sample_plan(network: NbrdfNetwork, plan_name: str, progress: bool = False) -
         network,
         *plan_spherical(plan_name),
         progress=progress,
-        source=f"nbrdf:{network.name}:{plan_name}",
+        source=f"nbrdf:{network.name}:{plan_label(plan_name)}",
     )
 
 

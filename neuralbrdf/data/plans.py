@@ -15,16 +15,24 @@ The Löw et al. (2012) "full gamut" set has 8 incident polar angles (5°, 15°, 
 The spectral MLP split (Table 5.1) puts whole incident angles in the test set; for plans
 without Table 5.1's angles, :func:`every_third_theta_i_split` generalises it (on DS1's 5° grid
 the two coincide).
+
+**Plan files.**  Wherever a plan is asked for, a CSV file of pairs may stand in for a name: the
+format ``neuralbrdf plan`` writes — signed in-plane ``theta_i, theta_r`` (degrees, in [-90, 90];
+the format of DS1–DS4 and of designed plans, :mod:`neuralbrdf.acquisition`) or spherical
+``theta_i, phi_i, theta_o, phi_o`` (the ``low`` set's).  A file is read strictly (file, line
+and column named on any defect) and may not list a pair twice.
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from neuralbrdf.errors import InputError
-from neuralbrdf.geometry import inplane_to_spherical
+from neuralbrdf.geometry import inplane_to_spherical, spherical_to_inplane
 
 ANGLE_LIMIT_DEG = 60.0
 GLOSSY_WINDOW_DEG = 10.0
@@ -57,6 +65,13 @@ LOW_N_THETA_O = 90
 LOW_N_PHI_O = 320
 
 PLAN_NAMES = ("DS1", "DS2", "DS3", "DS4", "low")
+#: What a plan argument may be, for help texts and errors.
+PLAN_HELP = "DS1, DS2, DS3, DS4, low, or a plan file (CSV of theta_i,theta_r pairs, as 'neuralbrdf plan' writes)"
+#: Columns of an in-plane plan file (signed angles, degrees) and of a spherical one.
+INPLANE_PLAN_COLUMNS = ("theta_i", "theta_r")
+SPHERICAL_PLAN_COLUMNS = ("theta_i", "phi_i", "theta_o", "phi_o")
+#: In-plane angles of two rows closer than this (degrees) are the same pair.
+SAME_PAIR_DEG = 1e-6
 
 
 def _grid(start: float, stop: float, step: float) -> np.ndarray:
@@ -70,8 +85,11 @@ def is_glossy(theta_i_deg, theta_r_deg) -> np.ndarray:
     return np.abs(np.asarray(theta_i_deg) - np.asarray(theta_r_deg)) <= GLOSSY_WINDOW_DEG + 1e-9
 
 
-def in_plane_plan(name: str) -> tuple[np.ndarray, np.ndarray]:
-    """Signed in-plane ``(theta_i, theta_r)`` arrays (degrees) of DS1, DS2, DS3 or DS4."""
+def in_plane_plan(name: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Signed in-plane ``(theta_i, theta_r)`` arrays (degrees) of DS1, DS2, DS3, DS4 or a plan file
+    (module docstring) whose pairs all lie in the plane of incidence."""
+    if is_plan_file(name):
+        return read_plan_file(name).in_plane()
     if name == "DS4":
         theta_r = np.array(DS4_THETA_R)
         return np.full_like(theta_r, DS4_THETA_I), theta_r
@@ -104,13 +122,119 @@ def low_plan() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     return ti, np.zeros_like(ti), to, po
 
 
-def plan_spherical(name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Any plan as spherical ``(theta_i, phi_i, theta_o, phi_o)`` arrays (degrees)."""
+def plan_spherical(name: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Any plan, named or a file, as spherical ``(theta_i, phi_i, theta_o, phi_o)`` arrays (degrees)."""
+    if is_plan_file(name):
+        return read_plan_file(name).spherical
     if name == "low":
         return low_plan()
     if name not in PLAN_NAMES:
-        raise InputError(f"unknown plan {name!r}; expected one of {', '.join(PLAN_NAMES)}")
+        raise InputError(f"unknown plan {name!r}; expected {PLAN_HELP}")
     return inplane_to_spherical(*in_plane_plan(name))
+
+
+def is_plan_file(plan) -> bool:
+    """Whether ``plan`` names a file rather than one of :data:`PLAN_NAMES` (a path, or a string that
+    is no plan name)."""
+    return isinstance(plan, os.PathLike) or (isinstance(plan, str) and plan not in PLAN_NAMES)
+
+
+def check_plan(plan, key: str | None = None, *, in_plane: bool = False) -> str:
+    """``plan`` as the string the rest of the library takes: a plan name as it is, a plan file as its
+    path once read without fault (:func:`read_plan_file`); ``in_plane``: a plan the instrument can
+    measure (no ``low``, no out-of-plane pairs).  :class:`InputError` naming ``key`` otherwise."""
+    if not isinstance(plan, (str, os.PathLike)):
+        raise InputError(f"expected a plan ({PLAN_HELP}), got {type(plan).__name__} {plan!r}", key=key)
+    if not is_plan_file(plan):
+        if in_plane and plan == "low":
+            raise InputError("the low set is out of the plane of incidence; expected DS1..DS4 or an in-plane plan "
+                             "file", key=key)
+        return plan
+    text = os.fspath(plan)
+    try:
+        read = read_plan_file(text)
+    except InputError as error:
+        if error.path is not None:  # the file, line and column say where
+            raise
+        raise InputError(error.reason, key=key) from None
+    if in_plane:
+        read.in_plane()
+    return text
+
+
+def plan_label(plan) -> str:
+    """A short name of a plan for tables and file names: its name, or a plan file's stem."""
+    return Path(plan).stem if is_plan_file(plan) else str(plan)
+
+
+@dataclass(frozen=True)
+class PlanFile:
+    """The pairs of a plan file: ``spherical`` angle arrays (degrees) and the file's ``path``;
+    ``signed``: the in-plane file's own signed columns (``None`` for a spherical file)."""
+
+    path: str
+    spherical: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+    signed: tuple[np.ndarray, np.ndarray] | None
+
+    def __len__(self) -> int:
+        return len(self.spherical[0])
+
+    def in_plane(self) -> tuple[np.ndarray, np.ndarray]:
+        """Signed ``(theta_i, theta_r)``; :class:`InputError` when a pair lies out of the plane of incidence."""
+        if self.signed is not None:
+            return self.signed
+        from neuralbrdf.geometry import IN_PLANE_TOLERANCE, spherical_pair_to_vectors
+
+        wi, wo = spherical_pair_to_vectors(*self.spherical)
+        out = np.flatnonzero((np.abs(wi[:, 1]) >= IN_PLANE_TOLERANCE) | (np.abs(wo[:, 1]) >= IN_PLANE_TOLERANCE))
+        if out.size:
+            raise InputError(f"{out.size} of {len(self)} pairs lie out of the plane of incidence (the first on data "
+                             f"row {int(out[0]) + 1}); an in-plane instrument needs an in-plane plan "
+                             f"({', '.join(INPLANE_PLAN_COLUMNS)})", path=self.path)
+        return spherical_to_inplane(*self.spherical)
+
+
+def read_plan_file(path: str | os.PathLike[str]) -> PlanFile:
+    """Read a plan file (module docstring): every defect an :class:`InputError` naming the file,
+    line and column; a pair listed twice (up to :data:`SAME_PAIR_DEG`) names both lines."""
+    from neuralbrdf.data.csvio import read_numeric_csv
+
+    if not Path(path).exists() and Path(path).suffix.lower() != ".csv":
+        raise InputError(f"unknown plan {os.fspath(path)!r}; expected {PLAN_HELP}")
+    csv_file = read_numeric_csv(path)
+    header = set(csv_file.header)
+    if set(SPHERICAL_PLAN_COLUMNS) <= header:
+        columns, signed = SPHERICAL_PLAN_COLUMNS, False
+    elif set(INPLANE_PLAN_COLUMNS) <= header:
+        columns, signed = INPLANE_PLAN_COLUMNS, True
+    else:
+        raise csv_file.header_error(f"a plan file needs the columns {','.join(INPLANE_PLAN_COLUMNS)} (signed "
+                                    f"in-plane, degrees) or {','.join(SPHERICAL_PLAN_COLUMNS)}; got "
+                                    f"{','.join(csv_file.header)}")
+    extra = [name for name in csv_file.header if name not in columns]
+    if extra:
+        raise csv_file.header_error(f"unexpected column in a plan file; expected only {','.join(columns)}",
+                                    column=extra[0])
+    angles = np.stack([csv_file.column(name) for name in columns], axis=1)
+    limits = [(-90.0, 90.0)] * 2 if signed else [(0.0, 90.0), (0.0, 360.0), (0.0, 90.0), (0.0, 360.0)]
+    for k, (name, (low, high)) in enumerate(zip(columns, limits)):
+        bad = np.flatnonzero((angles[:, k] < low) | (angles[:, k] > high) | ((high == 360.0) & (angles[:, k] == 360.0)))
+        if bad.size:
+            kind = "[0, 360)" if high == 360.0 else f"[{low:g}, {high:g}]"
+            raise InputError(f"angle {angles[bad[0], k]:g}° outside {kind} degrees", path=csv_file.path,
+                             line=int(csv_file.lines[bad[0]]), column=name)
+    spherical = tuple(angles.T) if not signed else inplane_to_spherical(angles[:, 0], angles[:, 1])
+    key = np.round(angles / SAME_PAIR_DEG).astype(np.int64)
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    first_of = first[inverse.ravel()]
+    repeated = np.flatnonzero(first_of != np.arange(len(key)))
+    if repeated.size:
+        row = int(repeated[0])
+        pair = ", ".join(f"{a:g}°" for a in angles[row])
+        raise InputError(f"the pair ({pair}) is listed twice (first on line {int(csv_file.lines[first_of[row]])}); "
+                         "a plan measures each pair once", path=csv_file.path, line=int(csv_file.lines[row]))
+    return PlanFile(csv_file.path, tuple(np.asarray(a, dtype=np.float64) for a in spherical),
+                    (angles[:, 0].copy(), angles[:, 1].copy()) if signed else None)
 
 
 def spectral_mlp_split(theta_i_deg) -> np.ndarray:

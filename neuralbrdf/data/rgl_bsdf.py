@@ -48,7 +48,7 @@ import numpy as np
 
 from neuralbrdf.atomic import file_version
 from neuralbrdf.data.calibration import CALIBRATED_WAVELENGTHS_NM
-from neuralbrdf.data.plans import plan_spherical
+from neuralbrdf.data.plans import plan_label, plan_spherical
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.data.tensor_file import read_tensor_file, write_tensor_file
 from neuralbrdf.errors import InputError, one_line
@@ -291,8 +291,8 @@ def sample_rgl(brdf: RglBsdf, plan_name: str) -> BrdfTable:
     wi, wo = spherical_pair_to_vectors(*angles)
     if brdf.is_spectral:
         return BrdfTable(*angles, brdf.evaluate(wi, wo), CALIBRATED_WAVELENGTHS_NM.copy(),
-                         source=f"rgl:{brdf.name}:{plan_name}")
-    return BrdfTable(*angles, values=brdf.evaluate(wi, wo), source=f"rgl:{brdf.name}:{plan_name}")
+                         source=f"rgl:{brdf.name}:{plan_label(plan_name)}")
+    return BrdfTable(*angles, values=brdf.evaluate(wi, wo), source=f"rgl:{brdf.name}:{plan_label(plan_name)}")
 
 
 def write_rgl_bsdf(path: str | PathLike[str], *, theta_i_deg, ndf, sigma, vndf, luminance, values,

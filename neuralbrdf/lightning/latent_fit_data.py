@@ -39,7 +39,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from neuralbrdf.data.low2012 import load_low2012_parameters
-from neuralbrdf.data.plans import PLAN_NAMES
+from neuralbrdf.data.plans import check_plan
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
 from neuralbrdf.data.units import overridden_by
@@ -183,9 +183,8 @@ class LatentFitData(pl.LightningDataModule):
                              key="data.trust_units")
         if not sources:
             raise InputError("at least one source is needed", key="data.sources")
-        for plan_name, key in ((plan, "data.plan"), (eval_plan, "data.eval_plan")):
-            if plan_name is not None and plan_name not in PLAN_NAMES:
-                raise InputError(f"unknown plan {plan_name!r}; expected one of {', '.join(PLAN_NAMES)}", key=key)
+        plan, eval_plan = (None if value is None else check_plan(value, key)
+                           for value, key in ((plan, "data.plan"), (eval_plan, "data.eval_plan")))
         if not isinstance(steps_per_epoch, int) or steps_per_epoch < 1:
             raise InputError(f"must be a positive integer, got {steps_per_epoch!r}", key="data.steps_per_epoch")
         self.sources = [check_source(s, f"data.sources[{i}]") for i, s in enumerate(sources)]
