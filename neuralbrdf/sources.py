@@ -118,10 +118,11 @@ def require_lobe(table: BrdfTable, where: str | os.PathLike[str], model: str) ->
                          "without a required lobe (spectral_mlp, nlb, nlb_spectral)", path=where)
 
 
-def virtual_measurement(material: str, plan: str, noise: float, seed: int, reference_seed: int) -> BrdfTable:
+def virtual_measurement(material: str, plan, noise: float, seed: int, reference_seed: int) -> BrdfTable:
     """A measurement of the virtual instrument as a user makes one: ``material`` and the Munsell
-    reference each measured on ``plan`` with relative ``noise`` (noise streams ``seed`` and
-    ``reference_seed``), calibrated against the reference (spectral, sr⁻¹)."""
+    reference each measured on ``plan`` (a name, a plan file or a :class:`~neuralbrdf.data.plans.Plan`)
+    with relative ``noise`` (noise streams ``seed`` and ``reference_seed``), calibrated against the
+    reference (spectral, sr⁻¹)."""
     from neuralbrdf.data.calibration import calibrate
     from neuralbrdf.virtual.instrument import VirtualGoniospectrophotometer
 

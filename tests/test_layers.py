@@ -17,7 +17,8 @@ PACKAGE = Path(__file__).resolve().parents[1] / "neuralbrdf"
 
 #: Bottom to top; a module's group is its first name under ``neuralbrdf``.
 FLOORS = (
-    {"errors", "limits", "atomic", "folder_lock", "geometry", "configs_dir", "onnx_contract", "shipped", "console"},
+    {"errors", "limits", "atomic", "folder_lock", "geometry", "configs_dir", "onnx_contract", "shipped", "console",
+     "settings_file"},
     {"physics"},
     {"data"},
     {"virtual"},
@@ -28,7 +29,7 @@ FLOORS = (
     {"evaluation"},
     {"explorer"},
     {"lightning"},
-    {"study", "lod", "exporting", "cli", "api", "__main__"},
+    {"study", "lod", "acquisition", "exporting", "cli", "api", "__main__"},
 )
 FLOOR = {group: level for level, groups in enumerate(FLOORS) for group in groups}
 

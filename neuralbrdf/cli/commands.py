@@ -2,13 +2,10 @@
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 from pathlib import Path
 
-import numpy as np
 
-from neuralbrdf.atomic import atomic_write
 from neuralbrdf.console import progress
 from neuralbrdf.data import plans
 from neuralbrdf.data.calibration import calibrate as calibrate_measurement
@@ -25,20 +22,6 @@ from neuralbrdf.virtual import instrument
 from neuralbrdf.virtual.materials import MATERIALS, REFERENCE_MATERIAL
 
 STAND_INS = tuple(name for name in MATERIALS if name != REFERENCE_MATERIAL)
-
-
-def plan(args) -> None:
-    if args.plan == "low":
-        header = ("theta_i", "phi_i", "theta_o", "phi_o")
-        columns = plans.low_plan()
-    else:
-        header = ("theta_i", "theta_r")
-        columns = plans.in_plane_plan(args.plan)
-    with atomic_write(args.out) as handle:
-        writer = csv.writer(handle)
-        writer.writerow(header)
-        writer.writerows(np.round(np.stack(columns, axis=1), 6).tolist())
-    print(f"{args.plan}: {len(columns[0])} direction pairs -> {args.out}")
 
 
 def simulate(args) -> None:

@@ -21,6 +21,7 @@ from neuralbrdf.errors import (ENVIRONMENT_ERRNOS, EXIT_BAD_INPUT, EXIT_ENVIRONM
 from neuralbrdf.render import DEFAULT_VARIANT
 from neuralbrdf.study import command as study_command
 from neuralbrdf.explorer import command as explorer_command
+from neuralbrdf.acquisition import command as acquisition_command
 
 EPILOG = (
     "Conventions: angles in degrees. GCMS raw files hold signed in-plane angles theta_i, theta_r "
@@ -61,19 +62,12 @@ def build_parser() -> argparse.ArgumentParser:
     def add(name, func, help_text, description):
         p = sub.add_parser(name, help=help_text, description=description, epilog=EPILOG, formatter_class=_formatter,
                            allow_abbrev=False)
-        p.set_defaults(func=func)
+        if func is not None:
+            p.set_defaults(func=func)
         return p
 
-    p = add(
-        "plan",
-        commands.plan,
-        "write the angle pairs of a sampling plan",
-        "Write the direction pairs an operator measures. DS1-DS4 (report Tables 4.1, 6.1, 6.2; 1001/185/57/6 "
-        "pairs) are written as signed in-plane theta_i,theta_r (degrees); 'low' (Low et al. 2012 full set, "
-        "230 400 pairs) as spherical theta_i,phi_i,theta_o,phi_o (degrees).",
-    )
-    p.add_argument("plan", choices=PLAN_NAMES)
-    p.add_argument("--out", required=True, help="output CSV")
+    acquisition_command.add_plan_arguments(add("plan", None, acquisition_command.PLAN_HELP,
+                                               acquisition_command.PLAN_DESCRIPTION), PLAN_NAMES)
 
     p = add(
         "simulate",
@@ -257,6 +251,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=None, help="first render seed (config: select.seed)")
 
     explorer_command.add_arguments(add("view", explorer_command.run, explorer_command.HELP, explorer_command.DESCRIPTION))
+    acquisition_command.add_acquire_arguments(add("acquire", acquisition_command.acquire, acquisition_command.ACQUIRE_HELP,
+                                                  acquisition_command.ACQUIRE_DESCRIPTION))
 
     p = add(
         "regenerate-default-data",

@@ -85,9 +85,11 @@ def is_glossy(theta_i_deg, theta_r_deg) -> np.ndarray:
     return np.abs(np.asarray(theta_i_deg) - np.asarray(theta_r_deg)) <= GLOSSY_WINDOW_DEG + 1e-9
 
 
-def in_plane_plan(name: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
-    """Signed in-plane ``(theta_i, theta_r)`` arrays (degrees) of DS1, DS2, DS3, DS4 or a plan file
-    (module docstring) whose pairs all lie in the plane of incidence."""
+def in_plane_plan(name: str | os.PathLike[str] | Plan) -> tuple[np.ndarray, np.ndarray]:
+    """Signed in-plane ``(theta_i, theta_r)`` arrays (degrees) of DS1, DS2, DS3, DS4, a plan file
+    (module docstring) or a :class:`Plan`, whose pairs all lie in the plane of incidence."""
+    if isinstance(name, Plan):
+        return name.in_plane()
     if is_plan_file(name):
         return read_plan_file(name).in_plane()
     if name == "DS4":
@@ -122,8 +124,11 @@ def low_plan() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     return ti, np.zeros_like(ti), to, po
 
 
-def plan_spherical(name: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Any plan, named or a file, as spherical ``(theta_i, phi_i, theta_o, phi_o)`` arrays (degrees)."""
+def plan_spherical(name: str | os.PathLike[str] | Plan) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Any plan — named, a file or a :class:`Plan` — as spherical ``(theta_i, phi_i, theta_o, phi_o)``
+    arrays (degrees)."""
+    if isinstance(name, Plan):
+        return name.spherical
     if is_plan_file(name):
         return read_plan_file(name).spherical
     if name == "low":
@@ -139,10 +144,15 @@ def is_plan_file(plan) -> bool:
     return isinstance(plan, os.PathLike) or (isinstance(plan, str) and plan not in PLAN_NAMES)
 
 
-def check_plan(plan, key: str | None = None, *, in_plane: bool = False) -> str:
-    """``plan`` as the string the rest of the library takes: a plan name as it is, a plan file as its
-    path once read without fault (:func:`read_plan_file`); ``in_plane``: a plan the instrument can
-    measure (no ``low``, no out-of-plane pairs).  :class:`InputError` naming ``key`` otherwise."""
+def check_plan(plan, key: str | None = None, *, in_plane: bool = False) -> str | Plan:
+    """``plan`` as the rest of the library takes it: a plan name as it is, a plan file as its path
+    once read without fault (:func:`read_plan_file`), a :class:`Plan` as it is; ``in_plane``: a plan
+    the instrument can measure (no ``low``, no out-of-plane pairs).  :class:`InputError` naming
+    ``key`` otherwise."""
+    if isinstance(plan, Plan):
+        if in_plane:
+            plan.in_plane()
+        return plan
     if not isinstance(plan, (str, os.PathLike)):
         raise InputError(f"expected a plan ({PLAN_HELP}), got {type(plan).__name__} {plan!r}", key=key)
     if not is_plan_file(plan):
@@ -162,19 +172,40 @@ def check_plan(plan, key: str | None = None, *, in_plane: bool = False) -> str:
     return text
 
 
+def shipped_plan(path: str | os.PathLike[str]) -> str | os.PathLike[str]:
+    """``configs/plans/NAME.csv`` names a shipped plan file (the designed plans of
+    docs/how-many-measurements.md) wherever the command runs, unless such a file lies there."""
+    from neuralbrdf.configs_dir import CONFIGS_DIR
+
+    parts = Path(path).parts
+    if parts[:1] == ("configs",) and not Path(path).exists() and (CONFIGS_DIR.joinpath(*parts[1:])).is_file():
+        return str(CONFIGS_DIR.joinpath(*parts[1:]))
+    return path
+
+
 def plan_label(plan) -> str:
-    """A short name of a plan for tables and file names: its name, or a plan file's stem."""
+    """A short name of a plan for tables and file names: its name, a plan file's stem or a
+    :class:`Plan`'s label."""
+    if isinstance(plan, Plan):
+        return plan.label
     return Path(plan).stem if is_plan_file(plan) else str(plan)
 
 
 @dataclass(frozen=True)
-class PlanFile:
-    """The pairs of a plan file: ``spherical`` angle arrays (degrees) and the file's ``path``;
-    ``signed``: the in-plane file's own signed columns (``None`` for a spherical file)."""
+class Plan:
+    """Direction pairs that stand for a plan: ``spherical`` angle arrays (degrees) and a ``label``
+    (a plan file's path, or what a caller names them); ``signed``: in-plane pairs as signed
+    angles where they came so (``None`` for spherical ones)."""
 
-    path: str
+    label: str
     spherical: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
     signed: tuple[np.ndarray, np.ndarray] | None
+
+    @classmethod
+    def of_pairs(cls, theta_i_deg, theta_r_deg, label: str) -> Plan:
+        """The signed in-plane pairs ``theta_i_deg, theta_r_deg`` (degrees) as a plan named ``label``."""
+        signed = tuple(np.asarray(a, dtype=np.float64).ravel() for a in (theta_i_deg, theta_r_deg))
+        return cls(label, inplane_to_spherical(*signed), signed)
 
     def __len__(self) -> int:
         return len(self.spherical[0])
@@ -190,15 +221,16 @@ class PlanFile:
         if out.size:
             raise InputError(f"{out.size} of {len(self)} pairs lie out of the plane of incidence (the first on data "
                              f"row {int(out[0]) + 1}); an in-plane instrument needs an in-plane plan "
-                             f"({', '.join(INPLANE_PLAN_COLUMNS)})", path=self.path)
+                             f"({', '.join(INPLANE_PLAN_COLUMNS)})", path=self.label)
         return spherical_to_inplane(*self.spherical)
 
 
-def read_plan_file(path: str | os.PathLike[str]) -> PlanFile:
+def read_plan_file(path: str | os.PathLike[str]) -> Plan:
     """Read a plan file (module docstring): every defect an :class:`InputError` naming the file,
     line and column; a pair listed twice (up to :data:`SAME_PAIR_DEG`) names both lines."""
     from neuralbrdf.data.csvio import read_numeric_csv
 
+    path = shipped_plan(path)
     if not Path(path).exists() and Path(path).suffix.lower() != ".csv":
         raise InputError(f"unknown plan {os.fspath(path)!r}; expected {PLAN_HELP}")
     csv_file = read_numeric_csv(path)
@@ -233,7 +265,7 @@ def read_plan_file(path: str | os.PathLike[str]) -> PlanFile:
         pair = ", ".join(f"{a:g}°" for a in angles[row])
         raise InputError(f"the pair ({pair}) is listed twice (first on line {int(csv_file.lines[first_of[row]])}); "
                          "a plan measures each pair once", path=csv_file.path, line=int(csv_file.lines[row]))
-    return PlanFile(csv_file.path, tuple(np.asarray(a, dtype=np.float64) for a in spherical),
+    return Plan(csv_file.path, tuple(np.asarray(a, dtype=np.float64) for a in spherical),
                     (angles[:, 0].copy(), angles[:, 1].copy()) if signed else None)
 
 
@@ -256,3 +288,18 @@ def every_third_theta_i_split(theta_i_deg) -> np.ndarray:
     theta_i = np.round(np.asarray(theta_i_deg, dtype=np.float64), 6)
     angles = np.unique(theta_i)
     return np.isin(theta_i, angles[2::3])
+
+
+def write_plan(columns, path: str | os.PathLike[str]) -> None:
+    """Write a plan file (module docstring) atomically: ``columns`` are the signed in-plane
+    ``(theta_i, theta_r)`` or the spherical ``(theta_i, phi_i, theta_o, phi_o)`` arrays (degrees),
+    rounded to 1e-6°."""
+    import csv
+
+    from neuralbrdf.atomic import atomic_write
+
+    header = INPLANE_PLAN_COLUMNS if len(columns) == 2 else SPHERICAL_PLAN_COLUMNS
+    with atomic_write(path) as handle:
+        writer = csv.writer(handle)
+        writer.writerow(header)
+        writer.writerows(np.round(np.stack([np.asarray(c, dtype=np.float64) for c in columns], axis=1), 6).tolist())

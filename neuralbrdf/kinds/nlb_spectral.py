@@ -142,14 +142,20 @@ def export_module(module: SpectralNlbWithCodes) -> tuple[SpectralNlbWithCodes, s
     return pruned, " ".join(f"{int(k.sum())}/{n}" for k, n in zip(keep, total))
 
 
+def exportable(module: SpectralNlbWithCodes, name: str, provenance_text: str) -> Exportable:
+    """A fitted material (its module on directions) as the exporter takes it: without its silent
+    units (:func:`export_module`), with the contract's metadata."""
+    module, units = export_module(module)
+    wavelength_range = module.wavelength_range_nm if module.is_spectral else None
+    metadata = contract_metadata(KIND.name, name, provenance_text, wavelength_range_nm=wavelength_range,
+                                 kind_metadata={kind_key(KIND.name, "hidden_units"): units})
+    return Exportable(module, KIND.name, name, metadata, wavelength_range)
+
+
 def from_checkpoint(checkpoint: dict, path: Path, material: str | None) -> Exportable:
     fitted = _fitted(checkpoint, path)
     name = pick_material(list(fitted.shared), material, path)
-    module, units = export_module(fitted.model(name))
-    wavelength_range = module.wavelength_range_nm if module.is_spectral else None
-    metadata = contract_metadata(KIND.name, name, provenance(checkpoint, path), wavelength_range_nm=wavelength_range,
-                                 kind_metadata={kind_key(KIND.name, "hidden_units"): units})
-    return Exportable(module, KIND.name, name, metadata, wavelength_range)
+    return exportable(fitted.model(name), name, provenance(checkpoint, path))
 
 
 def _recognises(checkpoint: dict) -> bool:

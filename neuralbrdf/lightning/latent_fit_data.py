@@ -74,7 +74,8 @@ def _tensors(index: int, wi, wo, f) -> FitSamples:
     )
 
 
-def _table_samples(index: int, table: BrdfTable, spectral: bool = False) -> FitSamples:
+def table_samples(index: int, table: BrdfTable, spectral: bool = False) -> FitSamples:
+    """A table's samples as material ``index`` of a fit: band by band when ``spectral``, else in linear sRGB."""
     if not spectral:
         table = table.to_rgb()
     return _tensors(index, *table.vectors(), table.values)
@@ -241,7 +242,7 @@ class LatentFitData(pl.LightningDataModule):
         name = self.material_names[index]
         if self.spectral:
             self._check_grid(material.fit, name)
-        fit = _table_samples(index, material.fit, self.spectral)
+        fit = table_samples(index, material.fit, self.spectral)
         if material.truth is None:
             return EvalSet(name, fit, None, None)
         if self.spectral:
@@ -251,7 +252,7 @@ class LatentFitData(pl.LightningDataModule):
         abc_params = abc_fits.get(Path(measured).stem) if measured else None
         if abc_params is not None:
             abc = torch.as_tensor(abc_params.evaluate(*material.truth.vectors()), dtype=torch.float32)
-        return EvalSet(name, fit, _table_samples(index, material.truth, self.spectral), abc)
+        return EvalSet(name, fit, table_samples(index, material.truth, self.spectral), abc)
 
     def _check_grid(self, table: BrdfTable, name: str) -> None:
         """Refuse an RGB table, or a wavelength grid other than the first source's, in a spectral fit."""

@@ -220,7 +220,8 @@ class LatentOnlyFit(pl.LightningModule):
 
     def training_step(self, batch: FitSamples, batch_idx: int) -> torch.Tensor | None:
         if self.uses_lbfgs:  # the whole fit, in this one step; None: Lightning steps no optimiser
-            self.fit_each_by_lbfgs(batch)
+            losses = self.fit_each_by_lbfgs(batch)
+            self.log("train/loss", float(np.mean(losses)), on_step=False, on_epoch=True, batch_size=len(batch.f))
             self.trainer.should_stop = True
             return None
         codes = self.code_parameters()
@@ -235,8 +236,9 @@ class LatentOnlyFit(pl.LightningModule):
         self._track_convergence(float(loss.detach()))
         return loss
 
-    def fit_each_by_lbfgs(self, samples: FitSamples) -> None:
-        """Optimise each material's codes by :func:`lbfgs` on its own samples (module docstring)."""
+    def fit_each_by_lbfgs(self, samples: FitSamples) -> list[float]:
+        """Optimise each material's codes by :func:`lbfgs` on its own samples (module docstring);
+        each material's final loss."""
         codes = self.code_parameters()
         losses = []
         for m in range(len(self.material_names)):
@@ -258,7 +260,7 @@ class LatentOnlyFit(pl.LightningModule):
             with torch.no_grad():
                 for c, r in zip(codes, rows):
                     c[m] = r
-        self.log("train/loss", float(np.mean(losses)), on_step=False, on_epoch=True, batch_size=len(samples.f))
+        return losses
 
     def _track_convergence(self, loss: float) -> None:
         patience = self.hparams.early_stop_patience

@@ -159,6 +159,11 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
         self.register_buffer("_channel_scale", torch.ones(1, 3), persistent=False)
         self.latents: SpectralLatentTable | None = None
 
+    @property
+    def pretrained(self) -> PretrainedSpectralNlb:
+        """The frozen pretrained network and its corpus codes (the source of the starts and priors)."""
+        return self._pretrained
+
     # ------------------------------------------------------------------ channels and codes
 
     def set_channels(self, wavelengths_nm: np.ndarray | None) -> None:
@@ -241,6 +246,25 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
             return [shared, rgb]
         to_nodes = interpolation_matrix(RGB_CODE_WAVELENGTHS_NM, self.node_wavelengths_nm)  # [n_nodes, 3: B, G, R]
         return [shared, torch.einsum("kc,mcd->mkd", to_nodes, rgb.flip(1))]
+
+    def fit_samples(self, names: Sequence[str], samples: FitSamples, wavelengths_nm: np.ndarray | None) -> list[float]:
+        """Fit the codes of the materials ``names`` to ``samples`` without a trainer, by the path a
+        fit takes when every step sees every sample (:meth:`setup`, then one L-BFGS run per
+        material): the codes ``neuralbrdf train fit`` reaches for the same data and settings, in
+        one call (``wavelengths_nm``: the bands of a spectral fit, ``None`` for RGB).  Each
+        material's final loss."""
+        if self.hparams.full_batch_iterations is None:
+            raise InputError("a fit without a trainer runs L-BFGS: set model.full_batch_iterations",
+                             key="model.full_batch_iterations")
+        self.set_channels(wavelengths_nm)
+        self._set_channel_scale(samples, len(names))
+        if self._init_candidates:
+            self._candidates = self.start_candidates()
+        self._full_batch = True
+        self.build_codes(names)
+        if self._candidates is not None:
+            self.choose_starts(samples)
+        return self.fit_each_by_lbfgs(samples)
 
     def code_parameters(self) -> list[torch.nn.Parameter]:
         return [self.latents.shared, self.latents.channels]

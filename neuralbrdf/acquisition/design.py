@@ -1,0 +1,133 @@
+"""``neuralbrdf plan design``: in-plane pairs chosen with the prior, before anything is measured (docs/how-many-measurements.md).
+
+The designer picks ``budget`` pairs of an :class:`~neuralbrdf.acquisition.instrument.Instrument`
+that minimise the expected hemisphere error of a fit from them, averaged over the prior's own
+materials: the Bayesian I-optimal greedy design of :mod:`neuralbrdf.acquisition.linear_design`
+on a model linearised at each design material.  For the spectral NLB (``kind: nlb_spectral``)
+the design materials are codes of the pretrained network's corpus
+(:class:`DesignSettings`: every measured proxy's code, and seeded subsets of the blends' and the
+analytic materials'), the parameters their shared and R, G, B codes
+(:mod:`neuralbrdf.acquisition.nlb_linear`), the prior the corpus codes' Gaussian.  Each value
+is measured with a relative noise (``noise``, a fraction of the channel's mean ``ln(1 + f cos
+θi)`` over the hemisphere, as the fit's channel-normalised loss counts errors) and the hemisphere
+error is relative per channel the same way, so that a dark material counts as much as a bright
+one; with ``normalise`` each material's criterion is divided by its prior value, so the design
+lowers every material's error by the largest share rather than the largest materials' most.
+
+Only the training side of the prior enters: the codes of materials the network was pretrained
+on.  Its result is measured on validation materials the pretraining never saw
+(``benchmarks/acquisition.py``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from neuralbrdf.acquisition.instrument import Instrument
+from neuralbrdf.acquisition.linear_design import LinearisedProblem, expected_errors, greedy_design
+from neuralbrdf.acquisition.nlb_linear import SpectralNlbLinearisation, code_covariance
+from neuralbrdf.errors import InputError
+
+#: Floor (in ``ln(1 + f cos θi)``) of a channel's mean value when it scales noise and errors.
+SCALE_FLOOR = 1e-3
+
+
+@dataclass(frozen=True)
+class DesignSettings:
+    """How plans are designed (``configs/acquisition/default.yaml``, section ``design``)."""
+
+    noise: float               # relative noise of a measured value (module docstring)
+    normalise: bool            # each design material counts by its share of error removed
+    blends: int                # pretrained blends among the design materials (all measured proxies are)
+    analytic: int              # pretrained analytic materials among them
+    hemisphere_strata: tuple[int, int]   # (cos θ, φ) strata of the pairs H averages over
+    seed: int                  # which blends and analytic materials; the hemisphere pairs
+
+
+@dataclass(frozen=True)
+class PlanDesign:
+    """A designed plan: the pairs in the order to measure them (signed degrees), and the
+    predicted relative hemisphere error (root of the mean criterion) before the first pair and
+    after each."""
+
+    theta_i: np.ndarray
+    theta_r: np.ndarray
+    predicted_error: list[float]
+    kind: str
+    instrument: Instrument
+
+
+def design_material_rows(names: tuple[str, ...], settings: DesignSettings) -> list[int]:
+    """Rows of the pretrained codes the design averages over: every measured material, and
+    ``settings.blends`` blends and ``settings.analytic`` analytic materials drawn with ``seed``."""
+    from neuralbrdf.data.proxy_corpus import is_blend_code, is_measured_code
+
+    rng = np.random.default_rng(settings.seed)
+    measured = [i for i, n in enumerate(names) if is_measured_code(n)]
+    blends = [i for i, n in enumerate(names) if is_blend_code(n)]
+    analytic = [i for i, n in enumerate(names) if not is_measured_code(n) and not is_blend_code(n)]
+    rows = list(measured)
+    for pool, count in ((blends, settings.blends), (analytic, settings.analytic)):
+        rows += sorted(rng.choice(pool, min(count, len(pool)), replace=False).tolist()) if pool and count else []
+    return rows
+
+
+def relative_problem(linearisation: SpectralNlbLinearisation, thetas: torch.Tensor, candidates_wi: torch.Tensor,
+                     candidates_wo: torch.Tensor, hemisphere_wi: torch.Tensor, hemisphere_wo: torch.Tensor,
+                     covariance: torch.Tensor, noise: float, normalise: bool) -> LinearisedProblem:
+    """The design problem of materials ``thetas`` ``[M, D]`` with relative noise and errors (module docstring)."""
+    jacobians, hemispheres = [], []
+    for theta in thetas:
+        scale = linearisation.values(theta, hemisphere_wi, hemisphere_wo).mean(0).clamp_min(SCALE_FLOOR)  # [K]
+        jh = linearisation.jacobians(theta, hemisphere_wi, hemisphere_wo) / scale[None, :, None]
+        hemispheres.append(torch.einsum("qki,qkj->ij", jh.double(), jh.double()) / (jh.shape[0] * jh.shape[1]))
+        jacobians.append(linearisation.jacobians(theta, candidates_wi, candidates_wo) / (noise * scale[None, :, None]))
+    hemisphere = torch.stack(hemispheres)
+    prior = covariance.expand(len(thetas), -1, -1).clone()
+    if normalise:
+        hemisphere = hemisphere / expected_errors(prior, hemisphere)[:, None, None]
+    return LinearisedProblem(torch.stack(jacobians), hemisphere, prior)
+
+
+def design_nlb_spectral(budget: int, instrument: Instrument, settings: DesignSettings, checkpoint: str | None = None,
+                        progress=None) -> PlanDesign:
+    """The spectral NLB's design (module docstring); ``checkpoint``: a pretrained network (default the shipped one)."""
+    from neuralbrdf.evaluation.scores import hemisphere_pairs
+    from neuralbrdf.geometry import inplane_to_vectors
+    from neuralbrdf.lightning.nlb_spectral_module import load_spectral_pretrained
+    from neuralbrdf.shipped import SPECTRAL_DEFAULT, resolve_pretrained
+
+    theta_i, theta_r = instrument.candidates()
+    if not isinstance(budget, int) or isinstance(budget, bool) or not 1 <= budget <= len(theta_i):
+        raise InputError(f"expected a number of pairs from 1 to {len(theta_i)} (the distinct pairs this instrument "
+                         f"can measure), got {budget!r}", key="--budget")
+    pretrained = load_spectral_pretrained(resolve_pretrained(checkpoint, SPECTRAL_DEFAULT))
+    rows = design_material_rows(pretrained.names, settings)
+    linearisation = SpectralNlbLinearisation(pretrained.network, torch.eye(3))
+    thetas = torch.cat([pretrained.shared[rows], pretrained.channels[rows].reshape(len(rows), -1)], dim=1)
+    wi, wo = (torch.as_tensor(v, dtype=torch.float32) for v in inplane_to_vectors(theta_i, theta_r))
+    hwi, hwo = (torch.as_tensor(v, dtype=torch.float32) for v in hemisphere_pairs(settings.seed,
+                                                                                   settings.hemisphere_strata))
+    covariance = code_covariance(pretrained.shared, pretrained.channel_codes, 3)
+    problem = relative_problem(linearisation, thetas, wi, wo, hwi, hwo, covariance, settings.noise, settings.normalise)
+    design = greedy_design(problem, budget, progress=progress)
+    chosen = np.asarray(design.chosen)
+    return PlanDesign(theta_i[chosen], theta_r[chosen], [float(np.sqrt(c)) for c in design.criterion],
+                      "nlb_spectral", instrument)
+
+
+#: The kinds a plan can be designed for, and their designers.
+DESIGNERS = {"nlb_spectral": design_nlb_spectral}
+
+
+def design(kind: str, budget: int, instrument: Instrument, settings: DesignSettings, progress: bool = False) -> PlanDesign:
+    """The plan of ``budget`` pairs designed for ``kind`` (:data:`DESIGNERS`), with a progress bar when ``progress``."""
+    if kind not in DESIGNERS:
+        raise InputError(f"unknown kind {kind!r}; expected one of {', '.join(DESIGNERS)}", key="--kind")
+    from neuralbrdf.console import progress as bar
+
+    with bar(total=budget, desc=f"design {kind}", unit="pair", disable=not progress) as pairs:
+        return DESIGNERS[kind](budget, instrument, settings, progress=lambda _: pairs.update(1))
