@@ -24,7 +24,7 @@ pairs; an RGL measurement through Mitsuba's ``measured`` plugin), averaged over 
 Every cell (material × plan × settings) is kept in ``--work`` and reused.  Writes JSON and prints
 per group and plan the median error, and per designed plan the median and geometric mean over
 materials of its error over the report plan it is compared with (``design:6`` with DS4,
-``design:12`` and ``design:24`` with DS3, ``design:48`` with DS2).
+``design:12`` and ``design:24`` with DS3, ``design:48`` with DS2), and the same for ``random:N``.
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import os
 import platform
 import sys
 import time
@@ -68,12 +69,22 @@ def digest(*parts) -> str:
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
+def design_path(budget: int, design, cache: Path) -> Path:
+    return cache / f"design_{budget}_{digest(vars(design))}.json"
+
+
 def plan_pairs(name: str, design, cache: Path) -> tuple[np.ndarray, np.ndarray]:
-    """The signed pairs of a report plan or of ``design:N`` (designed once per settings, kept)."""
+    """The signed pairs of a report plan, of ``random:N`` (N of the instrument's pairs drawn
+    uniformly, seed 0: the design's naive alternative) or of ``design:N`` (designed once per
+    settings, kept)."""
+    if name.startswith("random:"):
+        theta_i, theta_r = Instrument().candidates()
+        drawn = np.random.default_rng(0).choice(len(theta_i), int(name.split(":")[1]), replace=False)
+        return theta_i[drawn], theta_r[drawn]
     if not name.startswith("design:"):
         return in_plane_plan(name)
     budget = int(name.split(":")[1])
-    path = cache / f"design_{budget}_{digest(vars(design))}.json"
+    path = design_path(budget, design, cache)
     if not path.is_file():
         started = time.perf_counter()
         plan = design_nlb_spectral(budget, Instrument(), design)
@@ -126,7 +137,7 @@ def summarise(rows: dict, plans: list[str]) -> dict:
                 pooled[p] += values[p]
         block = {"materials": len(next(iter(values.values()))), "median": {p: float(np.median(v)) for p, v in values.items()}}
         for p in plans:
-            if p.startswith("design:") and COMPARED.get(int(p.split(":")[1])) in plans:
+            if p.startswith(("design:", "random:")) and COMPARED.get(int(p.split(":")[1])) in plans:
                 ref = COMPARED[int(p.split(":")[1])]
                 ratio = np.asarray(values[p]) / np.asarray(values[ref])
                 block.setdefault("over_report_plan", {})[p] = {
@@ -170,11 +181,16 @@ def main(argv: list[str] | None = None) -> int:
     groups, plans = args.groups.split(","), args.plans.split(",")
     if not SHARED.is_dir():
         groups = [g for g in groups if g == "virtual_validation"]
-    started = time.perf_counter()
+    started, load_before = time.perf_counter(), os.getloadavg()
     seeds = [int(s) for s in args.seeds.split(",")]
     rows = run(groups, plans, design, args.noise, seeds, Path(args.work))
     summary = summarise(rows, plans)
+    designs = {p: json.loads(design_path(int(p.split(":")[1]), design, Path(args.work)).read_text())
+               for p in plans if p.startswith("design:")}
     result = {"machine": platform.platform(), "noise": args.noise, "seeds": seeds, "design": vars(design), "plans": plans,
+              "designs": {p: {"pairs": [list(v) for v in zip(d["theta_i"], d["theta_r"])], "design_s": d["design_s"]}
+                          for p, d in designs.items()},
+              "load_average": {"before": load_before, "after": os.getloadavg()},
               "materials": rows, "summary": summary, "wall_time_s": time.perf_counter() - started}
     with atomic_write(args.out) as handle:
         handle.write(json.dumps(result, indent=2, sort_keys=True) + "\n")

@@ -84,6 +84,10 @@ def design(args) -> None:
           f"{plan.predicted_error[0]:.3g} before and {plan.predicted_error[-1]:.3g} after -> {args.out}")
 
 
+def _pairs(count: int) -> str:
+    return f"{count} pair{'' if count == 1 else 's'}"
+
+
 def _interval(interval, digits: int) -> str:
     return f"{interval.estimate:.{digits}f} (80 % interval {interval.low:.{digits}f}-{interval.high:.{digits}f})"
 
@@ -99,8 +103,8 @@ def next_measurements(args) -> None:
     verdict = answer.enough(args.target_de)
     said = "" if verdict is None else (f"; target ΔE2000 {args.target_de:g}: " +
                                        ("enough" if verdict else "measure these next"))
-    print(f"{answer.measured} pairs measured; the fit's error now: hemisphere log-cos RMSE {_interval(answer.logcos, 4)}, "
-          f"preview ΔE2000 {_interval(answer.delta_e, 2)}{said} -> {args.out} ({len(answer.theta_i)} pairs)")
+    print(f"{_pairs(answer.measured)} measured; the fit's error now: hemisphere log-cos RMSE {_interval(answer.logcos, 4)}, "
+          f"preview ΔE2000 {_interval(answer.delta_e, 2)}{said} -> {args.out} ({_pairs(len(answer.theta_i))})")
 
 
 def add_acquire_arguments(parser) -> None:

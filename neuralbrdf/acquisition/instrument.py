@@ -8,7 +8,7 @@ retro-reflection (``theta_r = -theta_i``) the detector would block the source, s
 
 An isotropic, reciprocal BRDF takes one value on each orbit of the in-plane symmetries
 ``(ti, tr) -> (-ti, -tr)`` (mirror of the plane) and ``(ti, tr) -> (tr, ti)`` (Helmholtz
-reciprocity; SPEC §1): measuring two pairs of one orbit measures one value twice.  The
+reciprocity; docs/formats.md#conventions): measuring two pairs of one orbit measures one value twice.  The
 candidates are therefore one *representative* per orbit (:func:`canonical_pairs`: the pair with
 ``theta_i >= |theta_r|``, so the source arm stands at the larger angle); every instrument limit
 above is symmetric under both maps, so a representative is measurable exactly when its orbit is.
@@ -56,17 +56,18 @@ class Instrument:
     retro_band_deg: float = 0.0
 
     def __post_init__(self) -> None:
-        for name, low, high in (("max_theta_deg", 0.0, MAX_THETA_LIMIT_DEG), ("step_deg", 0.0, 90.0),
-                                ("retro_band_deg", -math.inf, 180.0)):
+        for name, option, low, high in (("max_theta_deg", "--max-theta", 0.0, MAX_THETA_LIMIT_DEG),
+                                        ("step_deg", "--step", 0.0, 90.0), ("retro_band_deg", "--retro-band", 0.0, 180.0)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise InputError(f"expected a number of degrees, got {value!r}", key=name)
-            if not (low < value <= high) and not (name == "retro_band_deg" and 0.0 <= value <= high):
-                raise InputError(f"expected {'0 <=' if name == 'retro_band_deg' else f'{low:g} <'} value <= "
-                                 f"{high:g} degrees, got {value:g}", key=name)
+                raise InputError(f"expected a number of degrees, got {value!r}", key=option)
+            closed = name == "retro_band_deg"
+            if not (low <= value <= high if closed else low < value <= high):
+                raise InputError(f"expected {low:g} {'<=' if closed else '<'} value <= {high:g} degrees, got {value:g}",
+                                 key=option)
         if self.step_deg > self.max_theta_deg:
             raise InputError(f"a step of {self.step_deg:g}° leaves no angle but 0° within the largest angle "
-                             f"{self.max_theta_deg:g}°", key="step_deg")
+                             f"{self.max_theta_deg:g}°", key="--step")
 
     def angles(self) -> np.ndarray:
         """The angles (degrees) either arm can stand at: multiples of the step within the largest angle."""
@@ -92,6 +93,6 @@ class Instrument:
         ti, tr = ti[np.sort(first)], tr[np.sort(first)]
         if not len(ti):
             raise InputError(f"these limits leave no pair to measure (largest angle {self.max_theta_deg:g}°, step "
-                             f"{self.step_deg:g}°, retro-reflection band {self.retro_band_deg:g}°)", key="retro_band_deg")
+                             f"{self.step_deg:g}°, retro-reflection band {self.retro_band_deg:g}°)", key="--retro-band")
         order = np.lexsort((tr, ti))
         return ti[order], tr[order]

@@ -14,6 +14,7 @@ hemisphere metric and the preview scene rendered with the truth at matched seeds
 from __future__ import annotations
 
 import json
+import os
 import tempfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -93,7 +94,10 @@ def true_errors(material: TruthMaterial, fitted, settings: SessionSettings, work
     from neuralbrdf.kinds.nlb_spectral import exportable
     from neuralbrdf.onnx_export import write_model
 
-    model = work / "model.onnx"
+    # a new file each call: the files this command read (the last step's model) may not be overwritten
+    handle, name = tempfile.mkstemp(prefix="model_", suffix=".onnx", dir=work)
+    os.close(handle)
+    model = Path(name)
     write_model(exportable(fitted.model(), fitted.name, "acquire: spectral NLB fit of a simulated session"), model)
     truth = Path(material.source) if Path(material.source).suffix == ".bsdf" else work / "truth.onnx"
     if not truth.is_file():
