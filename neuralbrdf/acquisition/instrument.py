@@ -8,7 +8,7 @@ retro-reflection (``theta_r = -theta_i``) the detector would block the source, s
 
 An isotropic, reciprocal BRDF takes one value on each orbit of the in-plane symmetries
 ``(ti, tr) -> (-ti, -tr)`` (mirror of the plane) and ``(ti, tr) -> (tr, ti)`` (Helmholtz
-reciprocity; SPEC §1): measuring two pairs of one orbit measures one value twice.  The
+reciprocity): measuring two pairs of one orbit measures one value twice.  The
 candidates are therefore one *representative* per orbit (:func:`canonical_pairs`: the pair with
 ``theta_i >= |theta_r|``, so the source arm stands at the larger angle); every instrument limit
 above is symmetric under both maps, so a representative is measurable exactly when its orbit is.
