@@ -38,7 +38,7 @@ def signal_name(number: int) -> str:
 
 def fit_failure(exc: BaseException) -> str | None:
     """The one-line cause of a fit that ran and failed (:class:`FitFailed`, or a
-    :data:`DATA_FAILURES` error :class:`FitHealth` recorded), else ``None``."""
+    :data:`DATA_FAILURES` error :class:`~neuralbrdf.lightning.fit_health.FitHealth` recorded), else ``None``."""
     if isinstance(exc, FitFailed):
         return str(exc)
     cause = getattr(exc, "neuralbrdf_fit_failure", None)

@@ -48,10 +48,10 @@ next one, which says so (:mod:`neuralbrdf.lightning.run_dir`).  ``metrics.json``
 limit, a learning rate of 0, …) are refused before the run directory exists
 (:mod:`neuralbrdf.lightning.fit_settings`).
 
-**A failed fit is a failure** (:class:`~neuralbrdf.lightning.fit_health.FitHealth`, added to every ``fit``): a non-finite
-training loss or monitored metric, a network whose gradients are all exactly zero for a whole
-epoch (dead or saturated units, e.g. after a too-large learning rate), or a module that reports
-its own failure (``fit_failure()``, e.g. the ABC fit), or a
+**A failed fit is a failure** (:class:`~neuralbrdf.lightning.fit_health.FitHealth`, added to every
+``fit``): a non-finite training loss or monitored metric, a network whose gradients are all
+exactly zero for a whole epoch (dead or saturated units, e.g. after a too-large learning rate), or
+a module that reports its own failure (``fit_failure()``, e.g. the ABC fit), or a
 :data:`~neuralbrdf.lightning.failures.DATA_FAILURES` error
 raised inside the fit ends the command with status 1 and one line ``neuralbrdf train: error: fit
 failed: <cause>``; ``metrics.json`` then holds ``"status": "failed"`` and ``"cause"``, and no

@@ -8,7 +8,8 @@ from collections.abc import Sequence
 import onnx
 
 from neuralbrdf.errors import InputError
-from neuralbrdf.onnx_contract.schema import FAST_PATH_OUTPUTS, INPUT_WAVELENGTH, INPUT_WI, INPUT_WO, OUTPUT_F, OUTPUT_RGB
+from neuralbrdf.onnx_contract.schema import (FAST_PATH_OUTPUTS, INPUT_WAVELENGTH, INPUT_WI, INPUT_WO, OUTPUT_F,
+                                             OUTPUT_RGB)
 
 
 def _dims(value_info) -> list[int | None] | None:

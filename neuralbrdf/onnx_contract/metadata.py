@@ -46,7 +46,7 @@ def generic_metadata(
     wavelength_range_nm: tuple[float, float] | None = None,
     kind_metadata: Mapping[str, str] | None = None,
 ) -> dict[str, str]:
-    """The ``metadata_props`` entries every kind shares, validated like :func:`load_generic_model` does.
+    """The ``metadata_props`` entries every kind shares, validated like :func:`~neuralbrdf.onnx_contract.model.load_generic_model` does.
 
     ``kind_metadata`` holds the kind's own entries; their keys must start with
     ``neuralbrdf.<kind>.`` (:func:`kind_key`).

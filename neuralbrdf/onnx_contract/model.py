@@ -91,14 +91,16 @@ class OnnxModel:
 
 
 def load_generic_model(path: str | os.PathLike[str]) -> OnnxModel:
-    """Load ``path`` and check it against the contract of docs/formats.md#onnx-model-files (:mod:`neuralbrdf.onnx_contract`).
+    """Load ``path`` and check it against the contract of docs/formats.md#onnx-model-files
+    (:mod:`neuralbrdf.onnx_contract`).
 
     Raises :class:`InputError` naming the file for a missing or unreadable file, a file that is
     not ONNX or fails the ONNX checker, wrong input or output names, dtypes or ranks, a fixed
     batch size, missing or malformed metadata, non-finite initialisers or constants, and a graph
     that onnxruntime cannot run or whose trial evaluation breaks the output contract (shape,
-    zero below the horizon; :func:`probe_directions`) or that is negative or not finite anywhere on
-    the dense stratified probe of :func:`dense_probe` (near-mirror and grazing pairs included).
+    zero below the horizon; :func:`~neuralbrdf.onnx_contract.probe_directions`) or that is negative
+    or not finite anywhere on the dense stratified probe of :func:`~neuralbrdf.onnx_contract.dense_probe`
+    (near-mirror and grazing pairs included).
     """
     path = Path(path)
     if not path.is_file():

@@ -49,7 +49,8 @@ def _numpy_spectra(session: onnxruntime.InferenceSession, wi: np.ndarray, wo: np
 
 
 def fit_rgb_rule(model: OnnxModel, session: onnxruntime.InferenceSession, rms_tolerance: float) -> ReducedQuadrature:
-    """The reduced spectrum → linear sRGB rule of a spectral model (*Colour* in :mod:`~neuralbrdf.render.mitsuba_bsdf`)."""
+    """The reduced spectrum → linear sRGB rule of a spectral model (*Colour* in
+    :mod:`~neuralbrdf.render.mitsuba_bsdf`)."""
     low, high = model.wavelength_range_nm
     grid = np.clip(SRGB_GRID_NM, low, high)
     spectra = _numpy_spectra(session, *probe_direction_pairs(), grid).T
