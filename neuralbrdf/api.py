@@ -258,7 +258,8 @@ def fit(kind: str, data: Source | PathLike | None = None, *, config: PathLike | 
     import torch
 
     from neuralbrdf.data.units import overridden_by
-    from neuralbrdf.lightning.run import METRICS_FILE, fitted_checkpoint, train
+    from neuralbrdf.lightning.metrics_json import METRICS_FILE
+    from neuralbrdf.lightning.run import fitted_checkpoint, train
 
     if kind not in FIT_KINDS:
         raise InputError(f"unknown fit kind {kind!r}; expected one of {', '.join(FIT_KINDS)}")

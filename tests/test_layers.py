@@ -1,136 +1,84 @@
-"""The package's layers point one way: every import, at module level or inside a
-function, goes from a floor to the same floor or one below, and the packages never import each
-other in a cycle.  Read bottom-up::
+"""The package's import rules are import-linter contracts in pyproject.toml (``[tool.importlinter]``,
+docs/architecture.md): its floors import only the floors below them, the modules of each package
+import one another one way (no circle), and nothing under ``neuralbrdf`` imports the ``export/``
+scripts.  These tests run the contracts on the package, check that every package and module has a
+floor, and break a copy of the package once per rule to show that each contract can fail."""
 
-    conventions + the ONNX file contract → physics → data → virtual instrument →
-    sources, models → losses/metrics/fitting → kinds → export, render → evaluation →
-    Lightning → study, level of detail (lod), command line
-"""
-
-import ast
+import os
+import shutil
+import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import pytest
 
-PACKAGE = Path(__file__).resolve().parents[1] / "neuralbrdf"
-
-#: Bottom to top; a module's group is its first name under ``neuralbrdf``.
-FLOORS = (
-    {"errors", "limits", "atomic", "folder_lock", "geometry", "configs_dir", "onnx_contract", "shipped", "console",
-     "settings_file"},
-    {"physics"},
-    {"data"},
-    {"virtual"},
-    {"sources", "models", "checkpoints", "plotting"},
-    {"losses", "metrics", "fitting"},
-    {"kinds"},
-    {"onnx_export", "render"},
-    {"evaluation"},
-    {"explorer"},
-    {"lightning"},
-    {"study", "lod", "acquisition", "exporting", "cli", "api", "__main__"},
-)
-FLOOR = {group: level for level, groups in enumerate(FLOORS) for group in groups}
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "neuralbrdf"
+#: import-linter on the package under the working folder, without its cache (nothing written there).
+LINT = "import sys; from importlinter.cli import lint_imports; sys.exit(lint_imports(no_cache=True, no_logo=True))"
 
 
-def _group(module: str) -> str:
-    """``export`` for the scripts folder, else the first name under ``neuralbrdf`` (``neuralbrdf``
-    for the package itself)."""
-    parts = module.split(".")
-    if parts[0] != "neuralbrdf":
-        return parts[0]
-    return parts[1] if len(parts) > 1 else "neuralbrdf"
+def contracts() -> dict[str, dict]:
+    """The contracts of pyproject.toml by id."""
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["tool"]["importlinter"]
+    return {contract["id"]: contract for contract in config["contracts"]}
 
 
-def import_edges() -> set[tuple[str, str, str]]:
-    """``(file, importing group, imported group)`` for every ``neuralbrdf`` import in the package."""
-    modules = {".".join(p.relative_to(PACKAGE.parent).with_suffix("").parts).removesuffix(".__init__")
-               for p in PACKAGE.rglob("*.py")}
-    edges = set()
-    for path in PACKAGE.rglob("*.py"):
-        module = ".".join(path.relative_to(PACKAGE.parent).with_suffix("").parts).removesuffix(".__init__")
-        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-            if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] in ("neuralbrdf", "export"):
-                targets = [f"{node.module}.{alias.name}" for alias in node.names]
-                targets = [t if t in modules else node.module for t in targets]
-            elif isinstance(node, ast.Import):
-                targets = [alias.name for alias in node.names if alias.name.split(".")[0] in ("neuralbrdf", "export")]
-            else:
-                continue
-            for target in targets:
-                edges.add((str(path.relative_to(PACKAGE.parent)), _group(module), _group(target)))
-    return edges
+def lint(root: Path) -> subprocess.CompletedProcess:
+    """import-linter run on the ``neuralbrdf`` and ``export`` packages found in ``root``."""
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    return subprocess.run([sys.executable, "-c", LINT], cwd=root, env=env, capture_output=True, text=True,
+                          timeout=300)
 
 
-def test_every_group_has_a_floor():
-    groups = {p.relative_to(PACKAGE).parts[0].removesuffix(".py") for p in PACKAGE.glob("*") if
-              (p.suffix == ".py" and p.stem != "__init__") or (p.is_dir() and (p / "__init__.py").exists())}
-    assert groups <= set(FLOOR), f"groups without a floor: {sorted(groups - set(FLOOR))}"
+def test_the_import_contracts_are_kept():
+    result = lint(ROOT)
+    assert result.returncode == 0, result.stdout + result.stderr
+    for contract in contracts().values():
+        assert f"{contract['name']} KEPT" in result.stdout, result.stdout
 
 
-def test_imports_never_point_up():
-    edges = import_edges()
-    unplaced = sorted({f"{file}: imports {dst}" for file, _, dst in edges if dst not in FLOOR and dst != "neuralbrdf"})
-    assert not unplaced, "imports of modules without a floor:\n" + "\n".join(unplaced)
-    upward = sorted(f"{file}: {src} (floor {FLOOR[src]}) imports {dst} (floor {FLOOR[dst]})"
-                    for file, src, dst in edges
-                    if src in FLOOR and dst in FLOOR and FLOOR[dst] > FLOOR[src])
-    assert not upward, "\n".join(upward)
+def test_every_package_and_module_has_a_floor():
+    """A new top-level package or module is placed in the layers, else the contract would not check it."""
+    placed = {name.strip().removeprefix("neuralbrdf.")
+              for layer in contracts()["layers"]["layers"] for name in layer.replace("|", ":").split(":")}
+    groups = {p.stem if p.suffix == ".py" else p.name for p in PACKAGE.iterdir()
+              if (p.suffix == ".py" and p.stem != "__init__") or (p.is_dir() and (p / "__init__.py").exists())}
+    assert groups <= placed, f"not in any layer of pyproject.toml's contract: {sorted(groups - placed)}"
 
 
-def test_groups_import_each_other_in_no_cycle():
-    graph: dict[str, set[str]] = {}
-    for _, src, dst in import_edges():
-        if src != dst and "neuralbrdf" not in (src, dst):
-            graph.setdefault(src, set()).add(dst)
-    visiting, done = [], set()
-
-    def visit(node):
-        if node in visiting:
-            raise AssertionError("import cycle: " + " -> ".join(visiting[visiting.index(node):] + [node]))
-        if node in done:
-            return
-        visiting.append(node)
-        for nxt in sorted(graph.get(node, ())):
-            visit(nxt)
-        visiting.pop()
-        done.add(node)
-
-    for node in sorted(graph):
-        visit(node)
+def _not_python(folder: str, names: list[str]) -> list[str]:
+    """What :func:`copy_of_the_package` leaves out: caches, links and every file but Python source."""
+    return [name for name in names if name == "__pycache__" or Path(folder, name).is_symlink()
+            or (not Path(folder, name).is_dir() and not name.endswith(".py"))]
 
 
-def test_the_package_never_imports_export_scripts():
-    assert not [edge for edge in import_edges() if edge[2] == "export"]
+def copy_of_the_package(tmp_path: Path) -> Path:
+    """The Python files of ``neuralbrdf`` and ``export/`` and pyproject.toml, copied under ``tmp_path``."""
+    for name in ("neuralbrdf", "export"):
+        shutil.copytree(ROOT / name, tmp_path / name, ignore=_not_python)
+    shutil.copy(ROOT / "pyproject.toml", tmp_path)
+    return tmp_path
 
 
-def test_a_broken_layering_is_caught(tmp_path, monkeypatch):
-    """The checks can fail: a physics module importing the Lightning layer is reported."""
-    fake = tmp_path / "neuralbrdf"
-    (fake / "physics").mkdir(parents=True)
-    (fake / "physics" / "__init__.py").write_text("")
-    (fake / "physics" / "bad.py").write_text("from neuralbrdf.lightning.run import main\n")
-    (fake / "lightning").mkdir()
-    (fake / "lightning" / "__init__.py").write_text("")
-    (fake / "lightning" / "run.py").write_text("from neuralbrdf.physics import bad\n")
-    monkeypatch.setattr(sys.modules[__name__], "PACKAGE", fake)
-    edges = import_edges()
-    assert ("neuralbrdf/physics/bad.py", "physics", "lightning") in edges
-    try:
-        test_imports_never_point_up()
-    except AssertionError as error:
-        assert "physics (floor 1) imports lightning" in str(error)
-    else:
-        raise AssertionError("an upward import was not reported")
+BREAKS = {
+    # a function-level import climbing from the physics floor to the Lightning one
+    "layers": ("neuralbrdf/physics/bad.py", "def f():\n    from neuralbrdf.lightning.run import main\n"),
+    # the mutual import that render/load_time.py removed
+    "no-circle": ("neuralbrdf/render/measured_bsdf.py", "\nfrom neuralbrdf.render import mitsuba_bsdf\n"),
+    "no-export-scripts": ("neuralbrdf/cli/bad.py", "import export.to_onnx\n"),
+}
 
 
-@pytest.mark.parametrize("line", ["from export.to_onnx import main\n", "import export.render\n"])
-def test_an_import_of_the_export_scripts_is_caught(tmp_path, monkeypatch, line):
-    fake = tmp_path / "neuralbrdf"
-    (fake / "cli").mkdir(parents=True)
-    (fake / "cli" / "__init__.py").write_text("")
-    (fake / "cli" / "bad.py").write_text(line)
-    monkeypatch.setattr(sys.modules[__name__], "PACKAGE", fake)
-    with pytest.raises(AssertionError):
-        test_the_package_never_imports_export_scripts()
+@pytest.mark.parametrize("contract", sorted(BREAKS))
+def test_a_broken_rule_breaks_its_contract(tmp_path, contract):
+    """The same run on a copy with one bad import fails on that contract (an upward import between
+    packages is a circle between them too)."""
+    root = copy_of_the_package(tmp_path)
+    file, line = BREAKS[contract]
+    with open(root / file, "a", encoding="utf-8") as handle:
+        handle.write(line)
+    result = lint(root)
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert f"{contracts()[contract]['name']} BROKEN" in result.stdout, result.stdout

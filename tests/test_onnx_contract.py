@@ -281,15 +281,15 @@ def test_external_weight_data_is_refused_before_it_is_read(tmp_path):
 
 
 def test_declared_sizes_and_file_size_are_bounded(tmp_path, monkeypatch):
-    from neuralbrdf import onnx_contract
+    from neuralbrdf.onnx_contract import model as contract_model, weights
 
     model = fx.tiny_rgb_model()
     path = tmp_path / "m.onnx"
     path.write_bytes(model.SerializeToString())
-    monkeypatch.setattr(onnx_contract, "MAX_ONNX_WEIGHT_ELEMENTS", 4)
+    monkeypatch.setattr(weights, "MAX_ONNX_WEIGHT_ELEMENTS", 4)
     with pytest.raises(InputError, match="declare more than 4 elements"):
         load_model(path)
-    monkeypatch.setattr(onnx_contract, "MAX_ONNX_BYTES", 16)
+    monkeypatch.setattr(contract_model, "MAX_ONNX_BYTES", 16)
     with pytest.raises(InputError, match="exceeds the limit"):
         load_model(path)
 
@@ -298,14 +298,14 @@ def test_a_constant_shape_creating_a_huge_tensor_is_refused_before_onnxruntime(t
     """A 1e10-element ``ConstantOfShape`` would be folded (allocated) by onnxruntime at session start."""
     from onnx import helper, numpy_helper
 
-    from neuralbrdf import onnx_contract
+    from neuralbrdf.onnx_contract import model as contract_model
 
     model = fx.tiny_rgb_model()
     model.graph.initializer.append(numpy_helper.from_array(np.array([100_000, 100_000], dtype=np.int64), "big"))
     model.graph.node.append(helper.make_node("ConstantOfShape", ["big"], ["huge"], name="fill"))
     path = tmp_path / "huge.onnx"
     path.write_bytes(model.SerializeToString())
-    monkeypatch.setattr(onnx_contract, "_check_trial_evaluation", lambda *a: pytest.fail("ran the graph"))
+    monkeypatch.setattr(contract_model, "check_trial_evaluation", lambda *a: pytest.fail("ran the graph"))
     with pytest.raises(InputError, match="ConstantOfShape node 'fill' creates a tensor of 10000000000 elements"):
         load_model(path)
 

@@ -15,7 +15,8 @@ from neuralbrdf.data.table import write_table
 from neuralbrdf.evaluation.scores import inplane_scores
 from neuralbrdf.lightning.measurement_data import MeasurementDataModule
 from neuralbrdf.cli.main import main as cli
-from neuralbrdf.lightning.run import MetricsJson, main
+from neuralbrdf.lightning.metrics_json import MetricsJson
+from neuralbrdf.lightning.run import main
 from neuralbrdf.lightning.spectral_mlp_module import SpectralMlpModule
 from neuralbrdf.virtual import instrument
 
@@ -386,7 +387,8 @@ def test_fit_health_fails_a_fit_no_better_than_predicting_zero(scores, fails):
     predicting 0 scores 1) at its best over the validations."""
     from types import SimpleNamespace
 
-    from neuralbrdf.lightning.run import NO_BETTER_THAN_ZERO, FitFailed, FitHealth
+    from neuralbrdf.errors import FitFailed
+    from neuralbrdf.lightning.fit_health import NO_BETTER_THAN_ZERO, FitHealth
 
     assert NO_BETTER_THAN_ZERO == 0.9
     health = FitHealth()
@@ -429,10 +431,10 @@ def test_metrics_json_writes_non_finite_numbers_as_null(tmp_path):
 def test_checkpoints_are_written_whole_or_not_at_all(tmp_path, monkeypatch):
     """A save that dies half-way leaves the previous checkpoint, never a truncated one."""
     from neuralbrdf import checkpoints
-    from neuralbrdf.lightning import run
+    from neuralbrdf.lightning import checkpoint_io
 
     path = tmp_path / "checkpoints" / "last.ckpt"
-    run.AtomicCheckpointIO().save_checkpoint({"epoch": 1}, path)
+    checkpoint_io.AtomicCheckpointIO().save_checkpoint({"epoch": 1}, path)
 
     def dying_save(obj, handle):
         handle.write(b"PK\x03\x04 half")
@@ -440,7 +442,7 @@ def test_checkpoints_are_written_whole_or_not_at_all(tmp_path, monkeypatch):
 
     monkeypatch.setattr(checkpoints.torch, "save", dying_save)
     with pytest.raises(KeyboardInterrupt):
-        run.AtomicCheckpointIO().save_checkpoint({"epoch": 2}, path)
+        checkpoint_io.AtomicCheckpointIO().save_checkpoint({"epoch": 2}, path)
     assert torch.load(path, weights_only=True) == {"epoch": 1}
     assert [p.name for p in path.parent.iterdir()] == ["last.ckpt"]
 

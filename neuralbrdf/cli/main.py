@@ -13,7 +13,7 @@ import argparse
 import sys
 
 from neuralbrdf.atomic import command_inputs
-from neuralbrdf.cli import commands
+from neuralbrdf.cli import acquisition_command, commands
 from neuralbrdf.console import clean_warnings
 from neuralbrdf.data.plans import PLAN_HELP, PLAN_NAMES
 from neuralbrdf.errors import (ENVIRONMENT_ERRNOS, EXIT_BAD_INPUT, EXIT_ENVIRONMENT, EXIT_OK, EnvironmentFailure,
@@ -21,7 +21,6 @@ from neuralbrdf.errors import (ENVIRONMENT_ERRNOS, EXIT_BAD_INPUT, EXIT_ENVIRONM
 from neuralbrdf.render import DEFAULT_VARIANT
 from neuralbrdf.study import command as study_command
 from neuralbrdf.explorer import command as explorer_command
-from neuralbrdf.acquisition import command as acquisition_command
 
 EPILOG = (
     "Conventions: angles in degrees. GCMS raw files hold signed in-plane angles theta_i, theta_r "

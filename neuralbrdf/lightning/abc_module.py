@@ -111,13 +111,13 @@ class AbcFitModule(WritesKind, pl.LightningModule):
             self.trainer.save_checkpoint(os.path.join(callback.dirpath, f"{callback.filename or 'best'}.ckpt"))
 
     def fit_failure(self) -> str | None:
-        """Why the fit failed, if it did (read by :class:`~neuralbrdf.lightning.run.FitHealth`)."""
+        """Why the fit failed, if it did (read by :class:`~neuralbrdf.lightning.fit_health.FitHealth`)."""
         if self.result is None or self.result.success:
             return None
         return f"ABC fit of {self.material_name}: {self.result.failure_reason}"
 
     def metrics_json_extras(self) -> dict:
-        """Non-scalar results for ``metrics.json`` (read by :class:`~neuralbrdf.lightning.run.MetricsJson`)."""
+        """Non-scalar results for ``metrics.json`` (read by :class:`~neuralbrdf.lightning.metrics_json.MetricsJson`)."""
         if self.result is None:
             return {}
         return {

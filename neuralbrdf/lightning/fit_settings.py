@@ -72,15 +72,17 @@ def _trainer_problems(trainer) -> list[tuple[str, object, str]]:
     if steps == 0 or (isinstance(steps, int) and steps < -1):
         problems.append(("trainer.max_steps", steps, "trains no step; give -1 (no step limit) or a number of steps "
                                                      ">= 1"))
+    # shown as numbers (0.0): jsonargparse parses "0" for these int | float options as an int or a float
+    # depending on what else is installed (rich)
     batches = _number(_get(trainer, "limit_train_batches"))
     if batches is not None and not batches > 0:
-        problems.append(("trainer.limit_train_batches", _get(trainer, "limit_train_batches"),
+        problems.append(("trainer.limit_train_batches", batches,
                          "no training step in an epoch: the fit would learn nothing; give a number of batches >= 1 "
                          "or a fraction in (0, 1]"))
     val_batches = _number(_get(trainer, "limit_val_batches"))
     monitored = _monitored_checkpoints(trainer)
     if val_batches is not None and not val_batches > 0 and monitored:
-        problems.append(("trainer.limit_val_batches", _get(trainer, "limit_val_batches"),
+        problems.append(("trainer.limit_val_batches", val_batches,
                          f"no validation, so the checkpoint chosen on {monitored[0]} would never be chosen; give a "
                          "number of batches >= 1 or a fraction in (0, 1]"))
     for key in ("accumulate_grad_batches", "check_val_every_n_epoch"):

@@ -29,82 +29,19 @@ import os
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
-import pytorch_lightning as pl
 import torch
 from pytorch_lightning.cli import LRSchedulerCallable, OptimizerCallable
 
-from neuralbrdf import metrics
 from neuralbrdf.errors import InputError
-from neuralbrdf.checkpoints import check_weights_match, read_checkpoint, write_checkpoint
+from neuralbrdf.lightning.auto_decoder import (
+    AutoDecoderPretraining,
+    material_names,
+    network_from_state,
+    read_pretraining_checkpoint,
+    write_pretraining_checkpoint,
+)
 from neuralbrdf.lightning.corpus_data import CorpusSamples
-from neuralbrdf.lightning.common import scheduled_optimizer
-from neuralbrdf.losses import check_loss_domain, nlb_loss
 from neuralbrdf.models.nlb import COMPACT, LatentTable, NlbConfig, NlbNetwork, resize_latent
-
-class AutoDecoderPretraining(pl.LightningModule):
-    """What every auto-decoder pretraining shares (module docstring): the loss, the validation
-    metrics, the corpus-size check, the material names stored in checkpoints and the optimiser.
-
-    Subclasses build ``self.network`` and ``self.latents`` (a module holding every material's
-    codes, ``len()`` the number of materials), compute a batch's prediction in ``forward`` and
-    continue a previous run in ``_warm_start(names)``; their hyper-parameters include
-    ``loss_domain``, ``latent_lr_scale`` and ``warm_start``.
-    """
-
-    def __init__(self, optimizer: OptimizerCallable, lr_scheduler: LRSchedulerCallable | None) -> None:
-        super().__init__()
-        self.optimizer_factory = optimizer
-        self.lr_scheduler_factory = lr_scheduler
-        self._val_sums: list[torch.Tensor] = []
-        self.material_names: list[str] = []
-
-    def _warm_start(self, names: list[str]) -> None:
-        raise NotImplementedError
-
-    def setup(self, stage: str) -> None:
-        data = getattr(self.trainer, "datamodule", None)
-        corpus_size = getattr(data, "n_materials", None)
-        if corpus_size is not None and corpus_size != len(self.latents):
-            raise InputError(
-                f"the model has {len(self.latents)} latents but the corpus has {corpus_size} materials "
-                "(analytic + measured proxies and their blends); set model.n_materials to that",
-                key="model.n_materials",
-            )
-        self.material_names = list(getattr(data, "material_names", ()))
-        if self.hparams.warm_start and stage == "fit":
-            self._warm_start(self.material_names)
-
-    def on_save_checkpoint(self, checkpoint: dict) -> None:
-        """Store the latents' material names (``analytic:<i>``, ``merl:<name>``, …), when known."""
-        if self.material_names:
-            checkpoint["material_names"] = self.material_names
-
-    def training_step(self, batch: CorpusSamples, batch_idx: int) -> torch.Tensor:
-        loss = nlb_loss(self(batch), batch.f, batch.wi, self.hparams.loss_domain)
-        self.log("train/loss", loss, on_step=True, on_epoch=True, batch_size=len(batch.f), sync_dist=True)
-        return loss
-
-    def validation_step(self, batch: CorpusSamples, batch_idx: int) -> None:
-        pred = self(batch)
-        n = len(batch.f)
-        for domain, name in (("log_cosine", "l1_logcos"), ("linear", "l1_linear")):
-            self.log(f"val/{name}", nlb_loss(pred, batch.f, batch.wi, domain), batch_size=n, sync_dist=True)
-        theta_i = torch.rad2deg(torch.acos(batch.wi[:, 2].clamp(-1.0, 1.0)))
-        rmse = metrics.hemisphere_logcos_rmse(pred, batch.f, theta_i)
-        self._val_sums.append(torch.tensor([rmse * rmse * n, n], dtype=torch.float64, device=pred.device))
-
-    def on_validation_epoch_end(self) -> None:
-        if not self._val_sums:
-            return
-        sums = torch.stack(self._val_sums).sum(0)
-        self._val_sums.clear()
-        sums = self.trainer.strategy.reduce(sums, reduce_op="sum")
-        self.log("val/logcos_rmse", torch.sqrt(sums[0] / sums[1]).float())
-
-    def configure_optimizers(self):
-        groups = [(self.network.parameters(), 1.0), (self.latents.parameters(), self.hparams.latent_lr_scale)]
-        return scheduled_optimizer(groups, self.optimizer_factory, self.lr_scheduler_factory, "epoch")
-
 
 class NlbPretrainModule(AutoDecoderPretraining):
     """Joint training of the NLB network and the corpus latents (module docstring).
@@ -147,10 +84,7 @@ class NlbPretrainModule(AutoDecoderPretraining):
         optimizer: OptimizerCallable = torch.optim.Adam,
         lr_scheduler: LRSchedulerCallable | None = None,
     ) -> None:
-        super().__init__(optimizer, lr_scheduler)
-        check_loss_domain(loss_domain)
-        if not latent_lr_scale > 0:
-            raise InputError(f"must be positive, got {latent_lr_scale}", key="latent_lr_scale")
+        super().__init__(optimizer, lr_scheduler, loss_domain, latent_lr_scale)
         self.save_hyperparameters(ignore=["optimizer", "lr_scheduler"])
         self.network = NlbNetwork(latent_dim, width, depth, residual, half_vector)
         self.latents = LatentTable(n_materials, latent_dim, latent_init)
@@ -204,27 +138,14 @@ def load_pretrained(path: str | os.PathLike[str]) -> PretrainedNlb:
     Raises :class:`InputError` when the file is missing or is not such a checkpoint.
     """
     path = Path(path)
-    checkpoint = read_checkpoint(path, "pretrained NLB checkpoint")
-    if not isinstance(checkpoint, dict) or "state_dict" not in checkpoint or "hyper_parameters" not in checkpoint:
-        raise InputError("not a Lightning checkpoint (no state_dict / hyper_parameters)", path=path)
-    hparams = checkpoint["hyper_parameters"]
-    state = checkpoint["state_dict"]
+    checkpoint, hparams, state = read_pretraining_checkpoint(path, "pretrained NLB checkpoint")
     try:
         config = NlbConfig(*(hparams[k] for k in ("latent_dim", "width", "depth", "residual", "half_vector")))
         latents = state["latents.latents"].float()
     except KeyError as exc:
         raise InputError(f"not an NLB pretraining checkpoint: missing {exc.args[0]!r}", path=path) from None
-    prefix = "network."
-    check_weights_match(lambda: NlbNetwork(**asdict(config)), state, path, prefix)
-    network = NlbNetwork(**asdict(config))
-    try:
-        network.load_state_dict({k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)})
-    except RuntimeError as exc:
-        raise InputError(f"network weights do not match its hyper-parameters: {exc}", path=path) from None
-    network.eval()
-    names = tuple(str(n) for n in checkpoint.get("material_names", ()))
-    if names and len(names) != len(latents):
-        raise InputError(f"{len(names)} material names for {len(latents)} latents", path=path)
+    network = network_from_state(lambda: NlbNetwork(**asdict(config)), state, path)
+    names = material_names(checkpoint, len(latents), "latents", path)
     return PretrainedNlb(network, latents, str(path), names)
 
 
@@ -233,13 +154,7 @@ def save_pretrained(pretrained: PretrainedNlb, path: str | os.PathLike[str]) -> 
     the weights, the architecture (and the module's class path, from which Lightning rebuilds it for
     ``--ckpt_path``) and the latents' names, no optimiser or loop state.
     Written atomically (a failed write leaves no file)."""
-    path = Path(path)
-    config = asdict(pretrained.network.config)
     state = {f"network.{k}": v.detach().clone() for k, v in pretrained.network.state_dict().items()}
     state["latents.latents"] = pretrained.latents.detach().clone()
-    class_path = f"{NlbPretrainModule.__module__}.{NlbPretrainModule.__qualname__}"
-    checkpoint = {"state_dict": state, "pytorch-lightning_version": pl.__version__,
-                  "hyper_parameters": {**config, "n_materials": len(pretrained.latents), "_class_path": class_path},
-                  "material_names": list(pretrained.names)}
-    write_checkpoint(checkpoint, path)
-    return path
+    hyper_parameters = {**asdict(pretrained.network.config), "n_materials": len(pretrained.latents)}
+    return write_pretraining_checkpoint(NlbPretrainModule, hyper_parameters, state, pretrained.names, path)

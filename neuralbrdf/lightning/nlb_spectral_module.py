@@ -4,7 +4,7 @@ The channel-agnostic decoder and the codes of every corpus material — one shar
 channel code per colour channel — are optimised jointly on the batches of
 :mod:`neuralbrdf.lightning.corpus_data` (the analytic corpus and the measured proxies of one or
 more labs), exactly as :class:`~neuralbrdf.lightning.nlb_module.NlbPretrainModule` trains the
-RGB network (:class:`~neuralbrdf.lightning.nlb_module.AutoDecoderPretraining`: L1 of
+RGB network (:class:`~neuralbrdf.lightning.auto_decoder.AutoDecoderPretraining`: L1 of
 ``ln(1 + f cos θi)``, Adam, a learning rate decaying per epoch, checkpoints chosen on the
 validation directions of the training materials).  Each RGB channel of a training material is a
 monochrome BRDF of its own: the decoder never sees which colour it decodes, only the channel
@@ -21,15 +21,18 @@ import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-import pytorch_lightning as pl
 import torch
 from pytorch_lightning.cli import LRSchedulerCallable, OptimizerCallable
 
-from neuralbrdf.checkpoints import check_weights_match, read_checkpoint, write_checkpoint
 from neuralbrdf.errors import InputError
+from neuralbrdf.lightning.auto_decoder import (
+    AutoDecoderPretraining,
+    material_names,
+    network_from_state,
+    read_pretraining_checkpoint,
+    write_pretraining_checkpoint,
+)
 from neuralbrdf.lightning.corpus_data import CorpusSamples
-from neuralbrdf.lightning.nlb_module import AutoDecoderPretraining
-from neuralbrdf.losses import check_loss_domain
 from neuralbrdf.models.nlb_spectral import SpectralLatentTable, SpectralNlbConfig, SpectralNlbNetwork
 
 #: Colour channels of the corpus materials (one channel code each).
@@ -75,10 +78,7 @@ class SpectralNlbPretrainModule(AutoDecoderPretraining):
         optimizer: OptimizerCallable = torch.optim.Adam,
         lr_scheduler: LRSchedulerCallable | None = None,
     ) -> None:
-        super().__init__(optimizer, lr_scheduler)
-        check_loss_domain(loss_domain)
-        if not latent_lr_scale > 0:
-            raise InputError(f"must be positive, got {latent_lr_scale}", key="latent_lr_scale")
+        super().__init__(optimizer, lr_scheduler, loss_domain, latent_lr_scale)
         self.save_hyperparameters(ignore=["optimizer", "lr_scheduler"])
         self.network = SpectralNlbNetwork(shared_dim, channel_dim, width, depth, channel_layer, half_vector)
         self.latents = SpectralLatentTable(n_materials, shared_dim, channel_dim, CORPUS_CHANNELS, latent_init)
@@ -124,10 +124,7 @@ class PretrainedSpectralNlb:
 def load_spectral_pretrained(path: str | os.PathLike[str]) -> PretrainedSpectralNlb:
     """Network and codes of a :class:`SpectralNlbPretrainModule` checkpoint, else :class:`InputError`."""
     path = Path(path)
-    checkpoint = read_checkpoint(path, "pretrained spectral NLB checkpoint")
-    hparams, state = checkpoint.get("hyper_parameters"), checkpoint.get("state_dict")
-    if not isinstance(hparams, dict) or not isinstance(state, dict):
-        raise InputError("not a Lightning checkpoint (no state_dict / hyper_parameters)", path=path)
+    checkpoint, hparams, state = read_pretraining_checkpoint(path, "pretrained spectral NLB checkpoint")
     try:
         config = SpectralNlbConfig(*(hparams[f.name] for f in SpectralNlbConfig.__dataclass_fields__.values()))
         shared, channels = state["latents.shared"].float(), state["latents.channels"].float()
@@ -135,32 +132,20 @@ def load_spectral_pretrained(path: str | os.PathLike[str]) -> PretrainedSpectral
         raise InputError(f"not a spectral NLB pretraining checkpoint: missing {exc.args[0]!r}", path=path) from None
     except InputError as error:
         raise InputError(f"invalid architecture: {error.reason}", path=path, column=error.column, key=error.key) from None
-    prefix = "network."
-    check_weights_match(lambda: SpectralNlbNetwork(**asdict(config)), state, path, prefix)
+    network = network_from_state(lambda: SpectralNlbNetwork(**asdict(config)), state, path)
     if shared.ndim != 2 or channels.ndim != 3 or len(shared) != len(channels) \
             or shared.shape[1] != config.shared_dim or channels.shape[2] != config.channel_dim:
         raise InputError(f"codes of shapes {list(shared.shape)} and {list(channels.shape)} do not fit {config}",
                          path=path)
-    network = SpectralNlbNetwork(**asdict(config))
-    network.load_state_dict({k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)})
-    network.eval()
-    names = tuple(str(n) for n in checkpoint.get("material_names", ()))
-    if names and len(names) != len(shared):
-        raise InputError(f"{len(names)} material names for {len(shared)} codes", path=path)
+    names = material_names(checkpoint, len(shared), "codes", path)
     return PretrainedSpectralNlb(network, shared, channels, str(path), names)
 
 
 def save_spectral_pretrained(pretrained: PretrainedSpectralNlb, path: str | os.PathLike[str]) -> Path:
     """Write ``pretrained`` as a checkpoint that :func:`load_spectral_pretrained` and a warm start
     read (weights, architecture, class path, names; no optimiser state), atomically."""
-    path = Path(path)
     state = {f"network.{k}": v.detach().clone() for k, v in pretrained.network.state_dict().items()}
     state["latents.shared"] = pretrained.shared.detach().clone()
     state["latents.channels"] = pretrained.channels.detach().clone()
-    class_path = f"{SpectralNlbPretrainModule.__module__}.{SpectralNlbPretrainModule.__qualname__}"
-    checkpoint = {"state_dict": state, "pytorch-lightning_version": pl.__version__,
-                  "hyper_parameters": {**asdict(pretrained.network.config), "n_materials": len(pretrained.shared),
-                                       "_class_path": class_path},
-                  "material_names": list(pretrained.names)}
-    write_checkpoint(checkpoint, path)
-    return path
+    hyper_parameters = {**asdict(pretrained.network.config), "n_materials": len(pretrained.shared)}
+    return write_pretraining_checkpoint(SpectralNlbPretrainModule, hyper_parameters, state, pretrained.names, path)

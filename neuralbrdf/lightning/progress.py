@@ -2,7 +2,7 @@
 
 Lightning's progress bar redraws itself with carriage returns; written to a log file or a pipe
 that becomes several lines of bar per epoch.  :class:`EpochLines` replaces it there
-(:func:`neuralbrdf.lightning.run` adds it when :func:`neuralbrdf.console.on_terminal` is false and
+(:class:`~neuralbrdf.lightning.train_cli.NeuralBrdfCLI` adds it when :func:`neuralbrdf.console.on_terminal` is false and
 the config enables the progress bar) with one parseable line per epoch on stderr::
 
     epoch 3/30 train/loss=0.01234 val/loss=0.004567 val/rel_rmse_glossy=0.0834 time_s=1.2

@@ -1,5 +1,6 @@
-"""A training run's directory through interruptions: a run is replaced whole or not at all, and
-what a killed command leaves behind is put right by the next command in the directory.
+"""A training run's directory: a fresh one when nothing names it (:func:`fresh_run_dir`), what the run
+it holds is (:func:`held_run`), and the directory through interruptions: a run is replaced whole or
+not at all, and what a killed command leaves behind is put right by the next command in the directory.
 
 A command in a run directory ``R`` holds its lock from start to end
 (:func:`~neuralbrdf.folder_lock.folder_lock`), so anything this module finds there that another
@@ -27,13 +28,19 @@ memory).  The folders and files it uses are named ``neuralbrdf-tmp-<pid>-<role>`
 from __future__ import annotations
 
 import csv
+import json
 import os
 import re
 import shutil
+from datetime import datetime
 from pathlib import Path
 
 from neuralbrdf.atomic import TEMP_MARKER, atomic_write, remove_stale_temporaries
+from neuralbrdf.folder_lock import outermost_missing
+from neuralbrdf.lightning.metrics_json import METRICS_FILE, STATUS_FAILED, STATUS_INTERRUPTED, STATUS_OK, STATUS_RUNNING
 
+#: Where a run goes when nothing names its directory: ``runs/<config stem>/<timestamp>`` (:func:`fresh_run_dir`).
+RUNS_ROOT = Path("runs")
 #: What a run writes into its directory; a directory holding any of these holds a run.
 RUN_ENTRIES = ("metrics.json", "metrics.csv", "config.yaml", "hparams.yaml", "checkpoints", "validate", "test")
 #: Prefix of every leftover of this module: ``neuralbrdf-tmp-<pid>-<role>``.
@@ -197,3 +204,34 @@ def recover(run_dir: Path) -> list[str]:
             target = entry.with_name(entry.name[1:].split(TEMP_MARKER, 1)[0])
             remove_stale_temporaries(target)
     return notes
+
+
+def fresh_run_dir(config_paths) -> tuple[Path, Path]:
+    """A new folder ``runs/<config stem>/<timestamp>[-N]``, created here (two commands started in the
+    same second get two folders), and the outermost folder created for it."""
+    stem = Path(str(config_paths[-1])).stem if config_paths else "run"
+    base = RUNS_ROOT / stem / datetime.now().strftime("%Y%m%d-%H%M%S")
+    candidate, suffix = base, 0
+    while True:
+        created = outermost_missing(candidate)
+        try:
+            candidate.mkdir(parents=True)
+            return candidate, created or candidate
+        except FileExistsError:
+            suffix += 1
+            candidate = base.with_name(f"{base.name}-{suffix}")
+
+
+def held_run(run_dir: Path) -> str:
+    """What the run in ``run_dir`` holds, for the refusal of a fit that would replace it."""
+    listing = ", ".join(run_entries(run_dir))
+    try:
+        status = json.loads((run_dir / METRICS_FILE).read_text(encoding="utf-8")).get("status")
+    except (OSError, ValueError, AttributeError):
+        status = None
+    if status in (STATUS_OK, STATUS_FAILED):
+        return f"already holds a run ({listing})"
+    why = {STATUS_RUNNING: f"its {METRICS_FILE} says it is still running, but no command runs in it: it was killed",
+           STATUS_INTERRUPTED: "it was interrupted"}.get(status, f"no {METRICS_FILE}: it ended before its fit did, or "
+                                                                 "was killed")
+    return f"already holds a run that did not finish ({listing}; {why})"

@@ -150,7 +150,7 @@ def _student(parent: OnnxEvaluator, output: str, settings: FastPathSettings) -> 
 
 def _rgb_rule_size(parent: OnnxEvaluator) -> int:
     """Wavelengths of the plugin's default sRGB rule for this spectral model (evaluations per RGB query)."""
-    from neuralbrdf.render.mitsuba_bsdf import fit_rgb_rule
+    from neuralbrdf.render.load_time import fit_rgb_rule
     from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE
 
     return fit_rgb_rule(parent.model, parent.session, DEFAULT_RMS_TOLERANCE).size

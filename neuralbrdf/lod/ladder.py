@@ -301,7 +301,7 @@ def _entry(name, file, kind, approximates, error, cost_ns, relative, build_s, pr
 def _rgb_rule_rungs(parent: OnnxEvaluator, reference, model_path: Path, full_cost_ns: float,
                     settings: LadderSettings) -> list[dict]:
     """``full_rgbT`` rungs (module docstring)."""
-    from neuralbrdf.render.mitsuba_bsdf import fit_rgb_rule
+    from neuralbrdf.render.load_time import fit_rgb_rule
     from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE, RuleRgbEvaluator
 
     default = fit_rgb_rule(parent.model, parent.session, DEFAULT_RMS_TOLERANCE)

@@ -5,6 +5,8 @@
 * :mod:`~neuralbrdf.render.sampling` — the cosine + glossy-lobe proposals and their fit;
 * :mod:`~neuralbrdf.render.mitsuba_bsdf` — the ``neuralbrdf`` BSDF plugin; call
   :func:`register` after ``mi.set_variant``;
+* :mod:`~neuralbrdf.render.measured_bsdf` — ``neuralbrdf_measured``, an RGL measurement as a truth;
+* :mod:`~neuralbrdf.render.load_time` — what both plugins work out once per model file;
 * :mod:`~neuralbrdf.render.preview` — scenes, variants and renders (``neuralbrdf render``).
 """
 

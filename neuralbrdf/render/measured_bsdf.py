@@ -27,6 +27,7 @@ import mitsuba as mi
 
 from neuralbrdf.data.rgl_bsdf import RglBsdf, measured_plugin
 from neuralbrdf.errors import InputError
+from neuralbrdf.render.load_time import fitted_proposal, proposal_path, validated_model
 
 PLUGIN_NAME = "neuralbrdf_measured"
 
@@ -61,12 +62,10 @@ def _measured_class() -> type:
         docstring)."""
 
         def __init__(self, props: mi.Properties) -> None:
-            from neuralbrdf.render.mitsuba_bsdf import _fitted_proposal, _proposal_path, validated_model
-
             mi.BSDF.__init__(self, props)
             self.brdf = _measurement(props)
-            proposal = _proposal_path(props)
-            self.mixture = None if proposal is None else _fitted_proposal(validated_model(proposal))
+            proposal = proposal_path(props)
+            self.mixture = None if proposal is None else fitted_proposal(validated_model(proposal))
             self.measured = measured_plugin(self.brdf)
             self.m_flags = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
             self.m_components = [self.m_flags]

@@ -89,11 +89,8 @@ from pathlib import Path
 import drjit as dr
 import mitsuba as mi
 import numpy as np
-import onnx
 import onnxruntime
 
-from neuralbrdf import kinds
-from neuralbrdf.atomic import file_version
 from neuralbrdf.errors import InputError
 from neuralbrdf.limits import DRJIT_MAX_MULTIPLY_ADDS
 from neuralbrdf.render.drjit_onnx import DrJitGraph
@@ -106,23 +103,15 @@ from neuralbrdf.onnx_contract import (
     matrix_multiply_adds,
 )
 from neuralbrdf.render.fast_paths import FAST_PROPERTY, RGB_HEAD_PROPERTY, chosen_output, flag
+from neuralbrdf.render.load_time import load_time_work, onnx_session, proposal_path, validated_model
 from neuralbrdf.render.onnx_split import split_at_wavelength
-from neuralbrdf.render.sampling import LobeMixture, fit_proposal, probe_direction_pairs
-from neuralbrdf.render.spectral_quadrature import (
-    DEFAULT_RMS_TOLERANCE,
-    SRGB_GRID_NM,
-    ReducedQuadrature,
-    fit_reduced_quadrature,
-    srgb_weights,
-)
+from neuralbrdf.render.sampling import probe_direction_pairs
+from neuralbrdf.render.spectral_quadrature import DEFAULT_RMS_TOLERANCE, ReducedQuadrature
 
 PLUGIN_NAME = "neuralbrdf"
 BACKENDS = ("drjit", "onnxruntime")
 DEFAULT_BACKEND = "drjit"
 
-
-#: Wavelengths (nm, spread over the model's range) averaged when probing a spectral model.
-_PROBE_WAVELENGTH_COUNT = 5
 
 _REGISTERED_VARIANTS: set[str] = set()
 #: Per variant: a one-entry ``UInt32`` counter of clamped model evaluations (:func:`clamped_values`).
@@ -278,7 +267,7 @@ class _OnnxRuntimeBackend:
         self.split, self.parts = None, None
         split = split_at_wavelength(model.proto) if model.is_spectral else None
         if split is not None:
-            parts = (_session(split.directions), _session(split.wavelengths))
+            parts = (onnx_session(split.directions), onnx_session(split.wavelengths))
             low, high = model.wavelength_range_nm
             nm = np.linspace(low - 20.0, high + 20.0, 4)
             if split.agrees(session, *parts, *probe_direction_pairs(), nm):
@@ -355,49 +344,6 @@ class _DrJitBackend:
         for f, weights in zip(self.spectral(wi, wo, list(rule.wavelengths_nm)), rule.weights):
             channels = [dr.fma(f, float(w), c) for w, c in zip(weights, channels)]
         return channels
-
-
-def _session(source: Path | onnx.ModelProto) -> onnxruntime.InferenceSession:
-    """A CPU session (of a file or a model) whose threads sleep between runs instead of
-    spinning: in wavefront mode Dr.Jit's kernels run between the calls, and spinning threads
-    would compete with them (``benchmarks/README.md``, design measurements)."""
-    options = onnxruntime.SessionOptions()
-    options.add_session_config_entry("session.intra_op.allow_spinning", "0")
-    model = source.SerializeToString() if isinstance(source, onnx.ModelProto) else str(source)
-    return onnxruntime.InferenceSession(model, options, providers=["CPUExecutionProvider"])
-
-
-def _numpy_spectra(session: onnxruntime.InferenceSession, wi: np.ndarray, wo: np.ndarray, wavelengths) -> np.ndarray:
-    """``[k, n]`` values of a spectral model at ``n`` NumPy direction pairs and ``k`` wavelengths
-    (nm), from one run (load-time probing)."""
-    feeds = {
-        INPUT_WI: np.tile(wi, (len(wavelengths), 1)),
-        INPUT_WO: np.tile(wo, (len(wavelengths), 1)),
-        INPUT_WAVELENGTH: np.repeat(wavelengths, len(wi)).astype(np.float32),
-    }
-    (f,) = session.run([OUTPUT_F], feeds)
-    return f.reshape(len(wavelengths), len(wi))
-
-
-def fit_rgb_rule(model: OnnxModel, session: onnxruntime.InferenceSession, rms_tolerance: float) -> ReducedQuadrature:
-    """The reduced spectrum → linear sRGB rule of a spectral model (module docstring)."""
-    low, high = model.wavelength_range_nm
-    grid = np.clip(SRGB_GRID_NM, low, high)
-    spectra = _numpy_spectra(session, *probe_direction_pairs(), grid).T
-    return fit_reduced_quadrature(spectra, grid, srgb_weights(), rms_tolerance)
-
-
-def _probe_function(model: OnnxModel, session: onnxruntime.InferenceSession):
-    """Channel- (or wavelength-) averaged ``f`` through onnxruntime, for fitting the sampler."""
-
-    def brdf(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
-        if not model.is_spectral:
-            (f,) = session.run([OUTPUT_F], {INPUT_WI: wi, INPUT_WO: wo})
-            return f.mean(axis=1)
-        wavelengths = np.linspace(*model.wavelength_range_nm, _PROBE_WAVELENGTH_COUNT)
-        return _numpy_spectra(session, wi, wo, wavelengths).mean(axis=0)
-
-    return brdf
 
 
 # --------------------------------------------------------------------------- colour
@@ -505,75 +451,6 @@ def _read_properties(props: mi.Properties) -> tuple[Path, str, float]:
     return Path(str(mi.file_resolver().resolve(filename))), backend, rgb_tolerance
 
 
-def _proposal_path(props: mi.Properties) -> Path | None:
-    """The ``proposal`` property (module docstring), resolved, or ``None``."""
-    if "proposal" not in props:
-        return None
-    path = Path(str(mi.file_resolver().resolve(str(props.get("proposal")))))
-    if not path.is_file():
-        raise InputError("no such model file for the 'proposal' property", path=path, key="proposal")
-    return path
-
-
-#: Load-time work per model file (:func:`_load_time_work`), keyed by the file as it was read
-#: (:attr:`~neuralbrdf.onnx_contract.OnnxModel.version`).
-_LOAD_TIME_CACHE: dict[tuple, object] = {}
-#: Entries kept; the oldest goes first.
-_LOAD_TIME_CACHE_SIZE = 64
-
-
-def validated_model(path: Path) -> OnnxModel:
-    """:func:`neuralbrdf.kinds.load_model` of ``path``, reused while the file is unchanged (same size,
-    time, inode).  The file is read once per version: a file replaced while a scene loads is either
-    the old model or the new one, never parts of both."""
-    if not path.is_file():
-        raise InputError("no such ONNX model file", path=path)
-    found = _LOAD_TIME_CACHE.get(("model", file_version(path)))
-    if found is None:
-        found = kinds.load_model(path)
-        _remember(("model", found.version), found)
-    return found
-
-
-def _remember(key: tuple, value) -> None:
-    if len(_LOAD_TIME_CACHE) >= _LOAD_TIME_CACHE_SIZE:
-        del _LOAD_TIME_CACHE[next(iter(_LOAD_TIME_CACHE))]
-    _LOAD_TIME_CACHE[key] = value
-
-
-def _load_time_work(model: OnnxModel, rgb_tolerance: float, proposal: OnnxModel | None = None,
-                    output: str = OUTPUT_F) -> tuple[OnnxModel, LobeMixture, ReducedQuadrature | None]:
-    """The model as read, cut to the ``output`` the plugin evaluates (``f`` or a fast path,
-    :meth:`~neuralbrdf.onnx_contract.OnnxModel.output_view`), the fitted sampling proposal (of the
-    ``proposal`` model if given, else of the model's ``f``) and (spectral output, RGB variant) its
-    sRGB rule.  Each is computed once per file version — the proposal per file alone (it depends
-    on neither variant nor tolerance), the rule per file, output and tolerance — so a scene loaded
-    again (the selector of :mod:`neuralbrdf.lod.select` loads one scene many times, with stand-ins
-    sampling like their parent) skips the probing, and a model sampled with another file's
-    proposal never fits its own."""
-    view_key = ("output", model.version, output)
-    if view_key not in _LOAD_TIME_CACHE:
-        _remember(view_key, model.output_view(output))
-    view = _LOAD_TIME_CACHE[view_key]
-    mixture = _fitted_proposal(proposal or model)
-    rgb_rule = None
-    if view.is_spectral and not mi.is_spectral:
-        key = ("rgb_rule", model.version, output, rgb_tolerance)
-        if key not in _LOAD_TIME_CACHE:
-            _remember(key, fit_rgb_rule(view, _session(view.proto), rgb_tolerance))
-        rgb_rule = _LOAD_TIME_CACHE[key]
-    return view, mixture, rgb_rule
-
-
-def _fitted_proposal(model: OnnxModel) -> LobeMixture:
-    """The sampling proposal of ``model`` (its kind's), fitted to onnxruntime probes."""
-    key = ("proposal", model.version)
-    if key not in _LOAD_TIME_CACHE:
-        probe = _probe_function(model, _session(model.proto))
-        _remember(key, fit_proposal(kinds.get(model.kind).proposal, probe, model.details))
-    return _LOAD_TIME_CACHE[key]
-
-
 def _bsdf_class(variant: str) -> type:
     """The BSDF class for ``variant`` (a Python BSDF derives from that variant's ``mi.BSDF``)."""
     if variant in _BSDF_CLASSES:
@@ -585,14 +462,14 @@ def _bsdf_class(variant: str) -> type:
         def __init__(self, props: mi.Properties) -> None:
             mi.BSDF.__init__(self, props)
             path, backend, rgb_tolerance = _read_properties(props)
-            proposal = _proposal_path(props)
+            proposal = proposal_path(props)
             read = validated_model(path)  # everything below uses this one reading of the file
             self.output = chosen_output(read, mi.is_spectral, flag(props, FAST_PROPERTY, False),
                                         flag(props, RGB_HEAD_PROPERTY, True))
-            self.model, self.mixture, self.rgb_rule = _load_time_work(
+            self.model, self.mixture, self.rgb_rule = load_time_work(
                 read, rgb_tolerance, None if proposal is None else validated_model(proposal), self.output)
             if backend == "onnxruntime":
-                self.backend = _OnnxRuntimeBackend(self.model, _session(self.model.proto))
+                self.backend = _OnnxRuntimeBackend(self.model, onnx_session(self.model.proto))
             else:
                 self.backend = _DrJitBackend(self.model)
             self._spectral_variant = mi.is_spectral

@@ -201,7 +201,7 @@ def load_scene(material: Material, resolution: int, max_depth: int = DEFAULT_MAX
     """The material-preview scene with ``material``, for the current variant, loaded in file order
     (:data:`FILE_ORDER_LOADING`)."""
     if material.model is not None:
-        from neuralbrdf.render.mitsuba_bsdf import validated_model
+        from neuralbrdf.render.load_time import validated_model
 
         validated_model(material.model)  # one clear InputError before Mitsuba wraps it (the plugin reuses it)
     try:

@@ -194,7 +194,8 @@ class SceneFile:
         """``mi.Scene`` of the edited text in the current variant (module docstring)."""
         import mitsuba as mi
 
-        from neuralbrdf.render.mitsuba_bsdf import scene_load_error, validated_model
+        from neuralbrdf.render.load_time import validated_model
+        from neuralbrdf.render.mitsuba_bsdf import scene_load_error
         from neuralbrdf.render.preview import FILE_ORDER_LOADING
 
         for material in self.materials():

@@ -154,7 +154,7 @@ def fit_arguments(spec: dict, table: Path, run_dir: Path) -> list[str]:
 
 def _errors(output: str) -> list[str]:
     """``train.py``'s error lines in ``output``, each as ``error: MESSAGE`` (its command name cut)."""
-    from neuralbrdf.lightning.run import PROG
+    from neuralbrdf.lightning.train_cli import PROG
 
     marker = f"{PROG}: "
     return [line.strip()[len(marker):] for line in output.splitlines() if line.strip().startswith(f"{marker}error:")]
