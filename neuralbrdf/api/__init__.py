@@ -1,0 +1,34 @@
+"""The Python API: read a material, fit a model to it, export, load, evaluate and render.
+
+Every name here is also at the package's top level (``neuralbrdf.read``, ``neuralbrdf.fit``, ...),
+imported on first use: ``import neuralbrdf`` loads neither PyTorch nor Mitsuba.  The command line
+is a layer over the same functions, so a script and a shell command do the same thing::
+
+    import neuralbrdf as nb
+
+    gold = nb.read("virtual:gold")                        # or a table, GCMS raw + reference, .h5, .binary, .bsdf
+    result = nb.fit("spectral_mlp", gold, run_dir="runs/gold")
+    model = result.export("gold.onnx")                    # a validated ONNX file (docs/formats.md#onnx-model-files)
+    f = model(wi, wo, wavelength)                         # BRDF in sr^-1, as numpy
+    truth = nb.truth(gold, "gold_truth.onnx")
+    scores = nb.evaluate(model, truth, "gold_eval")       # hemisphere, in-plane and image errors
+    image = nb.render_image(model, "gold.png")            # linear RGB [H, W, 3]
+
+Fits run through the same YAML configs and Lightning modules as ``neuralbrdf train`` (the configs
+stay the single source of hyper-parameters): :data:`FIT_KINDS` names the config of each kind,
+``overrides`` change single values like ``--key value`` on the command line.  Bad input raises
+:class:`~neuralbrdf.errors.InputError` (one line naming the file, row or key); a fit that runs
+and fails raises :class:`~neuralbrdf.errors.FitFailed`.  Units: angles in degrees, wavelengths
+in nm, BRDF values in sr⁻¹ without the cosine factor; directions are unit vectors in the local
+frame, ``z`` the normal, both pointing away from the surface (docs/formats.md#conventions).
+"""
+
+from neuralbrdf.api.explore import view
+from neuralbrdf.api.fitting import FIT_KINDS, FitResult, fit
+from neuralbrdf.api.materials import Source, read
+from neuralbrdf.api.model_files import Model, export, load, truth
+from neuralbrdf.api.plans import acquire, design_plan, next_pairs
+from neuralbrdf.api.rendering import RenderFailed, evaluate, render_image
+
+__all__ = ["FIT_KINDS", "FitResult", "Model", "RenderFailed", "Source", "acquire", "design_plan", "evaluate", "export",
+           "fit", "load", "next_pairs", "read", "render_image", "truth", "view"]
