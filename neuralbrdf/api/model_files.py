@@ -108,19 +108,22 @@ def export(checkpoint: PathLike, out: PathLike, material: str | None = None, *, 
     return Model(out)
 
 
-def truth(source: Source | PathLike, out: PathLike) -> Model:
+def truth(source: Source | PathLike, out: PathLike, *, log=None) -> Model:
     """Export the ground truth of a material to ``out`` (a ``reference`` model file that renders
     like a fitted one): ``virtual:NAME`` (spectral), an NBRDF proxy ``.h5`` or a MERL ``.binary``
     (RGB), an RGL ``.bsdf`` (a dense resampling, spectral or RGB as the file; its resampling error
     against Mitsuba's ``measured`` plugin is in the file's metadata), or a :class:`Source` of one of
-    those.  A measurement table or GCMS raw file has no truth.
+    those.  A measurement table or GCMS raw file has no truth.  ``log`` (``print``: what
+    ``neuralbrdf export-truth`` prints) gets a line on the file written, its check against PyTorch
+    and, for a resampled measurement, the resampling's error.
 
     >>> import tempfile, neuralbrdf as nb
     >>> with tempfile.TemporaryDirectory() as folder:
     ...     nb.truth(nb.read("virtual:gonio"), f"{folder}/gonio.onnx")
     Model('.../gonio.onnx', kind='reference', material='gonio', spectral 400-700 nm)
     """
-    from neuralbrdf.evaluation.truth import export_truth
+    from neuralbrdf.evaluation.truth import describe_resampling, load_truth
+    from neuralbrdf.onnx_export import write_model
 
     as_path(out, "out", "an output model file (.onnx) path")
     if not isinstance(source, Source):
@@ -130,9 +133,16 @@ def truth(source: Source | PathLike, out: PathLike) -> Model:
             raise InputError(f"a measurement ({source.kind}) is known only where it was measured; a truth comes from "
                              "virtual:NAME, an NBRDF .h5, a MERL .binary or an RGL .bsdf", path=source.location)
         source = VIRTUAL_PREFIX + source.location if source.kind == "virtual" else source.location
-    export_truth(os.fspath(source), out)
+    material = load_truth(os.fspath(source))
+    report = write_model(material.exportable(), out)
+    if log is not None:
+        log(f"wrote {report.path}: reference model of {report.material!r}; onnxruntime vs PyTorch on {report.n_probes} "
+            f"probes: max error {report.max_abs_error:.2g} sr^-1, {report.max_rel_error:.2g} relative")
+        if material.kind_metadata:
+            log(describe_resampling(material.kind_metadata))
     return Model(out)
 
 
 def model_path(model: Model | PathLike, name: str) -> Path:
+    """The file of ``model`` (a :class:`Model` or a path), or :class:`InputError` naming the argument ``name``."""
     return model.path if isinstance(model, Model) else as_path(model, name, "a Model or a model file (.onnx) path")
