@@ -16,13 +16,14 @@ if TYPE_CHECKING:
 
 def view(*models: Model | PathLike, truth: Model | PathLike | None = None,
          table: Source | BrdfTable | PathLike | None = None, reference: PathLike | None = None,
-         host: str = "127.0.0.1", port: int = 0):
+         host: str = "127.0.0.1", port: int = 0, start: bool = True):
     """Serve the interactive BRDF explorer of ``neuralbrdf view`` for ``models`` (model files, any
     kind), a ``truth`` (kind ``reference``) and a measurement ``table`` (a :class:`Source`, a table,
     or what :func:`read` takes, with its ``reference`` for a GCMS raw file) in a background thread
     and return the running :class:`~neuralbrdf.explorer.server.Viewer`: open ``viewer.url`` in a
     browser, ``viewer.stop()`` ends it (or use it in a ``with`` block).  ``host`` ``127.0.0.1``:
-    this machine only; ``port`` 0: a free one.
+    this machine only; ``port`` 0: a free one.  ``start=False``: the viewer bound but not serving
+    yet (``viewer.serve_forever()`` serves in the calling thread, as ``neuralbrdf view`` does).
 
     >>> import json, tempfile, urllib.request, neuralbrdf as nb
     >>> with tempfile.TemporaryDirectory() as folder:
@@ -49,4 +50,5 @@ def view(*models: Model | PathLike, truth: Model | PathLike | None = None,
         table = table.samples
     scene = open_scene([model_path(m, f"models[{i}]") for i, m in enumerate(models)],
                        None if truth is None else model_path(truth, "truth"), table, label)
-    return Viewer(scene, host, port).start()
+    viewer = Viewer(scene, host, port)
+    return viewer.start() if start else viewer

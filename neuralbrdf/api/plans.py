@@ -1,4 +1,5 @@
-"""Measuring a fraction of the pairs: :func:`design_plan`, :func:`next_pairs`, a simulated :func:`acquire` session."""
+"""Plans and measuring a fraction of the pairs: :func:`write_plan`, :func:`design_plan`,
+:func:`next_pairs`, a simulated :func:`acquire` session."""
 
 from __future__ import annotations
 
@@ -10,6 +11,26 @@ from typing import Any
 from neuralbrdf.api.arguments import PathLike, as_path, check_integers
 from neuralbrdf.api.materials import Source, read
 from neuralbrdf.errors import InputError
+
+
+def write_plan(plan: str | PathLike, out: PathLike) -> tuple:
+    """Write the plan ``plan`` as a plan file ``out``, the pairs an operator measures: one of the
+    report's DS1-DS4 or an in-plane plan file as signed in-plane ``theta_i, theta_r``, ``low`` (the
+    Löw et al. set) as spherical ``theta_i, phi_i, theta_o, phi_o`` (degrees,
+    docs/how-many-measurements.md).  Returns the columns written.
+
+    >>> import tempfile, neuralbrdf as nb
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     theta_i, theta_r = nb.write_plan("DS4", f"{folder}/ds4.csv")
+    >>> len(theta_i)
+    6
+    """
+    from neuralbrdf.data import plans
+
+    plan = plans.check_plan(plan, "plan")
+    columns = plans.low_plan() if plan == "low" else plans.in_plane_plan(plan)
+    plans.write_plan(columns, as_path(out, "out", "an output plan file (.csv) path"))
+    return columns
 
 
 def _instrument(max_theta: float, step: float, retro_band: float):
@@ -82,8 +103,11 @@ def next_pairs(measurement: Source | PathLike, count: int = 1, out: PathLike | N
     also written as a plan file.  Returns :class:`~neuralbrdf.acquisition.next_pairs.NextPairs`
     (``.enough(target_delta_e)`` says whether a target is met).
 
-    >>> import neuralbrdf as nb
-    >>> answer = nb.next_pairs(nb.read("virtual:gold", plan="DS4"), count=2, step=5.0)
+    >>> import tempfile, neuralbrdf as nb
+    >>> with tempfile.TemporaryDirectory() as folder:               # gold measured on DS4's 6 pairs
+    ...     table = nb.simulate("gold", f"{folder}/gold.csv", plan="DS4", truth=True)
+    ...     gold = nb.read(f"{folder}/gold.csv")
+    >>> answer = nb.next_pairs(gold, count=2, step=5.0)
     >>> answer.measured, len(answer.theta_i), answer.logcos.low < answer.logcos.estimate < answer.logcos.high
     (6, 2, True)
     """
