@@ -20,19 +20,19 @@ from typing import TYPE_CHECKING
 __version__ = "0.1.0"
 
 #: Names of :mod:`neuralbrdf.api` offered here, and the error types a caller catches.
-_API = ("FIT_KINDS", "FitResult", "Model", "RenderFailed", "Source", "acquire", "calibrate", "demo", "demo_outputs",
-        "design_plan", "evaluate", "export", "fit", "ladder", "ladder_dir", "load", "next_pairs", "plot", "read",
-        "regenerate_default_data", "render_image", "sample", "select", "simulate", "stand_ins", "study",
-        "study_report", "to_rgb", "truth", "view", "write_plan")
+_API = ("ExportFailed", "FIT_KINDS", "FitResult", "Model", "RenderFailed", "Source", "acquire", "calibrate", "demo",
+        "demo_outputs", "design_plan", "evaluate", "export", "fit", "ladder", "ladder_dir", "load", "next_pairs",
+        "plot", "read", "regenerate_default_data", "render_image", "sample", "select", "simulate", "stand_ins",
+        "study", "study_report", "to_rgb", "truth", "view", "write_plan")
 _ERRORS = ("EnvironmentFailure", "FitFailed", "InputError", "Interrupted")
 
 __all__ = [*_API, *_ERRORS]
 
 if TYPE_CHECKING:
-    from neuralbrdf.api import (FIT_KINDS, FitResult, Model, RenderFailed, Source, acquire, calibrate, demo,
-                                demo_outputs, design_plan, evaluate, export, fit, ladder, ladder_dir, load, next_pairs,
-                                plot, read, regenerate_default_data, render_image, sample, select, simulate, stand_ins,
-                                study, study_report, to_rgb, truth, view, write_plan)
+    from neuralbrdf.api import (FIT_KINDS, ExportFailed, FitResult, Model, RenderFailed, Source, acquire, calibrate,
+                                demo, demo_outputs, design_plan, evaluate, export, fit, ladder, ladder_dir, load,
+                                next_pairs, plot, read, regenerate_default_data, render_image, sample, select,
+                                simulate, stand_ins, study, study_report, to_rgb, truth, view, write_plan)
     from neuralbrdf.errors import EnvironmentFailure, FitFailed, InputError, Interrupted
 
 

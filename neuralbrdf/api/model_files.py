@@ -76,15 +76,26 @@ def load(path: PathLike) -> Model:
     return Model(as_path(path, "path", "a model file (.onnx) path"))
 
 
-def export(checkpoint: PathLike, out: PathLike, material: str | None = None, *, fast: bool | None = None,
-           rgb_head: bool = True, config: str = "default") -> Model:
+class ExportFailed(InputError):
+    """An export whose graph failed its validation against PyTorch, or a fast path its error bound;
+    nothing was written.  ``failure`` says which check and by how much."""
+
+    def __init__(self, out: PathLike, failure: Exception) -> None:
+        super().__init__(f"not written: {failure}", path=out)
+        self.failure = failure
+
+
+def export(checkpoint: PathLike | None, out: PathLike, material: str | None = None, *, model: PathLike | None = None,
+           fast: bool | None = None, rgb_head: bool = True, config: str = "default") -> Model:
     """Export a trained checkpoint (spectral MLP, ABC, or an NLB or spectral NLB latent fit;
     ``material`` when it holds several) to one ``.onnx`` file, validated against PyTorch before it
     is written — exactly what ``neuralbrdf export`` writes and prints: a spectral model gets its
     RGB head ``f_rgb`` unless ``rgb_head=False``; ``fast=True`` adds the compact copy ``f_fast``,
     which a spectral NLB model gets unless ``fast=False``;
     ``config`` names the fast paths' settings (docs/export-render.md).  The same checkpoint and
-    options give the same bytes.
+    options give the same bytes.  With ``model`` (an exported file) instead of a checkpoint
+    (``None``), the fast paths asked for are added to a copy of it.  Raises :class:`ExportFailed`
+    (an :class:`InputError`) when the graph or a fast path fails its check.
 
     >>> import tempfile, neuralbrdf as nb
     >>> quick = {"model.n_starts": 1, "data.eval_plan": None}     # one start, no hemisphere score: seconds
@@ -98,13 +109,17 @@ def export(checkpoint: PathLike, out: PathLike, material: str | None = None, *, 
     from neuralbrdf.lod.fast_paths import FastPathError
     from neuralbrdf.onnx_export import ExportValidationError
 
-    as_path(checkpoint, "checkpoint", "a checkpoint (.ckpt) path")
+    if checkpoint is not None or model is None:
+        as_path(checkpoint, "checkpoint", "a checkpoint (.ckpt) path")
+    if model is not None:
+        as_path(model, "model", "a model file (.onnx) path")
     as_path(out, "out", "an output model file (.onnx) path")
     check_text("material", material)
     try:
-        export_model(out, checkpoint=checkpoint, material=material, fast=fast, rgb_head=rgb_head, config=config)
+        export_model(out, checkpoint=checkpoint, model=model, material=material, fast=fast, rgb_head=rgb_head,
+                     config=config)
     except (ExportValidationError, FastPathError) as error:
-        raise InputError(f"not written: {error}", path=out) from None
+        raise ExportFailed(out, error) from None
     return Model(out)
 
 
