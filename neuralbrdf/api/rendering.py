@@ -141,7 +141,7 @@ def _preview_renderer(model: Path | None, reference_bsdf: str | None, resolution
     ))
     if fast:
         if model is None:
-            raise InputError("fast renders a model's fast path; give a model or a scene", key="--fast")
+            raise InputError("fast renders a model's fast path; give a model or a scene", key="fast")
         from neuralbrdf.kinds import load_model
         from neuralbrdf.render.fast_paths import chosen_output
 
