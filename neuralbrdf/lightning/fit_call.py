@@ -36,17 +36,13 @@ SUBCOMMAND = "fit"
 
 @dataclass(frozen=True)
 class FitRun:
-    """A finished fit: where it ran, its ``metrics.json`` (``status`` among them) and the
-    checkpoint it leaves to export (``None`` if it saved none named best or fitted)."""
+    """A finished fit: where it ran, what it wrote to ``metrics.json`` (``status`` among them: ``ok``;
+    a failed fit raises instead) and the checkpoint it leaves to export (``None`` if it saved none
+    named best or fitted)."""
 
     run_dir: Path
     checkpoint: Path | None
     metrics: dict[str, Any] = field(repr=False)
-
-    @property
-    def status(self) -> str | None:
-        """``ok`` for a finished fit (a failed one raises instead)."""
-        return self.metrics.get("status")
 
 
 def config_files(names: list[str]) -> list[Path]:
