@@ -1,8 +1,9 @@
 """The Python API: read a material, fit a model to it, export, load, evaluate and render.
 
 Every name here is also at the package's top level (``neuralbrdf.read``, ``neuralbrdf.fit``, ...),
-imported on first use: ``import neuralbrdf`` loads neither PyTorch nor Mitsuba.  The command line
-is a layer over the same functions, so a script and a shell command do the same thing::
+imported on first use: ``import neuralbrdf`` loads neither PyTorch nor Mitsuba.  The API is the one
+door to the library: each ``neuralbrdf`` command parses its options, makes one call here and prints
+(:mod:`neuralbrdf.cli`), so a script and a shell command do the same thing::
 
     import neuralbrdf as nb
 
@@ -16,11 +17,19 @@ is a layer over the same functions, so a script and a shell command do the same 
 
 Fits run through the same YAML configs and Lightning modules as ``neuralbrdf train`` (the configs
 stay the single source of hyper-parameters): :data:`FIT_KINDS` names the config of each kind,
-``overrides`` change single values like ``--key value`` on the command line.  Bad input raises
+``overrides`` change single values, handed to the run as data (the values ``--key value`` sets on
+the command line, typed).  Bad input raises
 :class:`~neuralbrdf.errors.InputError` (one line naming the file, row or key); a fit that runs
 and fails raises :class:`~neuralbrdf.errors.FitFailed`.  Units: angles in degrees, wavelengths
 in nm, BRDF values in sr⁻¹ without the cosine factor; directions are unit vectors in the local
 frame, ``z`` the normal, both pointing away from the surface (docs/formats.md#conventions).
+
+The names live in modules by theme: :mod:`~neuralbrdf.api.materials` (:func:`read`),
+:mod:`~neuralbrdf.api.fitting`, :mod:`~neuralbrdf.api.model_files` (export, load, truth),
+:mod:`~neuralbrdf.api.rendering` (evaluate, render), :mod:`~neuralbrdf.api.tables` (simulate,
+calibrate, to_rgb, sample, plot, demo), :mod:`~neuralbrdf.api.plans`,
+:mod:`~neuralbrdf.api.level_of_detail`, :mod:`~neuralbrdf.api.studies` and
+:mod:`~neuralbrdf.api.explore` (view).
 """
 
 from neuralbrdf.api.explore import view
