@@ -78,11 +78,11 @@ def make_files(folder: Path) -> dict[str, Path]:
 
 
 def server_times(files: dict[str, Path], moves: int) -> dict:
-    from neuralbrdf.explorer.command import read_measurement
+    import neuralbrdf as nb
     from neuralbrdf.explorer.launch import open_scene
 
     models = [files[name] for name in ("abc", "spectral_mlp", "nlb_spectral")]
-    scene = open_scene(models, files["truth"], read_measurement("virtual:gold", None), "virtual:gold")
+    scene = open_scene(models, files["truth"], nb.read("virtual:gold").samples, "virtual:gold")
     results = {}
     for channel in ("wavelength", "Y"):
         scene.forget()  # views that do not depend on the quantity are computed again too

@@ -78,6 +78,13 @@ class InputError(ValueError):
         prefix = ", ".join(where)
         return f"{prefix}: {self.reason}" if prefix else self.reason
 
+    def named(self, key: str) -> InputError:
+        """This error naming ``key`` instead of its own (an argument of :mod:`neuralbrdf.api` as the
+        option of the command that called it: ``plan`` as ``--plan``)."""
+        self.key = key
+        self.args = (self._format(),)
+        return self
+
 
 class OutputError(InputError):
     """An output path that cannot or must not be written: an input of the same command, an

@@ -14,7 +14,7 @@ import pytest
 import torch
 
 import neuralbrdf as nb
-from neuralbrdf.api import _data_arguments
+from neuralbrdf.api.fitting import _data_options
 from neuralbrdf.data.gcms import write_gcms
 from neuralbrdf.data.merl_binary import write_merl
 from neuralbrdf.errors import FitFailed, InputError
@@ -149,14 +149,14 @@ def test_every_fit_kind_names_a_shipped_config():
 def test_a_source_goes_to_the_data_module_in_its_own_vocabulary(files):
     merl, virtual = nb.read(files / "blue.binary", plan="DS2"), nb.read("virtual:gold")
     gcms = nb.read(files / "cyan.csv", files / "munsell_n9.csv")
-    assert _data_arguments("abc", merl) == ["--data.merl", str(files / "blue.binary"), "--data.plan", "DS2"]
-    assert _data_arguments("spectral_mlp", gcms) == ["--data.path", str(files / "cyan.csv"),
-                                                     "--data.reference", str(files / "munsell_n9.csv")]
-    assert _data_arguments("nlb_latent", virtual) == _data_arguments("nlb_spectral", virtual) == [
-        "--data.sources", '[{"virtual": "gold"}]']
+    assert _data_options("abc", merl) == {"data.merl": str(files / "blue.binary"), "data.plan": "DS2"}
+    assert _data_options("spectral_mlp", gcms) == {"data.path": str(files / "cyan.csv"),
+                                                   "data.reference": str(files / "munsell_n9.csv")}
+    assert _data_options("nlb_latent", virtual) == _data_options("nlb_spectral", virtual) == {
+        "data.sources": [{"virtual": "gold"}]}
     with pytest.raises(InputError, match="the spectral_mlp config's data module takes path, reference, virtual; "
                                          ".*blue.binary is a merl source"):
-        _data_arguments("spectral_mlp", merl)
+        _data_options("spectral_mlp", merl)
 
 
 def test_a_fit_runs_through_the_config_and_exports(files, tmp_path):

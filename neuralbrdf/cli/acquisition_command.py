@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from neuralbrdf import api
+
 PLAN_HELP = "write the angle pairs to measure: a report plan, a designed plan, or the next pairs"
 PLAN_DESCRIPTION = (
     "Write the direction pairs an operator measures, as signed in-plane theta_i,theta_r (degrees; 'low' as spherical "
@@ -67,19 +69,14 @@ def add_plan_arguments(parser, report_plans: tuple[str, ...]) -> None:
 
 
 def write_report_plan(args) -> None:
-    from neuralbrdf.data import plans
-
-    columns = plans.low_plan() if args.plan == "low" else plans.in_plane_plan(args.plan)
-    plans.write_plan(columns, args.out)
+    columns = api.write_plan(args.plan, args.out)
     print(f"{args.plan}: {len(columns[0])} direction pairs -> {args.out}")
 
 
 def design(args) -> None:
-    import neuralbrdf as nb
-
     overrides = None if args.seed is None else {"seed": args.seed}
-    plan = nb.design_plan(args.budget, args.out, kind=args.kind, max_theta=args.max_theta, step=args.step,
-                          retro_band=args.retro_band, config=args.config, overrides=overrides, progress=True)
+    plan = api.design_plan(args.budget, args.out, kind=args.kind, max_theta=args.max_theta, step=args.step,
+                           retro_band=args.retro_band, config=args.config, overrides=overrides, progress=True)
     print(f"designed for {plan.kind}: {len(plan.theta_i)} pairs, predicted relative hemisphere error "
           f"{plan.predicted_error[0]:.3g} before and {plan.predicted_error[-1]:.3g} after -> {args.out}")
 
@@ -93,13 +90,12 @@ def _interval(interval, digits: int) -> str:
 
 
 def next_measurements(args) -> None:
-    import neuralbrdf as nb
     from neuralbrdf.errors import InputError
 
     if args.target_de is not None and not args.target_de > 0:
         raise InputError(f"expected a positive CIEDE2000, got {args.target_de}", key="--target-de")
-    answer = nb.next_pairs(args.table, args.count, args.out, reference=args.reference, max_theta=args.max_theta,
-                           step=args.step, retro_band=args.retro_band, config=args.config)
+    answer = api.next_pairs(args.table, args.count, args.out, reference=args.reference, max_theta=args.max_theta,
+                            step=args.step, retro_band=args.retro_band, config=args.config)
     verdict = answer.enough(args.target_de)
     said = "" if verdict is None else (f"; target ΔE2000 {args.target_de:g}: " +
                                        ("enough" if verdict else "measure these next"))
@@ -127,8 +123,6 @@ def add_acquire_arguments(parser) -> None:
 
 
 def acquire(args) -> None:
-    import neuralbrdf as nb
-
     def report(step) -> None:
         true_de = "" if step.true_delta_e is None else f", true ΔE2000 {step.true_delta_e:.2f}"
         print(f"{step.pairs} pairs: estimated log-cos {step.estimated_logcos['estimate']:.4f} "
@@ -136,8 +130,8 @@ def acquire(args) -> None:
               f"{step.true_logcos:.4f}; estimated ΔE2000 {step.estimated_delta_e['estimate']:.2f} "
               f"({step.estimated_delta_e['low']:.2f}-{step.estimated_delta_e['high']:.2f}){true_de}", flush=True)
 
-    result = nb.acquire(args.source, args.out_dir, start=args.start, target_delta_e=args.target_de,
-                        max_pairs=args.max_pairs, count=args.count, noise=args.noise, seed=args.seed,
-                        render=not args.no_render, max_theta=args.max_theta, step=args.step,
-                        retro_band=args.retro_band, config=args.config, overwrite=args.overwrite, progress=report)
+    result = api.acquire(args.source, args.out_dir, start=args.start, target_delta_e=args.target_de,
+                         max_pairs=args.max_pairs, count=args.count, noise=args.noise, seed=args.seed,
+                         render=not args.no_render, max_theta=args.max_theta, step=args.step,
+                         retro_band=args.retro_band, config=args.config, overwrite=args.overwrite, progress=report)
     print(f"stopped after {len(result.theta_i)} pairs: {result.stopped} -> {args.out_dir}/")

@@ -4,9 +4,9 @@ its fast paths.
     neuralbrdf export --ckpt RUN.ckpt --out MODEL.onnx [--material NAME] [--fast | --no-fast] [--no-rgb-head]
     neuralbrdf export --model MODEL.onnx --out NEW.onnx [--fast | --no-fast] [--no-rgb-head]
 
-The export itself is :func:`neuralbrdf.exporting.export_model`, the path ``nb.export`` and
-``FitResult.export`` take too (same file, same printed checks, same defaults): the checkpoint's
-kind builds the model on directions, which is traced, checked against PyTorch with onnxruntime
+The command is one call of :func:`neuralbrdf.api.export` (``nb.export``, the path ``FitResult.export``
+takes too: same file, same printed checks, same defaults): the checkpoint's kind builds the model
+on directions, which is traced, checked against PyTorch with onnxruntime
 and written atomically, with its **fast paths** (:mod:`neuralbrdf.lod.fast_paths`) distilled
 from it and embedded in the same file: a spectral model gets its RGB head ``f_rgb`` (its linear
 sRGB, once per query: what the renderer uses in RGB variants) unless ``--no-rgb-head``;
@@ -30,8 +30,6 @@ import sys
 
 from neuralbrdf import kinds
 from neuralbrdf.errors import EXIT_FAILED, EXIT_OK, EnvironmentFailure, InputError, error_line, exit_status
-from neuralbrdf.exporting import export_model
-from neuralbrdf.onnx_export import ExportValidationError
 
 
 def _kinds_help() -> str:
@@ -76,15 +74,15 @@ def build_parser(prog: str = "neuralbrdf export") -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None, prog: str = "neuralbrdf export") -> int:
     args = build_parser(prog).parse_args(argv)
-    from neuralbrdf.lod.fast_paths import FastPathError
+    from neuralbrdf import api
 
     try:
-        export_model(args.out, checkpoint=args.ckpt, model=args.model, material=args.material, fast=args.fast,
-                     rgb_head=not args.no_rgb_head, config=args.config)
+        api.export(args.ckpt, args.out, args.material, model=args.model, fast=args.fast, rgb_head=not args.no_rgb_head,
+                   config=args.config)
+    except api.ExportFailed as failed:
+        print(error_line(prog, f"{args.out} not written: {failed.failure}"), file=sys.stderr)
+        return EXIT_FAILED
     except (InputError, EnvironmentFailure) as error:
         print(error_line(prog, error), file=sys.stderr)
         return exit_status(error)
-    except (ExportValidationError, FastPathError) as error:
-        print(error_line(prog, f"{args.out} not written: {error}"), file=sys.stderr)
-        return EXIT_FAILED
     return EXIT_OK

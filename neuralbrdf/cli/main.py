@@ -13,14 +13,13 @@ import argparse
 import sys
 
 from neuralbrdf.atomic import command_inputs
-from neuralbrdf.cli import acquisition_command, commands
+from neuralbrdf.cli import commands
 from neuralbrdf.console import clean_warnings
 from neuralbrdf.data.plans import PLAN_HELP, PLAN_NAMES
 from neuralbrdf.errors import (ENVIRONMENT_ERRNOS, EXIT_BAD_INPUT, EXIT_ENVIRONMENT, EXIT_OK, EnvironmentFailure,
                                InputError, Interrupted, error_line, exit_status)
 from neuralbrdf.render import DEFAULT_VARIANT
-from neuralbrdf.study import command as study_command
-from neuralbrdf.explorer import command as explorer_command
+from neuralbrdf.cli import acquisition_command, study_command, view_command
 
 EPILOG = (
     "Conventions: angles in degrees. GCMS raw files hold signed in-plane angles theta_i, theta_r "
@@ -249,7 +248,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-spp", type=int, default=None, help="largest samples per pixel (config: select.max_spp)")
     p.add_argument("--seed", type=int, default=None, help="first render seed (config: select.seed)")
 
-    explorer_command.add_arguments(add("view", explorer_command.run, explorer_command.HELP, explorer_command.DESCRIPTION))
+    view_command.add_arguments(add("view", view_command.run, view_command.HELP, view_command.DESCRIPTION))
     acquisition_command.add_acquire_arguments(add("acquire", acquisition_command.acquire, acquisition_command.ACQUIRE_HELP,
                                                   acquisition_command.ACQUIRE_DESCRIPTION))
 

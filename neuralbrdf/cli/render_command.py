@@ -134,16 +134,18 @@ def main(argv: list[str] | None = None, prog: str = "neuralbrdf render") -> int:
 
 def _render(args: argparse.Namespace, prog: str) -> int:
     from neuralbrdf.api import RenderFailed, render_image
+    from neuralbrdf.cli.commands import options
 
     out = Path(args.out)
     described = (f"scene {args.scene}" if args.scene is not None else
                  f"built-in {args.reference_bsdf}" if args.reference_bsdf is not None else Path(args.model).name)
     started = time.perf_counter()
     try:
-        render_image(args.model, out, scene=args.scene, reference_bsdf=args.reference_bsdf, variant=args.variant,
-                     spp=args.spp, resolution=args.resolution, seed=args.seed, backend=args.backend,
-                     rgb_tolerance=args.rgb_tolerance, max_depth=args.max_depth, spp_per_pass=args.spp_per_pass,
-                     exr=args.exr, fast=args.fast, progress=not args.quiet)
+        with options(fast="--fast"):
+            render_image(args.model, out, scene=args.scene, reference_bsdf=args.reference_bsdf, variant=args.variant,
+                         spp=args.spp, resolution=args.resolution, seed=args.seed, backend=args.backend,
+                         rgb_tolerance=args.rgb_tolerance, max_depth=args.max_depth, spp_per_pass=args.spp_per_pass,
+                         exr=args.exr, fast=args.fast, progress=not args.quiet)
     except (InputError, EnvironmentFailure) as error:
         print(error_line(prog, error), file=sys.stderr)
         return exit_status(error)

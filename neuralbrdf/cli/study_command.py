@@ -1,5 +1,5 @@
-"""The ``neuralbrdf study`` subcommand (arguments and entry; the work is in
-:mod:`neuralbrdf.study.runner`, imported only when the command runs)."""
+"""The ``neuralbrdf study`` subcommand: arguments, one call into :func:`neuralbrdf.api.study` (the work is in
+:mod:`neuralbrdf.study.runner`, imported only when the command runs), and what it prints."""
 
 from __future__ import annotations
 
@@ -51,28 +51,23 @@ def run(args) -> int:
     """Run the study; the exit status of its ``health`` (:mod:`neuralbrdf.study.health`)."""
     import sys
 
+    from neuralbrdf import api
+    from neuralbrdf.cli.commands import options
     from neuralbrdf.errors import InputError
-    from neuralbrdf.study.runner import run_study
 
     if args.report_only:
-        from neuralbrdf.study.report import rebuild
-
-        print(f"-> {rebuild(args.out)}")
+        print(f"-> {api.study_report(args.out)}")
         return
     if args.profile is None:
         raise InputError("--profile is required (or --report-only to redraw an existing study)", key="--profile")
-    if args.jobs is not None and args.jobs < 1:
-        raise InputError(f"must be >= 1, got {args.jobs}", key="--jobs")
-    if args.cluster is not None:
-        if args.jobs is not None:
-            raise InputError("is for a study on this machine; with --cluster, the threads of the cluster's workers "
-                             "say how many cells run at once", key="--jobs")
+    if args.cluster is not None and args.jobs is None:
         _check_cluster_extra()
     where = f"--cluster {args.cluster}" if args.cluster is not None else f"--jobs {args.jobs or 1}"
     allow = " --allow-failures" if args.allow_failures else ""
-    study = run_study(args.profile, args.out, args.jobs or 1, progress=not args.no_progress,
-                      allow_failures=args.allow_failures, cluster=args.cluster,
-                      command=f"neuralbrdf study --profile {args.profile} --out {args.out} {where}{allow}")
+    with options(jobs="--jobs"):
+        study = api.study(args.profile, args.out, jobs=args.jobs, cluster=args.cluster, progress=not args.no_progress,
+                          allow_failures=args.allow_failures,
+                          command=f"neuralbrdf study --profile {args.profile} --out {args.out} {where}{allow}")
     health = study["health"]
     above = sum(1 for p in study["points"] if p["failure"] == "error_above_2x_ds1")
     print(f"{len(study['points'])} cells ({study['run']['cells_run']} run, {study['run']['cells_cached']} cached; "

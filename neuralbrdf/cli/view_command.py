@@ -1,4 +1,5 @@
-"""The ``neuralbrdf view`` subcommand (arguments and entry; the work is in :mod:`neuralbrdf.explorer`)."""
+"""The ``neuralbrdf view`` subcommand: arguments, one call into :func:`neuralbrdf.api.view` (the work is in
+:mod:`neuralbrdf.explorer`), and what it prints."""
 
 from __future__ import annotations
 
@@ -27,42 +28,27 @@ def add_arguments(parser) -> None:
     parser.add_argument("--port", type=int, default=0, help="port (default 0: a free one, printed)")
 
 
-def read_measurement(table: str, reference: str | None):
-    """``--table`` as a BRDF table: a table file, a GCMS raw file calibrated against ``reference``,
-    or ``virtual:NAME``, the shipped DS1 measurement of a virtual material."""
-    from neuralbrdf.data.loading import load_measurement
-    from neuralbrdf.errors import InputError
-    from neuralbrdf.sources import load_material
-
-    if table.startswith("virtual:"):
-        if reference is not None:
-            raise InputError("a Munsell reference goes with a GCMS raw file, not with virtual:NAME", column="--reference")
-        return load_material(virtual=table.removeprefix("virtual:"), eval_plan=None).fit
-    return load_measurement(table, reference)
-
-
 def run(args) -> int:
     """Check the files, bind, print the address, serve until Ctrl-C (exit 0; 130 when Ctrl-C comes
     while the files are still being checked)."""
     import sys
 
+    from neuralbrdf import api
     from neuralbrdf.errors import InputError
-    from neuralbrdf.explorer.launch import open_scene
-    from neuralbrdf.explorer.server import Viewer
 
     if args.reference is not None and args.table is None:
         raise InputError("--reference goes with a GCMS raw --table", column="--reference")
     try:
-        table = read_measurement(args.table, args.reference) if args.table is not None else None
-        scene = open_scene(args.models, args.truth, table, args.table)
+        viewer = api.view(*args.models, truth=args.truth, table=args.table, reference=args.reference, host=args.host,
+                          port=args.port, start=False)
     except KeyboardInterrupt:  # Ctrl-C while the files are checked: nothing was served
         print("neuralbrdf view: interrupted", file=sys.stderr)
         return 130
-    viewer = Viewer(scene, args.host, args.port)
     try:
         print(f"serving {viewer.url}", flush=True)
-        shown = ", ".join(f"{s.label} ({s.model.kind}{', truth' if s.role == 'truth' else ''})" for s in scene.sources)
-        print(f"showing {shown}{f'; measurement {args.table}' if table is not None else ''}; Ctrl-C stops",
+        shown = ", ".join(f"{s.label} ({s.model.kind}{', truth' if s.role == 'truth' else ''})"
+                          for s in viewer.scene.sources)
+        print(f"showing {shown}{f'; measurement {args.table}' if args.table is not None else ''}; Ctrl-C stops",
               flush=True)
         if args.host not in ("127.0.0.1", "localhost", "::1"):
             print(f"neuralbrdf view: note: listening on {args.host}: other machines can open the page", file=sys.stderr)

@@ -1,0 +1,178 @@
+"""Plans and measuring a fraction of the pairs: :func:`write_plan`, :func:`design_plan`,
+:func:`next_pairs`, a simulated :func:`acquire` session."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from neuralbrdf.api.arguments import PathLike, as_path, check_integers
+from neuralbrdf.api.materials import Source, read
+from neuralbrdf.errors import InputError
+
+
+def write_plan(plan: str | PathLike, out: PathLike) -> tuple:
+    """Write the plan ``plan`` as a plan file ``out``, the pairs an operator measures: one of the
+    report's DS1-DS4 or an in-plane plan file as signed in-plane ``theta_i, theta_r``, ``low`` (the
+    Löw et al. set) as spherical ``theta_i, phi_i, theta_o, phi_o`` (degrees,
+    docs/how-many-measurements.md).  Returns the columns written.
+
+    >>> import tempfile, neuralbrdf as nb
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     theta_i, theta_r = nb.write_plan("DS4", f"{folder}/ds4.csv")
+    >>> len(theta_i)
+    6
+    """
+    from neuralbrdf.data import plans
+
+    plan = plans.check_plan(plan, "plan")
+    columns = plans.low_plan() if plan == "low" else plans.in_plane_plan(plan)
+    plans.write_plan(columns, as_path(out, "out", "an output plan file (.csv) path"))
+    return columns
+
+
+def _instrument(max_theta: float, step: float, retro_band: float):
+    from neuralbrdf.acquisition.instrument import Instrument
+
+    return Instrument(max_theta, step, retro_band)
+
+
+def _acquisition_config(config: PathLike, overrides: Mapping[str, Any] | None, section: str):
+    """The ``section`` of an acquisition config (a shipped name or a YAML file) with ``overrides``."""
+    import dataclasses
+
+    from neuralbrdf.acquisition.settings import load_acquisition_config
+
+    as_path(config, "config", "a shipped config's name or a YAML file")
+    settings = getattr(load_acquisition_config(config), section)
+    if overrides is None:
+        return settings
+    if not isinstance(overrides, Mapping):
+        raise InputError(f"overrides: expected a mapping of {section} settings, got {type(overrides).__name__}")
+    fields = {f.name for f in dataclasses.fields(settings)}
+    for key in overrides:
+        if key not in fields:
+            raise InputError(f"unknown {section} setting; expected one of {', '.join(sorted(fields))}", key=str(key))
+    return dataclasses.replace(settings, **overrides)
+
+
+def design_plan(budget: int, out: PathLike | None = None, *, kind: str = "nlb_spectral", max_theta: float = 60.0,
+                step: float = 1.0, retro_band: float = 0.0, config: PathLike = "default",
+                overrides: Mapping[str, Any] | None = None, progress: bool = False):
+    """``budget`` in-plane pairs for an instrument that reaches ``max_theta`` degrees in steps of
+    ``step`` degrees and cannot measure within ``retro_band`` degrees of retro-reflection, chosen
+    with the prior of ``kind`` to lower the expected hemisphere error of its fit most
+    (docs/how-many-measurements.md); with ``out``, also written as a plan file (the format of
+    ``neuralbrdf plan DS3``), pairs in the order to measure them.  ``overrides``: settings of the
+    config's ``design`` section (``{"seed": 1}``).  Returns the
+    :class:`~neuralbrdf.acquisition.design.PlanDesign`.
+
+    >>> import neuralbrdf as nb
+    >>> plan = nb.design_plan(3, step=10.0, overrides={"blends": 0, "analytic": 0})   # a coarse instrument: seconds
+    >>> len(plan.theta_i), plan.predicted_error[0] > plan.predicted_error[-1]
+    (3, True)
+    >>> nb.design_plan(0)
+    Traceback (most recent call last):
+    neuralbrdf.errors.InputError: option '--budget': expected a number of pairs from 1 to 3721 (the distinct pairs this instrument can measure), got 0
+    """
+    from neuralbrdf.acquisition.design import design
+
+    check_integers(budget=budget)
+    settings = _acquisition_config(config, overrides, "design")
+    instrument = _instrument(max_theta, step, retro_band)
+    if out is not None:
+        from neuralbrdf.atomic import check_outputs
+
+        check_outputs(as_path(out, "out", "an output plan file (.csv) path"))
+    plan = design(kind, budget, instrument, settings, progress=progress)
+    if out is not None:
+        from neuralbrdf.data.plans import write_plan
+
+        write_plan((plan.theta_i, plan.theta_r), out)
+    return plan
+
+
+def next_pairs(measurement: Source | PathLike, count: int = 1, out: PathLike | None = None, *,
+               reference: PathLike | None = None, max_theta: float = 60.0, step: float = 1.0, retro_band: float = 0.0,
+               config: PathLike = "default"):
+    """From a ``measurement`` (a :class:`Source` or what :func:`read` takes, with its GCMS
+    ``reference``), the ``count`` pairs of the instrument to measure next and the current fit's
+    error, estimated with an interval (docs/how-many-measurements.md); with ``out``, the pairs are
+    also written as a plan file.  Returns :class:`~neuralbrdf.acquisition.next_pairs.NextPairs`
+    (``.enough(target_delta_e)`` says whether a target is met).
+
+    >>> import tempfile, neuralbrdf as nb
+    >>> with tempfile.TemporaryDirectory() as folder:               # gold measured on DS4's 6 pairs
+    ...     table = nb.simulate("gold", f"{folder}/gold.csv", plan="DS4", truth=True)
+    ...     gold = nb.read(f"{folder}/gold.csv")
+    >>> answer = nb.next_pairs(gold, count=2, step=5.0)
+    >>> answer.measured, len(answer.theta_i), answer.logcos.low < answer.logcos.estimate < answer.logcos.high
+    (6, 2, True)
+    """
+    from neuralbrdf.acquisition.next_pairs import next_pairs as answer
+
+    check_integers(count=count)
+    if not isinstance(measurement, Source):
+        measurement = read(measurement, reference)
+    elif reference is not None:
+        raise InputError("reference goes with a GCMS raw file path, not with a Source (read it with its reference)")
+    from neuralbrdf.acquisition.settings import load_acquisition_config
+
+    settings = load_acquisition_config(as_path(config, "config", "a shipped config's name or a YAML file"))
+    if out is not None:
+        from neuralbrdf.atomic import check_outputs
+
+        check_outputs(as_path(out, "out", "an output plan file (.csv) path"))
+    result = answer(measurement.samples, count, _instrument(max_theta, step, retro_band), settings.design,
+                    settings.estimate, name=measurement.name)
+    if out is not None:
+        from neuralbrdf.data.plans import write_plan
+
+        write_plan((result.theta_i, result.theta_r), out)
+    return result
+
+
+def acquire(source: PathLike, out_dir: PathLike | None = None, *, start: PathLike | None = None,
+            target_delta_e: float | None = None, max_pairs: int | None = None, count: int | None = None,
+            noise: float | None = None, seed: int | None = None, render: bool = True, max_theta: float = 60.0,
+            step: float = 1.0, retro_band: float = 0.0, config: PathLike = "default", overwrite: bool = False,
+            progress=None):
+    """A simulated session on a material with a truth (``virtual:NAME``, an NBRDF ``.h5``, a MERL
+    ``.binary``, an RGL ``.bsdf``): measure ``start`` (a plan name or file; default the config's),
+    fit, ask :func:`next_pairs` for ``count`` more, measure them with the virtual instrument's
+    ``noise``, until the estimated preview ΔE2000 is within ``target_delta_e`` or ``max_pairs`` are
+    measured (docs/how-many-measurements.md).  ``render``: the true ΔE2000 of every step (preview
+    renders; without, the true hemisphere error only).  With ``out_dir``: writes ``acquire.json``,
+    ``acquire.png`` (the curve of true and estimated error against the pairs), ``plan.csv``,
+    ``measurement.csv`` and ``model.onnx``, refusing a folder that holds them unless ``overwrite``.
+    ``progress(step)`` is called after each step.  Returns the
+    :class:`~neuralbrdf.acquisition.session.SessionResult`.
+
+    >>> import neuralbrdf as nb
+    >>> session = nb.acquire("virtual:val-blue", start="DS4", max_pairs=7, render=False, step=10.0)
+    >>> [step.pairs for step in session.steps], session.stopped
+    ([6, 7], 'the budget of 7 pairs is spent')
+    """
+    from neuralbrdf.acquisition.session import check_session_outputs, run_session, write_session
+    from neuralbrdf.acquisition.settings import load_acquisition_config
+    from neuralbrdf.data.plans import check_plan
+
+    settings = load_acquisition_config(as_path(config, "config", "a shipped config's name or a YAML file"))
+    check_integers(max_pairs=max_pairs, count=count, seed=seed)
+    changes = {key: value for key, value in (("start", None if start is None else check_plan(start, "start",
+                                                                                                in_plane=True)),
+                                             ("max_pairs", max_pairs), ("count", count), ("noise", noise),
+                                             ("seed", seed)) if value is not None}
+    import dataclasses
+
+    session = dataclasses.replace(settings.session, **changes)
+    if out_dir is not None:
+        check_session_outputs(as_path(out_dir, "out_dir", "a folder path"), overwrite)
+    result = run_session(os.fspath(as_path(source, "source", "'virtual:NAME' or a file path")), session,
+                         _instrument(max_theta, step, retro_band), settings.design, settings.estimate, target_delta_e,
+                         render=render, progress=progress)
+    if out_dir is not None:
+        write_session(result, Path(out_dir))
+    return result
