@@ -22,6 +22,11 @@ MAX_CSV_BYTES = 512 * MIB
 #: Mitsuba ``tensor_file`` measurements (RGL ``.bsdf``).  The RGL database's spectral files are
 #: about 7 MiB (195 wavelengths), its anisotropic ones a few times that.
 MAX_TENSOR_FILE_BYTES = 256 * MIB
+#: Header quantities of a ``tensor_file``, each bounded before anything is allocated for it: the
+#: RGL's files have 11 fields of rank at most 5 with names of a dozen bytes.
+MAX_TENSOR_FIELDS = 1024
+MAX_TENSOR_RANK = 16
+MAX_TENSOR_NAME_BYTES = 256
 #: ``.onnx`` model files.  A paper-size NLB (1.07 M weights) is about 4 MiB.
 MAX_ONNX_BYTES = 256 * MIB
 #: Total elements of an ONNX graph's initialisers and constants (as declared by their shapes).
