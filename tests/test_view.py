@@ -201,6 +201,90 @@ def test_server_serves_the_page_plotly_and_views_and_refuses_bad_queries(scene):
         socket.create_connection(("127.0.0.1", port), timeout=2)
 
 
+def _status_with_host(port: int, host: str | None, path: str = "/api/scene") -> tuple[int, bytes]:
+    """GET ``path`` from 127.0.0.1:``port`` over a real socket with the ``Host`` header ``host``
+    (none when ``None``), as a page on a rebinding domain sends it."""
+    import http.client
+
+    connection = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
+    try:
+        connection.putrequest("GET", path, skip_host=True)
+        if host is not None:
+            connection.putheader("Host", host)
+        connection.endheaders()
+        answer = connection.getresponse()
+        return answer.status, answer.read()
+    finally:
+        connection.close()
+
+
+def test_command_answers_only_requests_addressed_to_its_own_host_and_port(files):
+    """DNS rebinding: a page on another site reaching 127.0.0.1 under its own name is refused."""
+    process, url = _start([str(files.glossy)])
+    try:
+        port = int(url.rsplit(":", 1)[1].strip("/"))
+        for host in (f"127.0.0.1:{port}", f"localhost:{port}", f"LOCALHOST:{port}", f"[::1]:{port}"):
+            assert _status_with_host(port, host)[0] == 200, host
+        for host in (f"attacker.example:{port}", "attacker.example", f"127.0.0.1:{port + 1}", f"localhost.evil:{port}",
+                     None, ""):
+            status, body = _status_with_host(port, host)
+            assert status == 403 and "answers requests to its own address" in json.loads(body)["error"], host
+            assert b"glossy" not in body
+    finally:
+        process.send_signal(signal.SIGINT)
+        out, err = process.communicate(timeout=30)
+    assert process.returncode == 0 and err == "", err
+
+
+def test_a_burst_of_connections_waits_in_the_backlog_and_is_answered(scene):
+    """200 connections at once complete while nothing accepts them (a backlog of 5 dropped most),
+    then 200 parallel requests are all answered."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    viewer = Viewer(scene)
+    port = viewer.address[1]
+    waiting = []
+    try:
+        for _ in range(200):
+            waiting.append(socket.create_connection(("127.0.0.1", port), timeout=3))
+    finally:
+        for connection in waiting:
+            connection.close()
+        viewer.stop()
+    assert len(waiting) == 200
+    with Viewer(scene) as viewer, ThreadPoolExecutor(200) as pool:
+        statuses = list(pool.map(lambda _: _get(viewer.url + "api/views?views=inplane&theta_i=30")[0], range(200)))
+    assert statuses == [200] * 200
+
+
+def test_silent_connections_hold_a_bounded_number_of_threads_and_are_closed(scene, monkeypatch):
+    """1 000 half-open connections held 1 000 threads for ever: now at most MAX_WORKERS threads
+    serve at once and a connection silent for the socket timeout is closed."""
+    import threading
+    import time
+
+    from neuralbrdf.explorer import server
+
+    monkeypatch.setattr(server._Handler, "timeout", 0.5)
+    before = threading.active_count()
+    silent = []
+    with Viewer(scene) as viewer:
+        port = viewer.address[1]
+        try:
+            for _ in range(100):
+                silent.append(socket.create_connection(("127.0.0.1", port), timeout=30))
+            time.sleep(0.3)
+            most = threading.active_count()
+            for connection in silent:  # each is closed by the server: recv sees the end
+                assert connection.recv(1) == b""
+            most = max(most, threading.active_count())
+            assert most <= before + 1 + server.MAX_WORKERS, most
+            assert _get(viewer.url + "api/scene")[0] == 200
+        finally:
+            for connection in silent:
+                connection.close()
+
+
 # --------------------------------------------------------------------------- command line
 
 
