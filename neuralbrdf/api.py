@@ -70,6 +70,22 @@ def _text(name: str, value, optional: bool = True) -> None:
         raise InputError(f"{name}: expected {expected}, got {type(value).__name__} {value!r}")
 
 
+def _flags(**values) -> None:
+    """:class:`InputError` naming the first of ``values`` that is not a real ``bool`` (``"no"`` and
+    ``0`` are not flags: a string would be true)."""
+    for name, value in values.items():
+        if not isinstance(value, bool):
+            raise InputError(f"{name}: expected True or False, got {type(value).__name__} {value!r}")
+
+
+def _numbers(**values) -> None:
+    """:class:`InputError` naming the first of ``values`` that is neither a finite real number nor ``None``."""
+    for name, value in values.items():
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
+                                  or not math.isfinite(value)):
+            raise InputError(f"{name}: expected a finite number, got {type(value).__name__} {value!r}")
+
+
 # --------------------------------------------------------------------------- materials
 
 
@@ -149,6 +165,7 @@ def read(source: PathLike, reference: PathLike | None = None, *, plan: str | Pat
     if plan is not None and not isinstance(plan, (str, os.PathLike)):
         raise InputError(f"plan: expected a plan name or a plan file path, got {type(plan).__name__} {plan!r}")
     _text("name", name)
+    _flags(trust_units=trust_units)
     suffix = Path(text).suffix
     sampled = not text.startswith(VIRTUAL_PREFIX) and suffix in SAMPLED_SUFFIXES
     if plan is not None and not sampled:
@@ -260,8 +277,9 @@ def fit(kind: str, data: Source | PathLike | None = None, *, config: PathLike | 
     from neuralbrdf.data.units import overridden_by
     from neuralbrdf.lightning.run import METRICS_FILE, fitted_checkpoint, train
 
-    if kind not in FIT_KINDS:
+    if not isinstance(kind, str) or kind not in FIT_KINDS:
         raise InputError(f"unknown fit kind {kind!r}; expected one of {', '.join(FIT_KINDS)}")
+    _flags(overwrite=overwrite)
     config = os.fspath(_path(config, "config", "a shipped config's name or a YAML file")) if config is not None \
         else FIT_KINDS[kind]
     if run_dir is not None:
@@ -303,7 +321,9 @@ class Model:
     """An exported model file (docs/formats.md#onnx-model-files), evaluated with onnxruntime: ``model(wi, wo[, wavelength])``.
 
     ``wi``, ``wo``: unit directions ``[N, 3]`` (or one ``[3]``); ``wavelength``: nm, ``[N]`` or one
-    number, for spectral models only.  Returns the BRDF in sr⁻¹: ``[N]`` for spectral models,
+    number within the model's :attr:`wavelength_range_nm`, for spectral models only; a wavelength
+    outside it or a direction that is not finite is refused with
+    :class:`~neuralbrdf.errors.InputError`.  Returns the BRDF in sr⁻¹: ``[N]`` for spectral models,
     ``[N, 3]`` (linear sRGB) otherwise; 0 below the horizon.
     """
 
@@ -330,12 +350,22 @@ class Model:
             raise InputError(f"wi and wo must both be [N, 3] unit vectors, got {list(wi.shape)} and {list(wo.shape)}")
         if self.is_spectral == (wavelength is None):
             raise InputError(f"{self.path.name} is {'spectral: give a wavelength (nm)' if self.is_spectral else 'RGB: give no wavelength'}")
+        for name, directions in (("wi", wi), ("wo", wo)):
+            bad = ~np.isfinite(directions).all(axis=1)
+            if bad.any():
+                raise InputError(f"{name}: direction {int(np.argmax(bad))} is not finite "
+                                 f"({directions[int(np.argmax(bad))].tolist()}); expected unit vectors")
         if wavelength is not None:
             try:
                 wavelength = np.broadcast_to(wavelength, (len(wi),))
             except ValueError:
                 raise InputError(f"wavelength must be one number or {len(wi)} (one per direction pair), got shape "
                                  f"{list(wavelength.shape)}") from None
+            low, high = self.wavelength_range_nm
+            outside = ~((wavelength >= low) & (wavelength <= high))
+            if outside.any():
+                raise InputError(f"wavelength {wavelength[int(np.argmax(outside))]:g} nm is outside {self.path.name}'s "
+                                 f"range {low:g}-{high:g} nm (wavelengths are in nm)")
         return self._evaluator.values(wi, wo, wavelength)
 
     def __repr__(self) -> str:
@@ -386,6 +416,8 @@ def export(checkpoint: PathLike, out: PathLike, material: str | None = None, *, 
     _path(checkpoint, "checkpoint", "a checkpoint (.ckpt) path")
     _path(out, "out", "an output model file (.onnx) path")
     _text("material", material)
+    _text("config", config, optional=False)
+    _flags(rgb_head=rgb_head, **({} if fast is None else {"fast": fast}))
     try:
         export_model(out, checkpoint=checkpoint, material=material, fast=fast, rgb_head=rgb_head, config=config)
     except (ExportValidationError, FastPathError) as error:
@@ -409,7 +441,7 @@ def truth(source: Source | PathLike, out: PathLike) -> Model:
 
     _path(out, "out", "an output model file (.onnx) path")
     if not isinstance(source, Source):
-        _path(source, "source", "a Source, 'virtual:NAME', an NBRDF .h5 or a MERL .binary")
+        _path(source, "source", "a Source, 'virtual:NAME', an NBRDF .h5, a MERL .binary or an RGL .bsdf")
     if isinstance(source, Source):
         if not source.has_truth:
             raise InputError(f"a measurement ({source.kind}) is known only where it was measured; a truth comes from "
@@ -470,6 +502,8 @@ def evaluate(model: Model | PathLike, truth: Model | PathLike, out_dir: PathLike
     _integers(spp=spp, resolution=resolution, seed=seed)  # their values: checked by the evaluation
     _text("variant", variant)
     _text("material", material)
+    _text("backend", backend, optional=False)
+    _flags(fast=fast, images=images)
     variant = measurement_variant(_model_path(truth, "truth"), variant)
     settings = RenderSettings(variant, spp, DEFAULT_RESOLUTION if resolution is None else resolution, seed, backend,
                               fast)  # checked by the evaluation before any work
@@ -523,6 +557,8 @@ def render_image(model: Model | PathLike | None = None, out: PathLike | None = N
     _text("variant", variant, optional=False)
     for name, value in (("material", material), ("reference_bsdf", reference_bsdf), ("backend", backend)):
         _text(name, value)
+    _numbers(rgb_tolerance=rgb_tolerance)
+    _flags(exr=exr, fast=fast, progress=progress)
     written = []
     if out is not None:
         out = _path(out, "out", "an output image (.png) path")
@@ -680,6 +716,9 @@ def design_plan(budget: int, out: PathLike | None = None, *, kind: str = "nlb_sp
     from neuralbrdf.acquisition.design import design
 
     _integers(budget=budget)
+    _text("kind", kind, optional=False)
+    _numbers(max_theta=max_theta, step=step, retro_band=retro_band)
+    _flags(progress=progress)
     settings = _acquisition_config(config, overrides, "design")
     instrument = _instrument(max_theta, step, retro_band)
     if out is not None:
@@ -711,6 +750,7 @@ def next_pairs(measurement: Source | PathLike, count: int = 1, out: PathLike | N
     from neuralbrdf.acquisition.next_pairs import next_pairs as answer
 
     _integers(count=count)
+    _numbers(max_theta=max_theta, step=step, retro_band=retro_band)
     if not isinstance(measurement, Source):
         measurement = read(measurement, reference)
     elif reference is not None:
@@ -758,6 +798,10 @@ def acquire(source: PathLike, out_dir: PathLike | None = None, *, start: PathLik
 
     settings = load_acquisition_config(_path(config, "config", "a shipped config's name or a YAML file"))
     _integers(max_pairs=max_pairs, count=count, seed=seed)
+    _numbers(target_delta_e=target_delta_e, noise=noise, max_theta=max_theta, step=step, retro_band=retro_band)
+    _flags(render=render, overwrite=overwrite)
+    if progress is not None and not callable(progress):
+        raise InputError(f"progress: expected a function called after each step, got {type(progress).__name__}")
     changes = {key: value for key, value in (("start", None if start is None else check_plan(start, "start",
                                                                                                 in_plane=True)),
                                              ("max_pairs", max_pairs), ("count", count), ("noise", noise),
@@ -802,6 +846,8 @@ def view(*models: Model | PathLike, truth: Model | PathLike | None = None,
     from neuralbrdf.explorer.launch import open_scene
     from neuralbrdf.explorer.server import Viewer
 
+    _text("host", host, optional=False)
+    _integers(port=port)
     label = None
     if table is not None and not isinstance(table, (Source, Table)):
         label = os.fspath(table)
