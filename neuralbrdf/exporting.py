@@ -21,6 +21,11 @@ Defaults, the same at every door (docs/export-render.md):
   ``--no-fast`` to leave it out) — and for any model with ``fast=True`` (``--fast``);
 * fast-path settings from the shipped ``configs/lod/default.yaml`` (``config``).
 
+A fast path added unasked — the RGB head, or ``f_fast`` by default — is an extra that never costs
+the model: when its student misses its bound the model is written without it and a warning says
+so in one line.  One asked for (``fast=True``, or fast paths added to a model file) fails the
+export as before: nothing is written.
+
 Every step is deterministic — seeded distillation, costs counted rather than timed, metadata that
 names no temporary file — so one checkpoint exported twice with the same options gives the same
 bytes.
@@ -29,13 +34,14 @@ bytes.
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 from neuralbrdf import kinds
-from neuralbrdf.atomic import check_outputs, command_inputs
+from neuralbrdf.atomic import atomic_path, check_outputs, command_inputs
 from neuralbrdf.errors import InputError
 from neuralbrdf.onnx_contract import OUTPUT_FAST, OUTPUT_RGB, FastPath
 from neuralbrdf.onnx_export import ExportReport, write_model
@@ -98,7 +104,7 @@ def export_model(out: PathLike, *, checkpoint: PathLike | None = None, model: Pa
     or :class:`~neuralbrdf.lod.fast_paths.FastPathError` (the graph or a fast path failed its check);
     nothing is written then."""
     from neuralbrdf.lod.config import load_lod_config
-    from neuralbrdf.lod.fast_paths import add_fast_paths
+    from neuralbrdf.lod.fast_paths import FastPathError, add_fast_paths
 
     if (checkpoint is None) == (model is None):
         raise InputError("export a checkpoint or add fast paths to a model file: give one of them")
@@ -126,6 +132,22 @@ def export_model(out: PathLike, *, checkpoint: PathLike | None = None, model: Pa
                 log(model_line(report, written=source == out))
             if not wanted:
                 return Exported(out, report, ())
-            reports = add_fast_paths(source, out, wanted, settings, log=lambda line: log(f"  {line}"))
+            # the extras a checkpoint's export adds unasked: each may be left out, never the model
+            optional = set() if checkpoint is None else {OUTPUT_RGB} | ({OUTPUT_FAST} if fast is None else set())
+            while wanted:
+                try:
+                    reports = add_fast_paths(source, out, wanted, settings, log=lambda line: log(f"  {line}"))
+                    break
+                except FastPathError as error:
+                    if error.output not in optional:
+                        raise
+                    warnings.warn(f"{out}: written without the optional fast path {error.output}: {error}",
+                                  stacklevel=2)
+                    wanted = tuple(output for output in wanted if output != error.output)
+            else:
+                with atomic_path(out) as tmp:
+                    shutil.copyfile(source, tmp)
+                log(f"wrote {out} without fast paths")
+                return Exported(out, report, ())
     log(fast_paths_line(out, reports))
     return Exported(out, report, tuple(reports))

@@ -91,7 +91,11 @@ def rgb_head_problem(wavelength_range_nm: tuple[float, float] | None) -> str | N
 
 
 class FastPathError(ValueError):
-    """A fast path could not be made within its error bound; nothing was written."""
+    """The fast path ``output`` could not be made within its error bound; nothing was written."""
+
+    def __init__(self, message: str, output: str) -> None:
+        super().__init__(message)
+        self.output = output
 
 
 @dataclass(frozen=True)
@@ -143,7 +147,7 @@ def _student(parent: OnnxEvaluator, output: str, settings: FastPathSettings) -> 
     if not error <= settings.max_hemisphere_logcos_rmse:
         raise FastPathError(f"the {output} student's error against the model, hemisphere log-cos RMSE {error:.3g}, "
                             f"is above the bound {settings.max_hemisphere_logcos_rmse:g} (fast_paths."
-                            "max_hemisphere_logcos_rmse)")
+                            "max_hemisphere_logcos_rmse)", output)
     # only traced to be merged into the model's graph: the file keeps the model's own metadata
     return Exportable(module, model.kind, model.material, {}, range_nm), describes, error
 
@@ -217,7 +221,7 @@ def add_fast_paths(model_path: str | Path, out: str | Path, outputs: tuple[str, 
             if not delta_e <= check.max_delta_e2000_mean:
                 raise FastPathError(f"the {output} student renders ΔE2000 {delta_e:.3g} (mean) away from the model, "
                                     f"above the bound {check.max_delta_e2000_mean:g} (fast_paths.image_check."
-                                    "max_delta_e2000_mean)")
+                                    "max_delta_e2000_mean)", output)
             entries[output] += (delta_e, where)
             metadata.update({fast_path_key(output, "image_delta_e2000_mean"): repr(delta_e),
                              fast_path_key(output, "image_check"): where})
