@@ -59,24 +59,23 @@ class Exported:
     fast_paths: tuple[FastPath, ...]
 
 
-def fast_paths_wanted(kind: str, wavelength_range_nm, present, fast: bool | None, rgb_head: bool) -> tuple[str, ...]:
+def fast_paths_wanted(kind: str, wavelength_range_nm, present, fast: bool | None,
+                      rgb_head: bool) -> tuple[tuple[str, ...], str | None]:
     """The fast paths to add to a model of ``kind`` (of this wavelength range, ``None`` for RGB, with
     the fast paths ``present``); ``fast`` ``None``: ``f_fast`` when the kind gets it by default
-    (:attr:`~neuralbrdf.kinds.Kind.fast_by_default`).  A spectral model outside the colour
-    conversion's range gets no RGB head, with a warning
-    (:func:`~neuralbrdf.lod.fast_paths.rgb_head_problem`)."""
+    (:attr:`~neuralbrdf.kinds.Kind.fast_by_default`).  And why the RGB head is left out, when a
+    spectral model outside the colour conversion's range would get one
+    (:func:`~neuralbrdf.lod.fast_paths.rgb_head_problem`), else ``None``."""
     from neuralbrdf.lod.fast_paths import rgb_head_problem
 
-    wanted = []
+    wanted, problem = [], None
     if wavelength_range_nm is not None and rgb_head and OUTPUT_RGB not in present:
         problem = rgb_head_problem(wavelength_range_nm)
         if problem is None:
             wanted.append(OUTPUT_RGB)
-        else:
-            warnings.warn(problem, stacklevel=3)
     if fast or (fast is None and kinds.get(kind).fast_by_default and OUTPUT_FAST not in present):
         wanted.append(OUTPUT_FAST)
-    return tuple(wanted)
+    return tuple(wanted), problem
 
 
 def model_line(report: ExportReport, written: bool) -> str:
@@ -115,13 +114,19 @@ def export_model(out: PathLike, *, checkpoint: PathLike | None = None, model: Pa
                 raise InputError("a material goes with a checkpoint (a model file holds one material)",
                                  key="--material")
             parent = kinds.load_model(model)
-            wanted = fast_paths_wanted(parent.kind, parent.wavelength_range_nm, parent.fast_paths, fast, rgb_head)
+            wanted, problem = fast_paths_wanted(parent.kind, parent.wavelength_range_nm, parent.fast_paths, fast,
+                                                rgb_head)
             if not wanted:
-                raise InputError("nothing to add: ask for fast, or give a spectral model without an RGB head", path=model)
+                why = problem or ("it has its RGB head already" if OUTPUT_RGB in parent.fast_paths else
+                                  "an RGB head is for spectral models" if parent.wavelength_range_nm is None else
+                                  "no RGB head was asked for")
+                raise InputError(f"nothing to add: {why}; ask for f_fast with fast (--fast)", path=model)
         else:
             exportable = kinds.load_exportable(checkpoint, material)
-            wanted = fast_paths_wanted(exportable.kind, exportable.wavelength_range_nm, (), fast, rgb_head)
+            wanted, problem = fast_paths_wanted(exportable.kind, exportable.wavelength_range_nm, (), fast, rgb_head)
         check_outputs(out)  # after the inputs are read: an output may not be one of them
+        if problem is not None:
+            warnings.warn(problem, stacklevel=2)
         settings = load_lod_config(config).fast_paths if wanted else None
         # the model alone goes to a working folder under out's own name, so no temporary name reaches the file
         with tempfile.TemporaryDirectory(prefix="neuralbrdf-export-") as work:

@@ -73,7 +73,7 @@ from onnx import numpy_helper
 
 from neuralbrdf.atomic import note_input
 from neuralbrdf.errors import InputError
-from neuralbrdf.limits import MAX_ONNX_BYTES, MAX_ONNX_WEIGHT_ELEMENTS, check_file_size
+from neuralbrdf.limits import MAX_ONNX_BYTES, MAX_ONNX_WEIGHT_ELEMENTS, check_file_size, file_problem
 
 #: Version of this contract written to and required in ``neuralbrdf.format_version``.
 FORMAT_VERSION = "1"
@@ -246,7 +246,7 @@ def load_generic_model(path: str | os.PathLike[str]) -> OnnxModel:
     """
     path = Path(path)
     if not path.is_file():
-        raise InputError("no such ONNX model file", path=path)
+        raise InputError(file_problem(path) or "no such ONNX model file", path=path)
     note_input(path)
     check_file_size(path, MAX_ONNX_BYTES, "ONNX model file")
     try:

@@ -37,6 +37,8 @@ def refused(args: list[str], tmp_path: Path, capsys) -> str:
     (["--trainer.max_epochs", "-1"], "--trainer.max_epochs -1: -1 is Lightning's 'no limit', and neither "
                                      "trainer.max_steps nor trainer.max_time is set: the fit would never end"),
     (["--trainer.max_epochs", "0"], "--trainer.max_epochs 0: trains no epoch"),
+    (["--trainer.max_epochs", "null"], "--trainer.max_epochs None: null leaves the limit to Lightning's default of "
+                                       "1000 epochs"),
     (["--trainer.max_steps", "0"], "--trainer.max_steps 0: trains no step"),
     (["--trainer.limit_train_batches", "0"], "--trainer.limit_train_batches 0.0: no training step in an epoch"),
     (["--trainer.limit_val_batches", "0"], "--trainer.limit_val_batches 0.0: no validation, so the checkpoint "
@@ -69,9 +71,10 @@ def test_a_setting_from_a_config_file_names_the_file(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("overrides, key", [({"trainer.max_epochs": -1}, "trainer.max_epochs"),
+                                            ({"trainer.max_epochs": None}, "trainer.max_epochs"),
                                             ({"model.optimizer.lr": float("nan")}, "model.optimizer.lr")])
 def test_python_overrides_are_refused_alike(tmp_path, overrides, key):
-    with pytest.raises(nb.InputError, match=rf"^--{key} (-1|nan): "):
+    with pytest.raises(nb.InputError, match=rf"^--{key} (-1|nan|None): "):
         nb.fit("spectral_mlp", "virtual:gold", run_dir=tmp_path / "run", overrides={**overrides, **GUARD})
     assert not (tmp_path / "run").exists()
 

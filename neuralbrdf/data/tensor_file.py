@@ -28,7 +28,7 @@ import numpy as np
 from neuralbrdf.atomic import atomic_path, note_input
 from neuralbrdf.errors import InputError
 from neuralbrdf.limits import (MAX_TENSOR_FIELDS, MAX_TENSOR_FILE_BYTES, MAX_TENSOR_NAME_BYTES, MAX_TENSOR_RANK,
-                               check_file_size)
+                               check_file_size, file_problem)
 
 MAGIC = b"tensor_file\0"
 VERSION = (1, 0)
@@ -64,7 +64,7 @@ def read_tensor_file(path: str | PathLike[str]) -> dict[str, np.ndarray]:
     if path.is_dir():
         raise InputError("is a directory; expected a tensor_file such as NAME.bsdf", path=path)
     if not path.is_file():
-        raise InputError("no such file", path=path)
+        raise InputError(file_problem(path) or "no such file", path=path)
     size = check_file_size(path, MAX_TENSOR_FILE_BYTES, "tensor_file")
     note_input(path)
     data = path.read_bytes()

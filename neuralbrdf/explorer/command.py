@@ -36,7 +36,7 @@ def read_measurement(table: str, reference: str | None):
 
     if table.startswith("virtual:"):
         if reference is not None:
-            raise InputError("a Munsell reference goes with a GCMS raw file, not with virtual:NAME", column="--reference")
+            raise InputError("a Munsell reference goes with a GCMS raw file, not with virtual:NAME", key="--reference")
         return load_material(virtual=table.removeprefix("virtual:"), eval_plan=None).fit
     return load_measurement(table, reference)
 
@@ -51,7 +51,7 @@ def run(args) -> int:
     from neuralbrdf.explorer.server import Viewer
 
     if args.reference is not None and args.table is None:
-        raise InputError("--reference goes with a GCMS raw --table", column="--reference")
+        raise InputError("--reference goes with a GCMS raw --table", key="--reference")
     try:
         table = read_measurement(args.table, args.reference) if args.table is not None else None
         scene = open_scene(args.models, args.truth, table, args.table)

@@ -180,13 +180,13 @@ class Viewer:
 
     def __init__(self, scene: Scene, host: str = DEFAULT_HOST, port: int = 0) -> None:
         if not 0 <= port <= 65535:
-            raise InputError(f"expected a port from 0 to 65535 (0: a free one), got {port}", column="--port")
+            raise InputError(f"expected a port from 0 to 65535 (0: a free one), got {port}", key="--port")
         try:
             self._server = _Server((host, port), scene)
         except OSError as error:
             reason = "the port is in use (0 picks a free one)" if error.errno == errno.EADDRINUSE else (
                 error.strerror or str(error))
-            raise InputError(f"cannot listen on {host} port {port}: {reason}", column="--port") from None
+            raise InputError(f"cannot listen on {host} port {port}: {reason}", key="--port") from None
         self.scene = scene
         self._thread: threading.Thread | None = None
 

@@ -120,15 +120,15 @@ class State:
             if len(control) == 2:
                 values = [value for value, _ in control[1]]
                 if text not in values:
-                    raise InputError(f"expected one of {', '.join(values)}, got {text!r}", column=name)
+                    raise InputError(f"expected one of {', '.join(values)}, got {text!r}", key=name)
                 changes[name] = text
                 continue
             try:
                 value = float(text)
             except ValueError:
-                raise InputError(f"expected a number ({control[1]}), got {text!r}", column=name) from None
+                raise InputError(f"expected a number ({control[1]}), got {text!r}", key=name) from None
             if not control[2] <= value <= control[3]:
-                raise InputError(f"expected {control[2]:g} to {control[3]:g} {control[1]}, got {text}", column=name)
+                raise InputError(f"expected {control[2]:g} to {control[3]:g} {control[1]}, got {text}", key=name)
             changes[name] = value
         return dataclasses.replace(self, **changes)
 
@@ -263,7 +263,7 @@ class Scene:
         its ``key``: a digest of the values it depends on.  ``{"key": known, "unchanged": True}``
         when ``known`` is that key (the page already shows it)."""
         if name not in VIEWS:
-            raise InputError(f"unknown view {name!r}; expected one of {', '.join(VIEWS)}", column="views")
+            raise InputError(f"unknown view {name!r}; expected one of {', '.join(VIEWS)}", key="views")
         key = (name,) + tuple((dep, getattr(state, dep)) for dep in depends(name, state))
         digest = hashlib.blake2b(repr(key).encode(), digest_size=8).hexdigest()
         if digest == known:

@@ -50,7 +50,8 @@ raised inside the fit ends the command with status 1 and one line ``neuralbrdf t
 failed: <cause>``; ``metrics.json`` then holds ``"status": "failed"`` and ``"cause"``, and no
 checkpoint named ``best*`` is left (``last.ckpt`` stays, for inspection).  A successful fit
 writes ``"status": "ok"``; a fit stopped by Ctrl-C or SIGTERM ``"status": "interrupted"`` (its
-checkpoints stay, to ``--resume`` from; exit status 130 or 143).  ``metrics.json`` is strict
+checkpoints stay, to ``--resume`` from; exit status 130 or 143); a fit the machine stopped (a
+full disk: exit status 3) ``"status": "environment"`` with its ``"cause"``.  ``metrics.json`` is strict
 JSON: a non-finite number is written as ``null``.
 
 Bad input (a missing or malformed ``--data.path``, a missing or truncated checkpoint, a
@@ -106,6 +107,8 @@ METRICS_FILE = "metrics.json"
 RUNS_ROOT = Path("runs")
 SUBCOMMANDS = ("fit", "validate", "test")
 STATUS_OK, STATUS_FAILED, STATUS_RUNNING, STATUS_INTERRUPTED = "ok", "failed", "running", "interrupted"
+#: A fit the machine stopped (a full disk, a file it could not write): not the fit's failure.
+STATUS_ENVIRONMENT = "environment"
 #: ``--ckpt_path`` values Lightning resolves itself rather than as files.
 LIGHTNING_CKPT_NAMES = ("best", "last", "hpc", "registry")
 
@@ -324,7 +327,8 @@ class FitHealth(pl.Callback):
                 for best in Path(callback.dirpath).glob("best*.ckpt"):
                     best.unlink(missing_ok=True)
         metrics = {f"fit/{name}": _number(value) for name, value in trainer.callback_metrics.items()}
-        metrics.update({"status": STATUS_FAILED, "cause": cause, "fit/epochs": trainer.current_epoch})
+        status = STATUS_FAILED if _environment_failure(exception) is None else STATUS_ENVIRONMENT
+        metrics.update({"status": status, "cause": cause, "fit/epochs": trainer.current_epoch})
         metrics.pop("fit/best_model_path", None)
         extras = getattr(pl_module, "metrics_json_extras", None)
         if extras is not None:
@@ -614,8 +618,9 @@ def _held_run(run_dir: Path) -> str:
     if status in (STATUS_OK, STATUS_FAILED):
         return f"already holds a run ({listing})"
     why = {STATUS_RUNNING: f"its {METRICS_FILE} says it is still running, but no command runs in it: it was killed",
-           STATUS_INTERRUPTED: "it was interrupted"}.get(status, f"no {METRICS_FILE}: it ended before its fit did, or "
-                                                                 "was killed")
+           STATUS_INTERRUPTED: "it was interrupted",
+           STATUS_ENVIRONMENT: f"the machine stopped it (its {METRICS_FILE} says why)"}.get(
+        status, f"no {METRICS_FILE}: it ended before its fit did, or was killed")
     return f"already holds a run that did not finish ({listing}; {why})"
 
 
