@@ -178,3 +178,23 @@ def test_a_spectral_mlp_on_data_outside_its_range_is_refused(gold, tmp_path, cap
                    tmp_path, capsys)
     assert line == (f"{infrared}: holds 800-900 nm but model.wavelength_range_nm is 400-700 nm, the range the fitted "
                     "model declares; give --model.wavelength_range_nm '[800, 900]'")
+
+
+def test_a_fit_from_a_fresh_clone_says_nothing_of_reference_data_it_never_had(gold, tmp_path):
+    """Run where no ../shared lies beside it (a fresh clone): the nlb_latent config's comparison with
+    Löw et al.'s ABC fits (../shared/data/abc-low2012) warned every user fitting their own table."""
+    import subprocess
+    import sys
+
+    table = read_table(gold).to_rgb()
+    zeros = tmp_path / "zeros.csv"
+    write_table(dataclasses.replace(table, values=np.zeros_like(table.values)), zeros)
+    clone = tmp_path / "clone"
+    clone.mkdir()
+    assert not (clone.parent / "shared").exists()
+    run = subprocess.run([sys.executable, "-m", "neuralbrdf", "train", "fit", "--config", "nlb_latent", "--data.path",
+                          str(zeros), *KINDS["nlb_latent"], "--run_dir", str(clone / "run")], cwd=clone,
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 2 and run.stderr.splitlines() == [
+        f"neuralbrdf train: error: {zeros}: every BRDF value is 0 (185 rows): there is nothing to fit; check that the "
+        "values are the sample's (not an empty export, a dark frame or the wrong columns)"], run.stderr
