@@ -741,7 +741,7 @@ def _summary(cli: NeuralBrdfCLI) -> str:
     path = cli.run_dir / METRICS_FILE
     metrics = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {}
     shown = [(k, v) for k, v in sorted(metrics.items()) if isinstance(v, float) and k.startswith(
-        ("fit/inplane", "fit/hemisphere", "fit/val/", "test/", "validate/", "fit/materials/"))]
+        ("fit/inplane", "fit/hemisphere", "fit/plan", "fit/val/", "test/", "validate/", "fit/materials/"))]
     if shown:
         lines.append("metrics: " + ", ".join(f"{k} {v:.4g}" for k, v in shown[:12])
                      + (f" (+{len(shown) - 12} more in {path})" if len(shown) > 12 else ""))
