@@ -850,8 +850,11 @@ def view(*models: Model | PathLike, truth: Model | PathLike | None = None,
     _integers(port=port)
     label = None
     if table is not None and not isinstance(table, (Source, Table)):
+        from neuralbrdf.data.units import overridden_by
+
         label = os.fspath(table)
-        table = read(table, reference)
+        with overridden_by("nb.view(..., table=nb.read(TABLE, trust_units=True))"):
+            table = read(table, reference)
     elif reference is not None:
         raise InputError("a Munsell reference goes with a GCMS raw table file")
     if isinstance(table, Source):

@@ -314,6 +314,26 @@ def test_bad_input_is_one_line_and_exit_2_before_serving(files, tmp_path, capsys
     assert len(err.strip().splitlines()) == 1 and expected[case] in err, err
 
 
+def test_a_unit_slip_in_the_table_names_the_views_own_option(files, tmp_path, capsys):
+    """The refusal said "read it with trust_units=True", which neuralbrdf view did not take."""
+    import dataclasses
+
+    from neuralbrdf.data.table import read_table
+
+    gold = read_table(files.table)
+    radians = tmp_path / "radians.csv"
+    write_table(dataclasses.replace(gold, **{name: np.radians(getattr(gold, name)) for name in
+                                             ("theta_i", "phi_i", "theta_o", "phi_o")}), radians)
+    assert cli(["view", str(files.spectral), "--table", str(radians)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(radians) in err[0] and "--trust-units" in err[0] and "trust_units=True" not in err[0]
+    with pytest.raises(InputError, match=r"nb\.read\(TABLE, trust_units=True\)"):
+        nb.view(files.spectral, table=radians)
+    from neuralbrdf.explorer.command import read_measurement
+
+    assert read_measurement(str(radians), None, trust_units=True).n_rows == gold.n_rows
+
+
 def _listening_address(port: int) -> str | None:
     """The local IPv4 address a socket listens on at ``port`` (from /proc/net/tcp), else ``None``."""
     for line in Path("/proc/net/tcp").read_text().splitlines()[1:]:
@@ -392,6 +412,32 @@ def test_page_draws_and_a_dragged_slider_redraws_the_slice(files, tmp_path):
             assert f"theta_i={reached:g}" in browser.evaluate("location.search")
             timings = browser.evaluate("window.viewerTimings")
             assert any(t["cause"] == "theta_i" and "inplane" in t["views"] for t in timings), timings
+            assert not browser.problems(), browser.problems()
+    finally:
+        process.send_signal(signal.SIGINT)
+        process.communicate(timeout=30)
+
+
+@needs_chromium
+def test_a_click_anywhere_on_the_slice_chart_picks_its_outgoing_angle(files, tmp_path):
+    """The page says "click the chart", but only a click on a curve picked: a click in the empty top
+    of the chart, far from every curve, now picks the angle under it as well."""
+    process, url = _start([str(files.spectral), "--truth", str(files.truth)])
+    try:
+        with Browser(tmp_path / "profile") as browser:
+            browser.open(url)
+            browser.wait_for("document.body?.dataset.ready === '1'", timeout=120)
+            _settled(browser)
+            x, y = browser.evaluate(
+                "(() => { const gd = document.getElementById('plot-inplane'); const box = gd.getBoundingClientRect();"
+                " const size = gd._fullLayout._size; return [box.left + size.l + gd._fullLayout.xaxis.d2p(-55),"
+                " box.top + size.t + 4]; })()")
+            for kind in ("mouseMoved", "mousePressed", "mouseReleased"):
+                browser.call("Input.dispatchMouseEvent", {"type": kind, "x": x, "y": y, "button": "left",
+                                                          "buttons": 0 if kind == "mouseReleased" else 1,
+                                                          "clickCount": 1})
+            picked = browser.wait_for("new URLSearchParams(location.search).get('pick_theta')", timeout=30)
+            assert abs(float(picked) - 55) <= 1, picked
             assert not browser.problems(), browser.problems()
     finally:
         process.send_signal(signal.SIGINT)

@@ -22,15 +22,19 @@ def add_arguments(parser) -> None:
     parser.add_argument("--table", default=None, help="measurement to draw beside the models: a BRDF table CSV, a "
                         "GCMS raw CSV with --reference, or virtual:NAME (a shipped DS1 measurement)")
     parser.add_argument("--reference", default=None, help="Munsell N9 GCMS raw CSV, when --table is a GCMS raw file")
+    parser.add_argument("--trust-units", action="store_true", help="read the --table as it is where its numbers look "
+                        "like a unit slip (angles in radians, wavelengths in um, ...; docs/robustness.md)")
     parser.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine "
                         "only; anything else exposes the page to the network)")
     parser.add_argument("--port", type=int, default=0, help="port (default 0: a free one, printed)")
 
 
-def read_measurement(table: str, reference: str | None):
-    """``--table`` as a BRDF table: a table file, a GCMS raw file calibrated against ``reference``,
-    or ``virtual:NAME``, the shipped DS1 measurement of a virtual material."""
+def read_measurement(table: str, reference: str | None, trust_units: bool = False):
+    """``--table`` as a BRDF table: a table file, a GCMS raw file calibrated against ``reference``
+    (checked for unit slips unless ``trust_units``), or ``virtual:NAME``, the shipped DS1
+    measurement of a virtual material."""
     from neuralbrdf.data.loading import load_measurement
+    from neuralbrdf.data.units import overridden_by
     from neuralbrdf.errors import InputError
     from neuralbrdf.sources import load_material
 
@@ -38,7 +42,8 @@ def read_measurement(table: str, reference: str | None):
         if reference is not None:
             raise InputError("a Munsell reference goes with a GCMS raw file, not with virtual:NAME", key="--reference")
         return load_material(virtual=table.removeprefix("virtual:"), eval_plan=None).fit
-    return load_measurement(table, reference)
+    with overridden_by("--trust-units"):
+        return load_measurement(table, reference, trust_units)
 
 
 def run(args) -> int:
@@ -53,7 +58,7 @@ def run(args) -> int:
     if args.reference is not None and args.table is None:
         raise InputError("--reference goes with a GCMS raw --table", key="--reference")
     try:
-        table = read_measurement(args.table, args.reference) if args.table is not None else None
+        table = read_measurement(args.table, args.reference, args.trust_units) if args.table is not None else None
         scene = open_scene(args.models, args.truth, table, args.table)
     except KeyboardInterrupt:  # Ctrl-C while the files are checked: nothing was served
         print("neuralbrdf view: interrupted", file=sys.stderr)

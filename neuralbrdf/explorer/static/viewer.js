@@ -270,6 +270,7 @@ function drawInplane(payload) {
   const inPlane = state.plane_phi === 0;
   const layout = {
     font: FONT, margin: {t: 36, r: 10, b: 50, l: 70}, legend: {orientation: "h", y: -0.2},
+    hovermode: "x",  // a click anywhere above or below the curves picks its outgoing angle, not only on one
     title: title(`θi = ${state.theta_i}°, plane at φ = ${state.plane_phi}°`),
     xaxis: {title: {text: inPlane ? "θr, signed outgoing angle in the plane of incidence (°; mirror at θr = θi)"
                                   : `signed outgoing angle in the plane at φ = ${state.plane_phi}° (°)`},
