@@ -445,6 +445,38 @@ def test_a_click_anywhere_on_the_slice_chart_picks_its_outgoing_angle(files, tmp
 
 
 @needs_chromium
+def test_rgb_files_only_draw_no_empty_spectrum_axes_and_metadata_keys_stay_whole(files, tmp_path):
+    """With RGB files only the spectrum chart drew empty axes of −1…6 nm, and the file table's
+    metadata keys wrapped letter by letter."""
+    from onnx_fixtures import Lambert, rgb_metadata
+
+    # a long unbroken metadata value (a provenance path) squeezes the key column
+    metadata = {**rgb_metadata("nlb"), "neuralbrdf.provenance": "/runs/" + "a_long_folder_name/" * 40 + "best.ckpt"}
+    model = export_module(Lambert((0.5, 0.4, 0.3)), tmp_path / "long.onnx", metadata, spectral=False)
+    process, url = _start([str(model)])
+    try:
+        with Browser(tmp_path / "profile", width=900) as browser:
+            browser.open(url)
+            browser.wait_for("document.body?.dataset.ready === '1'", timeout=120)
+            browser.evaluate("document.getElementById('view-spectrum').scrollIntoView()")
+            browser.wait_for("document.getElementById('plot-spectrum')._fullLayout !== undefined && "
+                             "!document.body.dataset.stale.split(',').includes('spectrum')", timeout=60)
+            layout = browser.evaluate("(() => { const l = document.getElementById('plot-spectrum')._fullLayout; "
+                                      "return [l.xaxis.visible, l.yaxis.visible, l.title.text]; })()")
+            assert layout == [False, False, "no spectral file: colours only"], layout
+            lines = browser.evaluate(  # the line boxes of each key's text
+                "(() => { const d = document.querySelector('table.files details'); d.open = true;"
+                " return [...d.querySelectorAll('table tr')].slice(1).map((r) => { const range = document.createRange();"
+                " range.selectNodeContents(r.cells[0]); return [r.cells[0].textContent, range.getClientRects().length]; });"
+                " })()")
+            assert lines and all(count == 1 for _, count in lines), lines
+            assert not browser.problems(), browser.problems()
+    finally:
+        process.send_signal(signal.SIGINT)
+        process.communicate(timeout=30)
+
+
+@needs_chromium
 @pytest.mark.slow
 def test_every_view_draws_changes_with_its_controls_and_reads_its_state_from_the_url(files, tmp_path):
     """Each view's screenshot is not blank and changes when one of its controls is dragged; a page

@@ -530,8 +530,9 @@ function drawSpectrum(payload) {
     item.append(swatch, `${nameOf(entry.label)}: linear sRGB (${rgb}) sr⁻¹`);
     return item;
   }));
-  if (!payload.curves.length && !payload.measured) {
-    return Plotly.react("plot-spectrum", [], {...layout, title: title("no spectral file: colours only")}, CONFIG);
+  if (!payload.curves.length && !payload.measured) {  // no axes to read: an empty chart showed −1…6 nm
+    return Plotly.react("plot-spectrum", [], {...layout, title: title("no spectral file: colours only"),
+                                              xaxis: {visible: false}, yaxis: {visible: false}}, CONFIG);
   }
   return Plotly.react("plot-spectrum", traces, layout, CONFIG);
 }
