@@ -19,7 +19,7 @@ def odd_paths(tmp_path_factory):
     """A FIFO, a symbolic link to itself and one to nothing, each under every input suffix."""
     folder = tmp_path_factory.mktemp("odd")
     paths = {}
-    for suffix in (".bsdf", ".onnx", ".binary", ".xml", ".ckpt", ".csv"):
+    for suffix in (".bsdf", ".onnx", ".binary", ".h5", ".xml", ".ckpt", ".csv"):
         fifo, loop, dangling = (folder / f"{name}{suffix}" for name in ("fifo", "loop", "dangling"))
         os.mkfifo(fifo)
         loop.symlink_to(loop)
@@ -35,6 +35,7 @@ READERS = {
     ".bsdf": ["sample", "{path}", "--plan", "DS3", "--out", "{out}.csv"],
     ".onnx": ["evaluate", "{path}", "--truth", "{path}", "--out-dir", "{out}", "--no-render"],
     ".binary": ["sample", "{path}", "--plan", "DS3", "--out", "{out}.csv"],
+    ".h5": ["sample", "{path}", "--plan", "DS3", "--out", "{out}.csv"],
     ".xml": ["render", "--scene", "{path}", "--out", "{out}.png"],
     ".ckpt": ["export", "--ckpt", "{path}", "--out", "{out}.onnx"],
     ".csv": ["to-rgb", "{path}", "--out", "{out}.csv"],

@@ -272,10 +272,49 @@ def _trust_units(parser: argparse.ArgumentParser) -> None:
                         "docs/robustness.md)")
 
 
+def _option_values(argv: list[str], option: str) -> list[str]:
+    """The values given to ``option`` in ``argv`` (``--key value`` or ``--key=value``), in order."""
+    return [argv[i + 1] if arg == option else arg.split("=", 1)[1] for i, arg in enumerate(argv)
+            if (arg == option and i + 1 < len(argv)) or arg.startswith(option + "=")]
+
+
+def _refused_table(argv: list[str]) -> int | None:
+    """``train fit --data.path TABLE`` on shipped configs: the table read as every fit's data
+    module reads it (:func:`~neuralbrdf.sources.load_fit_measurement`) before Lightning is imported,
+    so a bad one is refused in a second or two instead of ten; the exit status then, else ``None``
+    (a config file of the user's own may set more of the data than the flags say: the fit checks it)."""
+    from neuralbrdf.configs_dir import CONFIGS_DIR, resolve_config
+
+    paths = _option_values(argv, "--data.path")
+    configs = _option_values(argv, "--config")
+    if argv[:1] != ["fit"] or not paths or not configs or not all(
+            resolve_config(c).resolve().is_relative_to(CONFIGS_DIR.resolve()) for c in configs):
+        return None
+    from neuralbrdf.data.units import overridden_by
+    from neuralbrdf.lightning.common import TRUST_UNITS_OPTION
+    from neuralbrdf.sources import load_fit_measurement
+
+    reference = (_option_values(argv, "--data.reference") or [None])[-1]
+    trust_units = (_option_values(argv, "--data.trust_units") or ["false"])[-1].lower() in ("true", "yes", "on", "1")
+    try:
+        with command_inputs(), overridden_by(TRUST_UNITS_OPTION):
+            load_fit_measurement(paths[-1], None if reference in (None, "null") else reference, trust_units)
+    except InputError as error:
+        print(error_line("neuralbrdf train", error), file=sys.stderr)
+        return EXIT_BAD_INPUT
+    return None
+
+
 def _delegated(name: str):
     """The ``main(argv)`` of a command with its own parser (train: LightningCLI; export; render)."""
     if name == "train":
-        from neuralbrdf.lightning.run import main as train
+        def train(argv: list[str]) -> int:
+            refused = _refused_table(argv)
+            if refused is not None:
+                return refused
+            from neuralbrdf.lightning.run import main
+
+            return main(argv)
 
         return train
     if name == "render":  # imports Mitsuba: only when asked for

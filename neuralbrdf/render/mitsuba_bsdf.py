@@ -95,7 +95,7 @@ import onnxruntime
 from neuralbrdf import kinds
 from neuralbrdf.atomic import file_version
 from neuralbrdf.errors import InputError
-from neuralbrdf.limits import DRJIT_MAX_MULTIPLY_ADDS
+from neuralbrdf.limits import DRJIT_MAX_MULTIPLY_ADDS, file_problem
 from neuralbrdf.render.drjit_onnx import DrJitGraph
 from neuralbrdf.onnx_contract import (
     INPUT_WAVELENGTH,
@@ -511,7 +511,8 @@ def _proposal_path(props: mi.Properties) -> Path | None:
         return None
     path = Path(str(mi.file_resolver().resolve(str(props.get("proposal")))))
     if not path.is_file():
-        raise InputError("no such model file for the 'proposal' property", path=path, key="proposal")
+        raise InputError(file_problem(path) or "no such model file for the 'proposal' property", path=path,
+                         key="proposal")
     return path
 
 
@@ -527,7 +528,7 @@ def validated_model(path: Path) -> OnnxModel:
     time, inode).  The file is read once per version: a file replaced while a scene loads is either
     the old model or the new one, never parts of both."""
     if not path.is_file():
-        raise InputError("no such ONNX model file", path=path)
+        raise InputError(file_problem(path) or "no such ONNX model file", path=path)
     found = _LOAD_TIME_CACHE.get(("model", file_version(path)))
     if found is None:
         found = kinds.load_model(path)
