@@ -130,10 +130,8 @@ class LatentFitData(pl.LightningDataModule):
         Plan on which NBRDF, MERL and virtual sources (which have a truth) are compared with the
         fit; ``None``: no such evaluation.
     low2012_abc:
-        Löw et al.'s published ABC fits (``abc-low2012/low2012_abc_merl.csv``) for the
-        comparison; ``None``: no comparison; a missing file: no comparison, with a warning unless
-        it is the reference data beside the repository (``../shared/...``, the shipped configs'
-        default), which a user's own fit never needs.
+        Löw et al.'s published ABC fits (``abc-low2012/low2012_abc_merl.csv``) to compare with;
+        ``None`` or a missing file: none (a warning unless it is the reference data in ``../shared``).
     steps_per_epoch:
         Optimisation steps per epoch.
     batch_size:
