@@ -28,7 +28,8 @@ def load_sections(name: str | os.PathLike[str], folder: str, sections: dict[str,
     ``sections`` (section name → dataclass); ``what`` names the kind of file in errors."""
     path = resolve_config(name, folder)
     if not Path(path).is_file():
-        raise InputError(f"{file_problem(path) or 'no such ' + what}; expected a YAML file or a shipped name like 'default'", path=path)
+        raise InputError(f"{file_problem(path) or 'no such ' + what}; expected a YAML file or a shipped name like "
+                         "'default'", path=path)
     try:
         raw = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
     except (yaml.YAMLError, UnicodeDecodeError) as error:

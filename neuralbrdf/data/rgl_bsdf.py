@@ -232,7 +232,8 @@ def _check_fields(fields: dict[str, np.ndarray], path: Path) -> bool:
     missing = [name for name in required if name not in fields]
     if missing or (spectral and "rgb" in fields):
         names = [shown(name) for name in list(fields)[:12]]
-        found = ", ".join(names) + (f" and {len(fields) - len(names)} more" if len(fields) > len(names) else "") or "none"
+        more = f" and {len(fields) - len(names)} more" if len(fields) > len(names) else ""
+        found = ", ".join(names) + more or "none"
         raise InputError(f"not an RGL measured BRDF: missing field(s) {', '.join(missing) or 'none'} (it has {found}); "
                          "expected description, theta_i, phi_i, ndf, sigma, vndf, luminance, jacobian and either rgb "
                          "or spectra with wavelengths", path=path)
@@ -254,8 +255,8 @@ def _check_fields(fields: dict[str, np.ndarray], path: Path) -> bool:
     wrong = (theta < 0) | (theta > np.pi / 2 + 1e-4) | np.concatenate([[False], np.diff(theta) <= 0])
     if wrong.any():
         first = int(np.argmax(wrong))
-        raise _fail(path, "theta_i", f"expected increasing incident angles within [0, pi/2] rad, got {theta[first]:.6g} at "
-                    f"index {first} ({int(wrong.sum())} of {n_theta} out of order or range)")
+        raise _fail(path, "theta_i", f"expected increasing incident angles within [0, pi/2] rad, got "
+                    f"{theta[first]:.6g} at index {first} ({int(wrong.sum())} of {n_theta} out of order or range)")
     values, luminance, vndf = fields[values_field], fields["luminance"], fields["vndf"]
     channels = len(fields["wavelengths"]) if spectral else 3
     n = luminance.shape[2]

@@ -100,7 +100,8 @@ def read_tensor_file(path: str | PathLike[str]) -> dict[str, np.ndarray]:
                              path=path)
         shape = header.take(f"<{rank}Q", f"the shape of field {shown(name)!r}")
         if code not in DTYPES:
-            raise InputError(f"field {shown(name)!r} has type code {code}; expected one of 1-11 (u8 ... f64)", path=path)
+            raise InputError(f"field {shown(name)!r} has type code {code}; expected one of 1-11 (u8 ... f64)",
+                             path=path)
         if name in entries:
             raise InputError(f"field {shown(name)!r} appears twice", path=path)
         entries[name] = (np.dtype(DTYPES[code]), offset, shape)
@@ -116,8 +117,8 @@ def read_tensor_file(path: str | PathLike[str]) -> dict[str, np.ndarray]:
         end = offset + count * dtype.itemsize
         if count and (offset < header.position or end > len(data)):
             where = "overlap the header" if offset < header.position else f"lie beyond its {len(data)} bytes"
-            raise InputError(f"truncated or corrupt tensor_file: the data of field {shown(name)!r} {list(shape)} (bytes "
-                             f"{offset}-{end}) would {where}", path=path)
+            raise InputError(f"truncated or corrupt tensor_file: the data of field {shown(name)!r} {list(shape)} "
+                             f"(bytes {offset}-{end}) would {where}", path=path)
         fields[name] = np.frombuffer(data, dtype=dtype, count=count, offset=offset if count else 0).reshape(shape)
     return fields
 

@@ -9,8 +9,8 @@ need it (the Mitsuba plugin picks the output; :mod:`neuralbrdf.render.fast_paths
   once per query instead of once per wavelength of the sRGB rule.  Any spectral file of the
   contract gets one, whatever its kind: it is distilled from the file itself.  The plugin uses
   it in RGB variants unless told not to.  It is made only for a model whose wavelength range
-  holds at least :data:`~neuralbrdf.data.colorimetry.MIN_OBSERVER_COVERAGE` of each of the observer's X, Y, Z weights over
-  400–700 nm (:func:`rgb_head_problem`): a model of 800–900 nm would otherwise get a head
+  holds at least :data:`~neuralbrdf.data.colorimetry.MIN_OBSERVER_COVERAGE` of each of the
+  observer's X, Y, Z weights over 400–700 nm (:func:`rgb_head_problem`): a model of 800–900 nm would otherwise get a head
   distilled from its own value at 800 nm, clamped there for every wavelength of the conversion.
 * ``f_fast`` — **a compact copy** of ``f`` (RGB, or spectral for spectral models): what the
   plugin evaluates when asked (property ``fast``, ``neuralbrdf render --fast``), and a rung of
