@@ -49,7 +49,7 @@ def sweep(checkpoints, weights, codes, plans) -> list[dict]:
                     metrics = _latent_fit(Path(tmp), run, sources, "--data.plan", plan, "--model.checkpoint", checkpoint,
                                           "--model.latent_prior_weight", str(weight), "--model.latent_prior_codes", codes)
                     rows.append({"checkpoint": checkpoint, "plan": plan, "weight": weight, "codes": codes,
-                                 "materials": {n: metrics[f"fit/hemisphere_logcos_rmse/{n}"] for n in MATERIALS},
+                                 "materials": {n: metrics[f"fit/plan_logcos_rmse/{n}"] for n in MATERIALS},
                                  "fit_s_per_material": metrics["fit/wall_time_s"] / len(MATERIALS)})
     return rows
 

@@ -169,10 +169,10 @@ def nlb_vs_abc(work: Path, quick: bool, checkpoint: str | None, plans=("DS1", "D
         wi, wo = truth.vectors()
         abc = fit_abc(sample_plan(network, "DS1"))
         rows[name] = {
-            **{f"nlb_{plan}": fits[plan][f"fit/hemisphere_logcos_rmse/{name}"] for plan in fits},
-            "nlb_DS1_report_recipe": report_recipe[f"fit/hemisphere_logcos_rmse/{name}"],
-            "nlb_DS1_centroid_start": centroid[f"fit/hemisphere_logcos_rmse/{name}"],
-            "nlb_DS1_one_start": one_start[f"fit/hemisphere_logcos_rmse/{name}"],
+            **{f"nlb_{plan}": fits[plan][f"fit/plan_logcos_rmse/{name}"] for plan in fits},
+            "nlb_DS1_report_recipe": report_recipe[f"fit/plan_logcos_rmse/{name}"],
+            "nlb_DS1_centroid_start": centroid[f"fit/plan_logcos_rmse/{name}"],
+            "nlb_DS1_one_start": one_start[f"fit/plan_logcos_rmse/{name}"],
             "abc_DS1": hemisphere_logcos_rmse(abc.parameters.evaluate(wi, wo), truth.values, low_angles[0]),
             "abc_DS1_success": abc.success,
             "abc_DS1_fit_s": abc.wall_time_s,

@@ -20,7 +20,7 @@ from torch import nn
 
 from neuralbrdf.atomic import atomic_path, note_input
 from neuralbrdf.errors import InputError, one_line
-from neuralbrdf.limits import MAX_CHECKPOINT_BYTES, MAX_MODEL_PARAMETERS, check_file_size
+from neuralbrdf.limits import MAX_CHECKPOINT_BYTES, MAX_MODEL_PARAMETERS, check_file_size, file_problem
 
 #: First bytes of a zip archive, the container of ``torch.save`` files.
 ZIP_MAGIC = b"PK\x03\x04"
@@ -44,7 +44,7 @@ def read_checkpoint(path: str | os.PathLike[str], what: str = "checkpoint") -> d
     """
     path = Path(path)
     if not path.is_file():
-        raise InputError(f"{what} not found", path=path)
+        raise InputError(file_problem(path) or f"{what} not found", path=path)
     note_input(path)
     check_file_size(path, MAX_CHECKPOINT_BYTES, "checkpoint")
     try:

@@ -21,6 +21,11 @@ Defaults, the same at every door (docs/export-render.md):
   ``--no-fast`` to leave it out) — and for any model with ``fast=True`` (``--fast``);
 * fast-path settings from the shipped ``configs/lod/default.yaml`` (``config``).
 
+A fast path added unasked — the RGB head, or ``f_fast`` by default — is an extra that never costs
+the model: when its student misses its bound the model is written without it and a warning says
+so in one line.  One asked for (``fast=True``, or fast paths added to a model file) fails the
+export as before: nothing is written.
+
 Every step is deterministic — seeded distillation, costs counted rather than timed, metadata that
 names no temporary file — so one checkpoint exported twice with the same options gives the same
 bytes.
@@ -29,13 +34,14 @@ bytes.
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 from neuralbrdf import kinds
-from neuralbrdf.atomic import check_outputs, command_inputs
+from neuralbrdf.atomic import atomic_path, check_outputs, command_inputs
 from neuralbrdf.errors import InputError
 from neuralbrdf.onnx_contract import OUTPUT_FAST, OUTPUT_RGB, FastPath
 from neuralbrdf.onnx_export import ExportReport, write_model
@@ -53,24 +59,23 @@ class Exported:
     fast_paths: tuple[FastPath, ...]
 
 
-def fast_paths_wanted(kind: str, wavelength_range_nm, present, fast: bool | None, rgb_head: bool) -> tuple[str, ...]:
+def fast_paths_wanted(kind: str, wavelength_range_nm, present, fast: bool | None,
+                      rgb_head: bool) -> tuple[tuple[str, ...], str | None]:
     """The fast paths to add to a model of ``kind`` (of this wavelength range, ``None`` for RGB, with
     the fast paths ``present``); ``fast`` ``None``: ``f_fast`` when the kind gets it by default
-    (:attr:`~neuralbrdf.kinds.Kind.fast_by_default`).  A spectral model outside the colour
-    conversion's range gets no RGB head, with a warning
-    (:func:`~neuralbrdf.lod.fast_paths.rgb_head_problem`)."""
+    (:attr:`~neuralbrdf.kinds.Kind.fast_by_default`).  And why the RGB head is left out, when a
+    spectral model outside the colour conversion's range would get one
+    (:func:`~neuralbrdf.lod.fast_paths.rgb_head_problem`), else ``None``."""
     from neuralbrdf.lod.fast_paths import rgb_head_problem
 
-    wanted = []
+    wanted, problem = [], None
     if wavelength_range_nm is not None and rgb_head and OUTPUT_RGB not in present:
         problem = rgb_head_problem(wavelength_range_nm)
         if problem is None:
             wanted.append(OUTPUT_RGB)
-        else:
-            warnings.warn(problem, stacklevel=3)
     if fast or (fast is None and kinds.get(kind).fast_by_default and OUTPUT_FAST not in present):
         wanted.append(OUTPUT_FAST)
-    return tuple(wanted)
+    return tuple(wanted), problem
 
 
 def model_line(report: ExportReport, written: bool) -> str:
@@ -98,7 +103,7 @@ def export_model(out: PathLike, *, checkpoint: PathLike | None = None, model: Pa
     or :class:`~neuralbrdf.lod.fast_paths.FastPathError` (the graph or a fast path failed its check);
     nothing is written then."""
     from neuralbrdf.lod.config import load_lod_config
-    from neuralbrdf.lod.fast_paths import add_fast_paths
+    from neuralbrdf.lod.fast_paths import FastPathError, add_fast_paths
 
     if (checkpoint is None) == (model is None):
         raise InputError("export a checkpoint or add fast paths to a model file: give one of them")
@@ -109,13 +114,19 @@ def export_model(out: PathLike, *, checkpoint: PathLike | None = None, model: Pa
                 raise InputError("a material goes with a checkpoint (a model file holds one material)",
                                  key="--material")
             parent = kinds.load_model(model)
-            wanted = fast_paths_wanted(parent.kind, parent.wavelength_range_nm, parent.fast_paths, fast, rgb_head)
+            wanted, problem = fast_paths_wanted(parent.kind, parent.wavelength_range_nm, parent.fast_paths, fast,
+                                                rgb_head)
             if not wanted:
-                raise InputError("nothing to add: ask for fast, or give a spectral model without an RGB head", path=model)
+                why = problem or ("it has its RGB head already" if OUTPUT_RGB in parent.fast_paths else
+                                  "an RGB head is for spectral models" if parent.wavelength_range_nm is None else
+                                  "no RGB head was asked for")
+                raise InputError(f"nothing to add: {why}; ask for f_fast with fast (--fast)", path=model)
         else:
             exportable = kinds.load_exportable(checkpoint, material)
-            wanted = fast_paths_wanted(exportable.kind, exportable.wavelength_range_nm, (), fast, rgb_head)
+            wanted, problem = fast_paths_wanted(exportable.kind, exportable.wavelength_range_nm, (), fast, rgb_head)
         check_outputs(out)  # after the inputs are read: an output may not be one of them
+        if problem is not None:
+            warnings.warn(problem, stacklevel=2)
         settings = load_lod_config(config).fast_paths if wanted else None
         # the model alone goes to a working folder under out's own name, so no temporary name reaches the file
         with tempfile.TemporaryDirectory(prefix="neuralbrdf-export-") as work:
@@ -126,6 +137,22 @@ def export_model(out: PathLike, *, checkpoint: PathLike | None = None, model: Pa
                 log(model_line(report, written=source == out))
             if not wanted:
                 return Exported(out, report, ())
-            reports = add_fast_paths(source, out, wanted, settings, log=lambda line: log(f"  {line}"))
+            # the extras a checkpoint's export adds unasked: each may be left out, never the model
+            optional = set() if checkpoint is None else {OUTPUT_RGB} | ({OUTPUT_FAST} if fast is None else set())
+            while wanted:
+                try:
+                    reports = add_fast_paths(source, out, wanted, settings, log=lambda line: log(f"  {line}"))
+                    break
+                except FastPathError as error:
+                    if error.output not in optional:
+                        raise
+                    warnings.warn(f"{out}: written without the optional fast path {error.output}: {error}",
+                                  stacklevel=2)
+                    wanted = tuple(output for output in wanted if output != error.output)
+            else:
+                with atomic_path(out) as tmp:
+                    shutil.copyfile(source, tmp)
+                log(f"wrote {out} without fast paths")
+                return Exported(out, report, ())
     log(fast_paths_line(out, reports))
     return Exported(out, report, tuple(reports))

@@ -9,6 +9,7 @@ The limits sit far above anything the project writes (noted beside each).
 
 from __future__ import annotations
 
+import errno
 import os
 import stat
 
@@ -22,6 +23,11 @@ MAX_CSV_BYTES = 512 * MIB
 #: Mitsuba ``tensor_file`` measurements (RGL ``.bsdf``).  The RGL database's spectral files are
 #: about 7 MiB (195 wavelengths), its anisotropic ones a few times that.
 MAX_TENSOR_FILE_BYTES = 256 * MIB
+#: Header quantities of a ``tensor_file``, each bounded before anything is allocated for it: the
+#: RGL's files have 11 fields of rank at most 5 with names of a dozen bytes.
+MAX_TENSOR_FIELDS = 1024
+MAX_TENSOR_RANK = 16
+MAX_TENSOR_NAME_BYTES = 256
 #: ``.onnx`` model files.  A paper-size NLB (1.07 M weights) is about 4 MiB.
 MAX_ONNX_BYTES = 256 * MIB
 #: Total elements of an ONNX graph's initialisers and constants (as declared by their shapes).
@@ -40,16 +46,39 @@ MAX_JSON_BYTES = 16 * MIB
 DRJIT_MAX_MULTIPLY_ADDS = 100_000
 
 
-def check_file_size(path: str | os.PathLike[str], limit_bytes: int, what: str) -> int:
-    """The size of ``path`` in bytes, or :class:`InputError` if it exceeds ``limit_bytes`` or is
-    a device, FIFO or socket (which could be read without end)."""
+def file_problem(path: str | os.PathLike[str]) -> str | None:
+    """Why ``path``, which is there in some form, cannot be read as a regular file: a FIFO, device
+    or socket (read without end), a directory, a symbolic link that loops or points nowhere, a path
+    the system refuses; ``None`` for a regular file or nothing at all (each reader says "no such
+    file" in its own words)."""
     try:
         info = os.stat(path)
+    except ValueError:
+        return None
+    except OSError as error:
+        if error.errno == errno.ELOOP:
+            return "is a symbolic link that loops (too many levels of symbolic links)"
+        if error.errno == errno.ENOENT:
+            return f"is a broken symbolic link (to {os.readlink(path)!r})" if os.path.islink(path) else None
+        return f"cannot be read: {os.strerror(error.errno).lower()}" if error.errno else None
+    if stat.S_ISDIR(info.st_mode):
+        return "is a directory, not a file"
+    if not stat.S_ISREG(info.st_mode):
+        kind = "a FIFO" if stat.S_ISFIFO(info.st_mode) else "a socket" if stat.S_ISSOCK(info.st_mode) else "a device"
+        return f"is {kind}, not a regular file"
+    return None
+
+
+def check_file_size(path: str | os.PathLike[str], limit_bytes: int, what: str) -> int:
+    """The size of ``path`` in bytes, or :class:`InputError` if it exceeds ``limit_bytes`` or is
+    not a regular file (:func:`file_problem`; a directory or nothing at all is left to the reader)."""
+    problem = file_problem(path)
+    if problem is not None and not os.path.isdir(path):
+        raise InputError(f"{problem}; expected a {what}", path=path)
+    try:
+        size = os.stat(path).st_size
     except (OSError, ValueError):
-        return 0  # the reader reports a missing or unreadable file in its own words
-    if not (stat.S_ISREG(info.st_mode) or stat.S_ISDIR(info.st_mode)):
-        raise InputError(f"is not a regular file (a device, FIFO or socket); expected a {what}", path=path)
-    size = info.st_size
+        return 0  # the reader reports a missing file in its own words
     if size > limit_bytes:
         raise InputError(
             f"{what} of {size / MIB:.1f} MiB exceeds the limit of {limit_bytes / MIB:.0f} MiB "

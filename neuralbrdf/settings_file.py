@@ -20,6 +20,7 @@ import yaml
 
 from neuralbrdf.configs_dir import resolve_config
 from neuralbrdf.errors import InputError
+from neuralbrdf.limits import file_problem
 
 
 def load_sections(name: str | os.PathLike[str], folder: str, sections: dict[str, type], what: str) -> tuple[Path, dict]:
@@ -27,7 +28,8 @@ def load_sections(name: str | os.PathLike[str], folder: str, sections: dict[str,
     ``sections`` (section name → dataclass); ``what`` names the kind of file in errors."""
     path = resolve_config(name, folder)
     if not Path(path).is_file():
-        raise InputError(f"no such {what}; expected a YAML file or a shipped name like 'default'", path=path)
+        raise InputError(f"{file_problem(path) or 'no such ' + what}; expected a YAML file or a shipped name like "
+                         "'default'", path=path)
     try:
         raw = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
     except (yaml.YAMLError, UnicodeDecodeError) as error:

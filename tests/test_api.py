@@ -120,12 +120,49 @@ def test_bad_input_is_one_input_error(files, call, message):
     (lambda f: nb.render_image(f / "m.onnx", spp=2.5), "spp"),
     (lambda f: nb.render_image(f / "m.onnx", seed=-1), "seed"),
     (lambda f: nb.render_image(f / "m.onnx", variant=None), "variant"),
+    (lambda f: nb.read(f / "cyan_table.csv", trust_units="yes"), "trust_units"),
+    (lambda f: nb.fit(["abc"]), "unknown fit kind"),
+    (lambda f: nb.fit("abc", "virtual:gold", overwrite="no"), "overwrite"),
+    (lambda f: nb.export(f / "x.ckpt", f / "x.onnx", fast="no"), "fast"),
+    (lambda f: nb.export(f / "x.ckpt", f / "x.onnx", rgb_head=0), "rgb_head"),
+    (lambda f: nb.export(f / "x.ckpt", f / "x.onnx", config=None), "config"),
+    (lambda f: nb.evaluate(f / "m.onnx", f / "t.onnx", f / "e", images="no"), "images"),
+    (lambda f: nb.evaluate(f / "m.onnx", f / "t.onnx", f / "e", backend=1), "backend"),
+    (lambda f: nb.render_image(f / "m.onnx", exr="yes"), "exr"),
+    (lambda f: nb.render_image(f / "m.onnx", rgb_tolerance="0.01"), "rgb_tolerance"),
+    (lambda f: nb.design_plan(3, max_theta="60"), "max_theta"),
+    (lambda f: nb.next_pairs("virtual:gold", step=float("nan")), "step"),
+    (lambda f: nb.acquire("virtual:gold", render="no"), "render"),
+    (lambda f: nb.view(f / "m.onnx", port="x"), "port"),
+    (lambda f: nb.view(f / "m.onnx", host=127), "host"),
 ])
 def test_an_argument_of_the_wrong_type_is_an_input_error_naming_it(files, call, argument):
     """``nb.read(123)`` and ``nb.evaluate(None, …)`` raised a bare TypeError from pathlib."""
     with pytest.raises(InputError) as error:
         call(files)
     assert str(error.value).startswith(argument), str(error.value)
+
+
+def test_truths_type_error_names_every_kind_of_source_it_takes():
+    with pytest.raises(InputError, match="a MERL .binary or an RGL .bsdf"):
+        nb.truth(123, "x.onnx")
+
+
+def test_a_model_refuses_wavelengths_outside_its_range_and_directions_that_are_not_finite(tmp_path):
+    """0.55 (µm), -5 and 1e9 nm were clamped to the nearest end of the range, a NaN direction gave 0."""
+    gold = nb.truth("virtual:gold", tmp_path / "gold.onnx")
+    up = np.array([0.0, 0.0, 1.0])
+    assert gold(up, up, 400.0).shape == gold(up, up, 700.0).shape == (1,)
+    for nm in (0.55, -5.0, 1e9, float("nan"), 399.9):
+        with pytest.raises(InputError, match=r"wavelength .* nm is outside gold.onnx's range 400-700 nm"):
+            gold(up, up, nm)
+    with pytest.raises(InputError, match="wavelength 800 nm is outside"):
+        gold(np.stack([up, up]), np.stack([up, up]), [550.0, 800.0])
+    for bad in (np.nan, np.inf):
+        with pytest.raises(InputError, match=r"wo: direction 1 is not finite"):
+            gold(np.stack([up, up]), np.array([up, [bad, 0.0, 1.0]]), 550.0)
+        with pytest.raises(InputError, match=r"wi: direction 0 is not finite"):
+            gold(np.array([[0.0, bad, 1.0]]), up, 550.0)
 
 
 def test_a_model_scored_against_itself_is_said_as_the_command_says_it(tmp_path):

@@ -100,7 +100,7 @@ def test_a_checkpoint_write_refused_for_space_is_one_line_naming_it(tmp_path, ca
     line = one_error_line(capsys, "neuralbrdf train")
     assert line == f"neuralbrdf train: error: {run / 'checkpoints' / 'best.ckpt'}: {NO_SPACE}", line
     metrics = (run / "metrics.json").read_text()
-    assert '"status": "failed"' in metrics and NO_SPACE in metrics
+    assert '"status": "environment"' in metrics and NO_SPACE in metrics  # the machine's doing, not the fit's
     assert not list(run.rglob("*.ckpt")) and not list(run.rglob("*neuralbrdf-tmp*"))
 
 

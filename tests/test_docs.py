@@ -122,6 +122,22 @@ def test_the_readme_holds_the_test_command_that_ci_extracts():
     assert text.count("<!-- test-command -->") == 1 and text.count("<!-- /test-command -->") == 1
 
 
+@pytest.mark.skipif(not (ROOT / ".git").exists(), reason="not a git checkout: nothing to clone")
+def test_ci_runs_the_test_command_in_a_fresh_clone_with_no_reference_data_beside_it():
+    """A fresh clone failed the README's test command while CI, with ../shared beside its
+    checkout, passed: .ci/run runs it in .ci/fresh-clone too, a clone of HEAD in a bare folder."""
+    import subprocess
+
+    assert '.ci/fresh-clone $(printf %q "$test_command")' in (ROOT / ".ci" / "run").read_text(encoding="utf-8")
+    probe = 'pwd; git rev-parse HEAD; test -f README.md && test ! -e ../shared && test "$(ls ..)" = neuralbrdf'
+    run = subprocess.run([str(ROOT / ".ci" / "fresh-clone"), probe], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    folder, head = run.stdout.split()
+    head_here = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    assert head == head_here and not Path(folder).exists()  # HEAD, cloned, then removed
+    assert subprocess.run([str(ROOT / ".ci" / "fresh-clone"), "exit 7"], capture_output=True).returncode == 7
+
+
 @pytest.mark.parametrize("page", PAGES, ids=lambda p: str(p.relative_to(ROOT)))
 def test_every_relative_link_and_image_resolves(page):
     broken = []

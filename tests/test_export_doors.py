@@ -75,3 +75,35 @@ def test_adding_fast_paths_to_a_model_file_goes_the_same_way(fit, tiny, tmp_path
                        "--config", tiny]) == 0
     nb.export(fit.checkpoint, tmp_path / "direct.onnx", config=tiny)
     assert Path(tmp_path / "head.onnx").read_bytes() == Path(tmp_path / "direct.onnx").read_bytes()
+
+
+def test_a_student_that_misses_its_bound_costs_its_fast_path_not_the_model(fit, tiny, tmp_path, capsys, monkeypatch):
+    """A real measurement's spectral NLB was refused by a plain export because the f_fast it gets
+    unasked missed its bound: an unasked fast path is left out with one line; one asked for still
+    fails the export."""
+    import dataclasses
+
+    from neuralbrdf import kinds
+
+    strict = tmp_path / "strict.yaml"
+    raw = yaml.safe_load(Path(tiny).read_text())
+    raw["fast_paths"]["max_hemisphere_logcos_rmse"] = 1e-12
+    strict.write_text(yaml.safe_dump(raw))
+    # the ABC kind as one that gets f_fast by default, as the spectral NLB does
+    monkeypatch.setitem(kinds._discover(), "abc", dataclasses.replace(kinds.get("abc"), fast_by_default=True))
+    from neuralbrdf.cli.main import main as cli
+
+    out = tmp_path / "gold.onnx"
+    assert cli(["export", "--ckpt", str(fit.checkpoint), "--out", str(out), "--config", str(strict)]) == 0
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert len(err) == 2 and all(line.startswith(f"warning: {out}: written without the optional fast path f_")
+                                 and "above the bound 1e-12" in line for line in err), err
+    assert load_model(out).fast_paths == {} and f"wrote {out} without fast paths" in captured.out
+    plain = tmp_path / "plain.onnx"
+    nb.export(fit.checkpoint, plain, fast=False, rgb_head=False)
+    assert out.read_bytes() == plain.read_bytes()
+    asked = tmp_path / "asked.onnx"
+    assert export_cli(["--ckpt", str(fit.checkpoint), "--out", str(asked), "--fast", "--no-rgb-head",
+                       "--config", str(strict)]) == 1
+    assert "not written: the f_fast student" in capsys.readouterr().err and not asked.exists()

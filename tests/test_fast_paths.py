@@ -595,7 +595,7 @@ def test_observer_coverage_is_the_share_of_each_cie_weight_in_the_range():
     """Against colour-science's own CMFs and D65, summed by hand on the 10 nm grid."""
     import colour
 
-    from neuralbrdf.lod.fast_paths import observer_coverage
+    from neuralbrdf.data.colorimetry import observer_coverage
 
     grid = np.arange(400, 701, 10)
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]

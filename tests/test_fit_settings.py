@@ -37,6 +37,8 @@ def refused(args: list[str], tmp_path: Path, capsys) -> str:
     (["--trainer.max_epochs", "-1"], "--trainer.max_epochs -1: -1 is Lightning's 'no limit', and neither "
                                      "trainer.max_steps nor trainer.max_time is set: the fit would never end"),
     (["--trainer.max_epochs", "0"], "--trainer.max_epochs 0: trains no epoch"),
+    (["--trainer.max_epochs", "null"], "--trainer.max_epochs None: null leaves the limit to Lightning's default of "
+                                       "1000 epochs"),
     (["--trainer.max_steps", "0"], "--trainer.max_steps 0: trains no step"),
     (["--trainer.limit_train_batches", "0"], "--trainer.limit_train_batches 0.0: no training step in an epoch"),
     (["--trainer.limit_val_batches", "0"], "--trainer.limit_val_batches 0.0: no validation, so the checkpoint "
@@ -69,9 +71,10 @@ def test_a_setting_from_a_config_file_names_the_file(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("overrides, key", [({"trainer.max_epochs": -1}, "trainer.max_epochs"),
+                                            ({"trainer.max_epochs": None}, "trainer.max_epochs"),
                                             ({"model.optimizer.lr": float("nan")}, "model.optimizer.lr")])
 def test_python_overrides_are_refused_alike(tmp_path, overrides, key):
-    with pytest.raises(nb.InputError, match=rf"^--{key} (-1|nan): "):
+    with pytest.raises(nb.InputError, match=rf"^--{key} (-1|nan|None): "):
         nb.fit("spectral_mlp", "virtual:gold", run_dir=tmp_path / "run", overrides={**overrides, **GUARD})
     assert not (tmp_path / "run").exists()
 
@@ -175,3 +178,46 @@ def test_a_spectral_mlp_on_data_outside_its_range_is_refused(gold, tmp_path, cap
                    tmp_path, capsys)
     assert line == (f"{infrared}: holds 800-900 nm but model.wavelength_range_nm is 400-700 nm, the range the fitted "
                     "model declares; give --model.wavelength_range_nm '[800, 900]'")
+
+
+def test_a_fit_from_a_fresh_clone_says_nothing_of_reference_data_it_never_had(gold, tmp_path):
+    """Run where no ../shared lies beside it (a fresh clone): the nlb_latent config's comparison with
+    Löw et al.'s ABC fits (../shared/data/abc-low2012) warned every user fitting their own table."""
+    import subprocess
+    import sys
+
+    table = read_table(gold).to_rgb()
+    zeros = tmp_path / "zeros.csv"
+    write_table(dataclasses.replace(table, values=np.zeros_like(table.values)), zeros)
+    clone = tmp_path / "clone"
+    clone.mkdir()
+    assert not (clone.parent / "shared").exists()
+    run = subprocess.run([sys.executable, "-m", "neuralbrdf", "train", "fit", "--config", "nlb_latent", "--data.path",
+                          str(zeros), *KINDS["nlb_latent"], "--run_dir", str(clone / "run")], cwd=clone,
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 2 and run.stderr.splitlines() == [
+        f"neuralbrdf train: error: {zeros}: every BRDF value is 0 (185 rows): there is nothing to fit; check that the "
+        "values are the sample's (not an empty export, a dark frame or the wrong columns)"], run.stderr
+
+
+def test_train_fit_refuses_a_bad_table_before_importing_lightning(tmp_path):
+    """``train fit`` took 9-10 s to refuse a table other commands refuse in 2 s: the table is read
+    before Lightning is imported, with the fit's own words (its option past a unit slip included)."""
+    import subprocess
+    import sys
+
+    bad = tmp_path / "bad.csv"
+    bad.write_text("theta_i,phi_i,theta_o,phi_o,R,G,B\n30,0,30,180,0.1,0.2,nan\n")
+    radians = tmp_path / "radians.csv"
+    radians.write_text("theta_i,phi_i,theta_o,phi_o,R,G,B\n" + "".join(
+        f"{t:.3f},0,{t:.3f},3.1416,0.1,0.2,0.3\n" for t in (0.2, 0.4, 0.6, 0.8, 1.0, 1.2)))
+    probe = ("import sys; from neuralbrdf.cli.main import main; status = main(sys.argv[1:]); "
+             "print('lightning imported' if 'pytorch_lightning' in sys.modules else 'no lightning'); sys.exit(status)")
+    for table, reason in ((bad, "line 2, column 'B': non-finite value 'nan'"), (radians, "--data.trust_units true")):
+        run = subprocess.run([sys.executable, "-c", probe, "train", "fit", "--config", "spectral_mlp", "--data.path",
+                              str(table), "--run_dir", str(tmp_path / "run")], capture_output=True, text=True,
+                             timeout=300)
+        assert run.returncode == 2 and run.stdout.strip() == "no lightning", (run.stdout, run.stderr)
+        err = run.stderr.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"neuralbrdf train: error: {table}") and reason in err[0], err
+        assert not (tmp_path / "run").exists()

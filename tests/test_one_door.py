@@ -69,6 +69,7 @@ PRINTING_AND_HELP = {
                                   "PASS_LANES_WAVEFRONT", "REFERENCE_BSDFS"},
     "neuralbrdf.render.spectral_quadrature": {"DEFAULT_RMS_TOLERANCE"},
     "neuralbrdf.lightning.run": {"main"},
+    "neuralbrdf.lightning.train_precheck": {"refused_table"},  # train's table, refused before Lightning loads
     "neuralbrdf": {"api", "kinds"},  # kinds: the export command's help lists them
 }
 #: Modules every command uses as they are: errors, warnings, the inputs-are-not-outputs guard.

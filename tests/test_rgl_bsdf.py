@@ -258,6 +258,117 @@ def test_every_bad_file_is_one_line_naming_it_exit_2_and_nothing_written(files, 
     assert not [p for p in tmp_path.iterdir() if p.name.endswith("_out") or p.suffix in (".csv", ".onnx")]
 
 
+def _hostile_header(fields: list[tuple[bytes, int, int, list[int]]], size: int) -> bytes:
+    """A tensor_file of ``size`` bytes whose header lists ``(name, rank, type code, shape)``."""
+    table = b"".join(struct.pack(f"<H{len(name)}sHBQ{len(shape)}Q", len(name), name, rank, code, 0, *shape)
+                     for name, rank, code, shape in fields)
+    head = b"tensor_file\0" + bytes([1, 0]) + struct.pack("<I", len(fields)) + table
+    return head + b"\0" * max(0, size - len(head))
+
+
+def test_header_quantities_a_real_file_never_has_are_one_short_line_from_a_real_process(tmp_path):
+    """An absurd rank (a NumPy traceback before), a field count the file cannot hold, a long name
+    and a shape far beyond the file: one short line naming the file and the item, exit 2."""
+    import subprocess
+    import sys
+    import time
+
+    cases = {
+        "rank": (_hostile_header([(b"rgb", 40, 10, [1] * 40)], 4096), "field 'rgb' has rank 40; at most 16"),
+        "count": (b"tensor_file\0" + bytes([1, 0]) + struct.pack("<I", 4_000_000) + b"\0" * 100,
+                  "claims 4000000 fields; at most 1024"),
+        "name": (_hostile_header([(b"n" * 5000, 1, 10, [1])], 8192), "field 1 of 1 has a name of 5000 bytes"),
+        "shape": (_hostile_header([(b"rgb", 5, 10, [2**40] * 5)], 4096), "claims a dimension of 1099511627776"),
+        "zero_shape": (_hostile_header([(b"rgb", 2, 10, [0, 2**63])], 4096), "claims a dimension of"),
+    }
+    for name, (raw, reason) in cases.items():
+        path = tmp_path / f"{name}.bsdf"
+        path.write_bytes(raw)
+        start = time.monotonic()
+        run = subprocess.run([sys.executable, "-m", "neuralbrdf", "sample", str(path), "--plan", "DS3", "--out",
+                              str(tmp_path / f"{name}.csv")], capture_output=True, text=True, timeout=120)
+        err = run.stderr.strip().splitlines()
+        assert run.returncode == 2 and len(err) == 1 and str(path) in err[0] and reason in err[0], (name, run.stderr)
+        assert len(err[0]) < 300 + len(str(path)) and time.monotonic() - start < 60
+        assert not (tmp_path / f"{name}.csv").exists()
+
+
+def test_many_tiny_fields_are_refused_in_one_short_line_without_a_dump(tmp_path):
+    """1 024 valid empty fields (the most read) and no RGL field among them: the line names a few
+    and counts the rest; a million such fields are refused before any is read."""
+    import time
+    import tracemalloc
+
+    many = tmp_path / "many.bsdf"
+    many.write_bytes(_hostile_header([(f"f{i:05d}".encode(), 1, 1, [0]) for i in range(1024)], 0))
+    with pytest.raises(InputError) as caught:
+        RglBsdf.load(many)
+    assert "missing field(s) description" in str(caught.value) and "and 1012 more" in str(caught.value)
+    assert len(str(caught.value)) < 600
+    million = tmp_path / "million.bsdf"
+    million.write_bytes(_hostile_header([(b"f", 1, 1, [0])] * 1_000_000, 0))
+    tracemalloc.start()
+    start = time.monotonic()
+    with pytest.raises(InputError, match="claims 1000000 fields; at most 1024"):
+        read_tensor_file(million)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert time.monotonic() - start < 5 and peak < 2 * million.stat().st_size
+
+
+def _mutations(data: bytes, rng: np.random.Generator, n: int):
+    """``n`` hostile variants of a tensor_file: random bytes of the header, random u64 and u16
+    words there (ranks, offsets, shapes), cuts, and random bytes of the data (NaNs, negatives)."""
+    header_end = 400
+    for index in range(n):
+        raw = bytearray(data)
+        kind = index % 4
+        if kind == 0:
+            for _ in range(rng.integers(1, 6)):
+                raw[rng.integers(12, header_end)] = int(rng.integers(0, 256))
+        elif kind == 1:
+            at = int(rng.integers(16, header_end - 8))
+            width = 8 if rng.random() < 0.5 else 2
+            value = int(rng.choice([0, 1, 2**15, 2**16 - 1, 2**31, 2**63, 2**64 - 1, int(rng.integers(0, 2**32))]))
+            raw[at:at + width] = (value % 2**(8 * width)).to_bytes(width, "little")
+        elif kind == 2:
+            raw = raw[: int(rng.integers(0, len(raw)))]
+        else:
+            for _ in range(rng.integers(1, 50)):
+                at = int(rng.integers(header_end, len(raw) - 4))
+                raw[at:at + 4] = rng.choice([np.float32("nan"), np.float32(-1.0), np.float32("inf")]).tobytes()
+        yield bytes(raw)
+
+
+@needs_shared
+def test_fuzzed_real_file_is_a_valid_read_or_one_line_in_bounded_time_and_memory(tmp_path):
+    import time
+    import tracemalloc
+    import warnings
+
+    data = SHARED_FILE.read_bytes()
+    path = tmp_path / "fuzzed.bsdf"
+    outcomes = {"read": 0, "refused": 0}
+    tracemalloc.start()
+    for raw in _mutations(data, np.random.default_rng(45), 400):
+        path.write_bytes(raw)
+        start = time.monotonic()
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                RglBsdf.load(path)
+            outcomes["read"] += 1
+        except InputError as error:
+            line = str(error)
+            assert "\n" not in line and line.startswith(str(path)) and len(line) < 400 + len(str(path)), line
+            outcomes["refused"] += 1
+        assert time.monotonic() - start < 5
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert outcomes["read"] > 0 and outcomes["refused"] > 100, outcomes
+    assert peak < 10 * len(data)
+
+
 # --------------------------------------------------------------------------- sources
 
 

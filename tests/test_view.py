@@ -201,6 +201,90 @@ def test_server_serves_the_page_plotly_and_views_and_refuses_bad_queries(scene):
         socket.create_connection(("127.0.0.1", port), timeout=2)
 
 
+def _status_with_host(port: int, host: str | None, path: str = "/api/scene") -> tuple[int, bytes]:
+    """GET ``path`` from 127.0.0.1:``port`` over a real socket with the ``Host`` header ``host``
+    (none when ``None``), as a page on a rebinding domain sends it."""
+    import http.client
+
+    connection = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
+    try:
+        connection.putrequest("GET", path, skip_host=True)
+        if host is not None:
+            connection.putheader("Host", host)
+        connection.endheaders()
+        answer = connection.getresponse()
+        return answer.status, answer.read()
+    finally:
+        connection.close()
+
+
+def test_command_answers_only_requests_addressed_to_its_own_host_and_port(files):
+    """DNS rebinding: a page on another site reaching 127.0.0.1 under its own name is refused."""
+    process, url = _start([str(files.glossy)])
+    try:
+        port = int(url.rsplit(":", 1)[1].strip("/"))
+        for host in (f"127.0.0.1:{port}", f"localhost:{port}", f"LOCALHOST:{port}", f"[::1]:{port}"):
+            assert _status_with_host(port, host)[0] == 200, host
+        for host in (f"attacker.example:{port}", "attacker.example", f"127.0.0.1:{port + 1}", f"localhost.evil:{port}",
+                     None, ""):
+            status, body = _status_with_host(port, host)
+            assert status == 403 and "answers requests to its own address" in json.loads(body)["error"], host
+            assert b"glossy" not in body
+    finally:
+        process.send_signal(signal.SIGINT)
+        out, err = process.communicate(timeout=30)
+    assert process.returncode == 0 and err == "", err
+
+
+def test_a_burst_of_connections_waits_in_the_backlog_and_is_answered(scene):
+    """200 connections at once complete while nothing accepts them (a backlog of 5 dropped most),
+    then 200 parallel requests are all answered."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    viewer = Viewer(scene)
+    port = viewer.address[1]
+    waiting = []
+    try:
+        for _ in range(200):
+            waiting.append(socket.create_connection(("127.0.0.1", port), timeout=3))
+    finally:
+        for connection in waiting:
+            connection.close()
+        viewer.stop()
+    assert len(waiting) == 200
+    with Viewer(scene) as viewer, ThreadPoolExecutor(200) as pool:
+        statuses = list(pool.map(lambda _: _get(viewer.url + "api/views?views=inplane&theta_i=30")[0], range(200)))
+    assert statuses == [200] * 200
+
+
+def test_silent_connections_hold_a_bounded_number_of_threads_and_are_closed(scene, monkeypatch):
+    """1 000 half-open connections held 1 000 threads for ever: now at most MAX_WORKERS threads
+    serve at once and a connection silent for the socket timeout is closed."""
+    import threading
+    import time
+
+    from neuralbrdf.explorer import server
+
+    monkeypatch.setattr(server._Handler, "timeout", 0.5)
+    before = threading.active_count()
+    silent = []
+    with Viewer(scene) as viewer:
+        port = viewer.address[1]
+        try:
+            for _ in range(100):
+                silent.append(socket.create_connection(("127.0.0.1", port), timeout=30))
+            time.sleep(0.3)
+            most = threading.active_count()
+            for connection in silent:  # each is closed by the server: recv sees the end
+                assert connection.recv(1) == b""
+            most = max(most, threading.active_count())
+            assert most <= before + 1 + server.MAX_WORKERS, most
+            assert _get(viewer.url + "api/scene")[0] == 200
+        finally:
+            for connection in silent:
+                connection.close()
+
+
 # --------------------------------------------------------------------------- command line
 
 
@@ -228,6 +312,24 @@ def test_bad_input_is_one_line_and_exit_2_before_serving(files, tmp_path, capsys
     out, err = capsys.readouterr()
     assert "serving" not in out
     assert len(err.strip().splitlines()) == 1 and expected[case] in err, err
+
+
+def test_a_unit_slip_in_the_table_names_the_views_own_option(files, tmp_path, capsys):
+    """The refusal said "read it with trust_units=True", which neuralbrdf view did not take."""
+    import dataclasses
+
+    from neuralbrdf.data.table import read_table
+
+    gold = read_table(files.table)
+    radians = tmp_path / "radians.csv"
+    write_table(dataclasses.replace(gold, **{name: np.radians(getattr(gold, name)) for name in
+                                             ("theta_i", "phi_i", "theta_o", "phi_o")}), radians)
+    assert cli(["view", str(files.spectral), "--table", str(radians)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(radians) in err[0] and "--trust-units" in err[0] and "trust_units=True" not in err[0]
+    with pytest.raises(InputError, match=r"nb\.read\(TABLE, trust_units=True\)"):
+        nb.view(files.spectral, table=radians)
+    assert nb.read(radians, trust_units=True).samples.n_rows == gold.n_rows   # what view --trust-units reads
 
 
 def _listening_address(port: int) -> str | None:
@@ -308,6 +410,64 @@ def test_page_draws_and_a_dragged_slider_redraws_the_slice(files, tmp_path):
             assert f"theta_i={reached:g}" in browser.evaluate("location.search")
             timings = browser.evaluate("window.viewerTimings")
             assert any(t["cause"] == "theta_i" and "inplane" in t["views"] for t in timings), timings
+            assert not browser.problems(), browser.problems()
+    finally:
+        process.send_signal(signal.SIGINT)
+        process.communicate(timeout=30)
+
+
+@needs_chromium
+def test_a_click_anywhere_on_the_slice_chart_picks_its_outgoing_angle(files, tmp_path):
+    """The page says "click the chart", but only a click on a curve picked: a click in the empty top
+    of the chart, far from every curve, now picks the angle under it as well."""
+    process, url = _start([str(files.spectral), "--truth", str(files.truth)])
+    try:
+        with Browser(tmp_path / "profile") as browser:
+            browser.open(url)
+            browser.wait_for("document.body?.dataset.ready === '1'", timeout=120)
+            _settled(browser)
+            x, y = browser.evaluate(
+                "(() => { const gd = document.getElementById('plot-inplane'); const box = gd.getBoundingClientRect();"
+                " const size = gd._fullLayout._size; return [box.left + size.l + gd._fullLayout.xaxis.d2p(-55),"
+                " box.top + size.t + 4]; })()")
+            for kind in ("mouseMoved", "mousePressed", "mouseReleased"):
+                browser.call("Input.dispatchMouseEvent", {"type": kind, "x": x, "y": y, "button": "left",
+                                                          "buttons": 0 if kind == "mouseReleased" else 1,
+                                                          "clickCount": 1})
+            picked = browser.wait_for("new URLSearchParams(location.search).get('pick_theta')", timeout=30)
+            assert abs(float(picked) - 55) <= 1, picked
+            assert not browser.problems(), browser.problems()
+    finally:
+        process.send_signal(signal.SIGINT)
+        process.communicate(timeout=30)
+
+
+@needs_chromium
+def test_rgb_files_only_draw_no_empty_spectrum_axes_and_metadata_keys_stay_whole(files, tmp_path):
+    """With RGB files only the spectrum chart drew empty axes of −1…6 nm, and the file table's
+    metadata keys wrapped letter by letter."""
+    from onnx_fixtures import Lambert, rgb_metadata
+
+    # a long unbroken metadata value (a provenance path) squeezes the key column
+    metadata = {**rgb_metadata("nlb"), "neuralbrdf.provenance": "/runs/" + "a_long_folder_name/" * 40 + "best.ckpt"}
+    model = export_module(Lambert((0.5, 0.4, 0.3)), tmp_path / "long.onnx", metadata, spectral=False)
+    process, url = _start([str(model)])
+    try:
+        with Browser(tmp_path / "profile", width=900) as browser:
+            browser.open(url)
+            browser.wait_for("document.body?.dataset.ready === '1'", timeout=120)
+            browser.evaluate("document.getElementById('view-spectrum').scrollIntoView()")
+            browser.wait_for("document.getElementById('plot-spectrum')._fullLayout !== undefined && "
+                             "!document.body.dataset.stale.split(',').includes('spectrum')", timeout=60)
+            layout = browser.evaluate("(() => { const l = document.getElementById('plot-spectrum')._fullLayout; "
+                                      "return [l.xaxis.visible, l.yaxis.visible, l.title.text]; })()")
+            assert layout == [False, False, "no spectral file: colours only"], layout
+            lines = browser.evaluate(  # the line boxes of each key's text
+                "(() => { const d = document.querySelector('table.files details'); d.open = true;"
+                " return [...d.querySelectorAll('table tr')].slice(1).map((r) => { const range = document.createRange();"
+                " range.selectNodeContents(r.cells[0]); return [r.cells[0].textContent, range.getClientRects().length]; });"
+                " })()")
+            assert lines and all(count == 1 for _, count in lines), lines
             assert not browser.problems(), browser.problems()
     finally:
         process.send_signal(signal.SIGINT)

@@ -28,6 +28,7 @@ import numpy as np
 from neuralbrdf.data.plans import Plan
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
+from neuralbrdf.limits import file_problem
 
 VIRTUAL_PREFIX = "virtual:"
 
@@ -49,7 +50,7 @@ class TruthMaterial:
 
             get_material(self.source[len(VIRTUAL_PREFIX):])
         elif not Path(self.source).is_file():
-            raise InputError("file not found", path=self.source)
+            raise InputError(file_problem(self.source) or "file not found", path=self.source)
 
     @property
     def is_virtual(self) -> bool:

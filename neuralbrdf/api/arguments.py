@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
@@ -29,6 +30,22 @@ def check_integers(**values) -> None:
     for name, value in values.items():
         if value is not None and (isinstance(value, bool) or not isinstance(value, int)):
             raise InputError(f"{name} must be an integer, got {type(value).__name__} {value!r}")
+
+
+def check_flags(**values) -> None:
+    """:class:`InputError` naming the first of ``values`` that is not a real ``bool`` (``"no"`` and
+    ``0`` are not flags: a string would be true)."""
+    for name, value in values.items():
+        if not isinstance(value, bool):
+            raise InputError(f"{name}: expected True or False, got {type(value).__name__} {value!r}")
+
+
+def check_numbers(**values) -> None:
+    """:class:`InputError` naming the first of ``values`` that is neither a finite real number nor ``None``."""
+    for name, value in values.items():
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
+                                  or not math.isfinite(value)):
+            raise InputError(f"{name}: expected a finite number, got {type(value).__name__} {value!r}")
 
 
 def check_positive(**values) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from typing import TYPE_CHECKING
 
-from neuralbrdf.api.arguments import PathLike
+from neuralbrdf.api.arguments import PathLike, check_integers, check_text
 from neuralbrdf.api.materials import Source, read
 from neuralbrdf.api.model_files import Model, model_path
 from neuralbrdf.errors import InputError
@@ -39,10 +39,15 @@ def view(*models: Model | PathLike, truth: Model | PathLike | None = None,
     from neuralbrdf.explorer.launch import open_scene
     from neuralbrdf.explorer.server import Viewer
 
+    check_text("host", host, optional=False)
+    check_integers(port=port)
     label = None
     if table is not None and not isinstance(table, (Source, Table)):
+        from neuralbrdf.data.units import overridden_by
+
         label = os.fspath(table)
-        table = read(table, reference)
+        with overridden_by("nb.view(..., table=nb.read(TABLE, trust_units=True))"):
+            table = read(table, reference)
     elif reference is not None:
         raise InputError("a Munsell reference goes with a GCMS raw table file")
     if isinstance(table, Source):

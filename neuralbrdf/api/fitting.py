@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from neuralbrdf.api.arguments import PathLike, as_path
+from neuralbrdf.api.arguments import PathLike, as_path, check_flags
 from neuralbrdf.api.materials import Source, read
 from neuralbrdf.api.model_files import Model, export
 from neuralbrdf.errors import InputError
@@ -96,8 +96,9 @@ def fit(kind: str, data: Source | PathLike | None = None, *, config: PathLike | 
     from neuralbrdf.data.units import overridden_by
     from neuralbrdf.lightning.fit_call import fit_run
 
-    if kind not in FIT_KINDS:
+    if not isinstance(kind, str) or kind not in FIT_KINDS:
         raise InputError(f"unknown fit kind {kind!r}; expected one of {', '.join(FIT_KINDS)}")
+    check_flags(overwrite=overwrite)
     config = os.fspath(as_path(config, "config", "a shipped config's name or a YAML file")) if config is not None \
         else FIT_KINDS[kind]
     if run_dir is not None:

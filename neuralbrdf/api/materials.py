@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from neuralbrdf.api.arguments import PathLike, as_path, check_text
+from neuralbrdf.api.arguments import PathLike, as_path, check_flags, check_text
 from neuralbrdf.errors import InputError
 
 if TYPE_CHECKING:
@@ -94,6 +94,7 @@ def read(source: PathLike, reference: PathLike | None = None, *, plan: str | Pat
     if plan is not None and not isinstance(plan, (str, os.PathLike)):
         raise InputError(f"plan: expected a plan name or a plan file path, got {type(plan).__name__} {plan!r}")
     check_text("name", name)
+    check_flags(trust_units=trust_units)
     suffix = Path(text).suffix
     sampled = not text.startswith(VIRTUAL_PREFIX) and suffix in SAMPLED_SUFFIXES
     if plan is not None and not sampled:

@@ -6,7 +6,7 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from neuralbrdf.api.arguments import PathLike, as_path, check_text
+from neuralbrdf.api.arguments import PathLike, as_path, check_flags, check_text
 from neuralbrdf.api.materials import VIRTUAL_PREFIX, Source
 from neuralbrdf.errors import InputError
 
@@ -18,7 +18,9 @@ class Model:
     """An exported model file (docs/formats.md#onnx-model-files), evaluated with onnxruntime: ``model(wi, wo[, wavelength])``.
 
     ``wi``, ``wo``: unit directions ``[N, 3]`` (or one ``[3]``); ``wavelength``: nm, ``[N]`` or one
-    number, for spectral models only.  Returns the BRDF in sr⁻¹: ``[N]`` for spectral models,
+    number within the model's :attr:`wavelength_range_nm`, for spectral models only; a wavelength
+    outside it or a direction that is not finite is refused with
+    :class:`~neuralbrdf.errors.InputError`.  Returns the BRDF in sr⁻¹: ``[N]`` for spectral models,
     ``[N, 3]`` (linear sRGB) otherwise; 0 below the horizon.
     """
 
@@ -45,12 +47,22 @@ class Model:
             raise InputError(f"wi and wo must both be [N, 3] unit vectors, got {list(wi.shape)} and {list(wo.shape)}")
         if self.is_spectral == (wavelength is None):
             raise InputError(f"{self.path.name} is {'spectral: give a wavelength (nm)' if self.is_spectral else 'RGB: give no wavelength'}")
+        for name, directions in (("wi", wi), ("wo", wo)):
+            bad = ~np.isfinite(directions).all(axis=1)
+            if bad.any():
+                raise InputError(f"{name}: direction {int(np.argmax(bad))} is not finite "
+                                 f"({directions[int(np.argmax(bad))].tolist()}); expected unit vectors")
         if wavelength is not None:
             try:
                 wavelength = np.broadcast_to(wavelength, (len(wi),))
             except ValueError:
                 raise InputError(f"wavelength must be one number or {len(wi)} (one per direction pair), got shape "
                                  f"{list(wavelength.shape)}") from None
+            low, high = self.wavelength_range_nm
+            outside = ~((wavelength >= low) & (wavelength <= high))
+            if outside.any():
+                raise InputError(f"wavelength {wavelength[int(np.argmax(outside))]:g} nm is outside {self.path.name}'s "
+                                 f"range {low:g}-{high:g} nm (wavelengths are in nm)")
         return self._evaluator.values(wi, wo, wavelength)
 
     def __repr__(self) -> str:
@@ -115,6 +127,8 @@ def export(checkpoint: PathLike | None, out: PathLike, material: str | None = No
         as_path(model, "model", "a model file (.onnx) path")
     as_path(out, "out", "an output model file (.onnx) path")
     check_text("material", material)
+    check_text("config", config, optional=False)
+    check_flags(rgb_head=rgb_head, **({} if fast is None else {"fast": fast}))
     try:
         export_model(out, checkpoint=checkpoint, model=model, material=material, fast=fast, rgb_head=rgb_head,
                      config=config)
@@ -142,7 +156,7 @@ def truth(source: Source | PathLike, out: PathLike, *, log=None) -> Model:
 
     as_path(out, "out", "an output model file (.onnx) path")
     if not isinstance(source, Source):
-        as_path(source, "source", "a Source, 'virtual:NAME', an NBRDF .h5 or a MERL .binary")
+        as_path(source, "source", "a Source, 'virtual:NAME', an NBRDF .h5, a MERL .binary or an RGL .bsdf")
     if isinstance(source, Source):
         if not source.has_truth:
             raise InputError(f"a measurement ({source.kind}) is known only where it was measured; a truth comes from "

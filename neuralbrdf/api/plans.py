@@ -8,7 +8,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from neuralbrdf.api.arguments import PathLike, as_path, check_integers
+from neuralbrdf.api.arguments import PathLike, as_path, check_flags, check_integers, check_numbers, check_text
 from neuralbrdf.api.materials import Source, read
 from neuralbrdf.errors import InputError
 
@@ -80,6 +80,9 @@ def design_plan(budget: int, out: PathLike | None = None, *, kind: str = "nlb_sp
     from neuralbrdf.acquisition.design import design
 
     check_integers(budget=budget)
+    check_text("kind", kind, optional=False)
+    check_numbers(max_theta=max_theta, step=step, retro_band=retro_band)
+    check_flags(progress=progress)
     settings = _acquisition_config(config, overrides, "design")
     instrument = _instrument(max_theta, step, retro_band)
     if out is not None:
@@ -114,6 +117,7 @@ def next_pairs(measurement: Source | PathLike, count: int = 1, out: PathLike | N
     from neuralbrdf.acquisition.next_pairs import next_pairs as answer
 
     check_integers(count=count)
+    check_numbers(max_theta=max_theta, step=step, retro_band=retro_band)
     if not isinstance(measurement, Source):
         measurement = read(measurement, reference)
     elif reference is not None:
@@ -161,6 +165,10 @@ def acquire(source: PathLike, out_dir: PathLike | None = None, *, start: PathLik
 
     settings = load_acquisition_config(as_path(config, "config", "a shipped config's name or a YAML file"))
     check_integers(max_pairs=max_pairs, count=count, seed=seed)
+    check_numbers(target_delta_e=target_delta_e, noise=noise, max_theta=max_theta, step=step, retro_band=retro_band)
+    check_flags(render=render, overwrite=overwrite)
+    if progress is not None and not callable(progress):
+        raise InputError(f"progress: expected a function called after each step, got {type(progress).__name__}")
     changes = {key: value for key, value in (("start", None if start is None else check_plan(start, "start",
                                                                                                 in_plane=True)),
                                              ("max_pairs", max_pairs), ("count", count), ("noise", noise),

@@ -6,7 +6,8 @@ import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from neuralbrdf.api.arguments import PathLike, as_path, check_integers, check_positive, check_text
+from neuralbrdf.api.arguments import (PathLike, as_path, check_flags, check_integers, check_numbers, check_positive,
+                                      check_text)
 from neuralbrdf.api.model_files import Model, model_path
 from neuralbrdf.errors import InputError
 from neuralbrdf.render import DEFAULT_VARIANT
@@ -45,6 +46,8 @@ def evaluate(model: Model | PathLike, truth: Model | PathLike, out_dir: PathLike
     check_integers(spp=spp, resolution=resolution, seed=seed)  # their values: checked by the evaluation
     check_text("variant", variant)
     check_text("material", material)
+    check_text("backend", backend, optional=False)
+    check_flags(fast=fast, images=images)
     variant = measurement_variant(model_path(truth, "truth"), variant)
     settings = RenderSettings(variant, spp, DEFAULT_RESOLUTION if resolution is None else resolution, seed, backend,
                               fast)  # checked by the evaluation before any work
@@ -98,6 +101,8 @@ def render_image(model: Model | PathLike | None = None, out: PathLike | None = N
     check_text("variant", variant, optional=False)
     for name, value in (("material", material), ("reference_bsdf", reference_bsdf), ("backend", backend)):
         check_text(name, value)
+    check_numbers(rgb_tolerance=rgb_tolerance)
+    check_flags(exr=exr, fast=fast, progress=progress)
     written = []
     if out is not None:
         out = as_path(out, "out", "an output image (.png) path")

@@ -273,7 +273,15 @@ def _trust_units(parser: argparse.ArgumentParser) -> None:
 def _delegated(name: str):
     """The ``main(argv)`` of a command with its own parser (train: LightningCLI; export; render)."""
     if name == "train":
-        from neuralbrdf.lightning.run import main as train
+        def train(argv: list[str]) -> int:
+            from neuralbrdf.lightning.train_precheck import refused_table
+
+            refused = refused_table(argv)
+            if refused is not None:
+                return refused
+            from neuralbrdf.lightning.run import main
+
+            return main(argv)
 
         return train
     if name == "render":  # imports Mitsuba: only when asked for

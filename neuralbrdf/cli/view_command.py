@@ -23,6 +23,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--table", default=None, help="measurement to draw beside the models: a BRDF table CSV, a "
                         "GCMS raw CSV with --reference, or virtual:NAME (a shipped DS1 measurement)")
     parser.add_argument("--reference", default=None, help="Munsell N9 GCMS raw CSV, when --table is a GCMS raw file")
+    parser.add_argument("--trust-units", action="store_true", help="read the --table as it is where its numbers look "
+                        "like a unit slip (angles in radians, wavelengths in um, ...; docs/robustness.md)")
     parser.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine "
                         "only; anything else exposes the page to the network)")
     parser.add_argument("--port", type=int, default=0, help="port (default 0: a free one, printed)")
@@ -34,13 +36,15 @@ def run(args) -> int:
     import sys
 
     from neuralbrdf import api
+    from neuralbrdf.cli.commands import options
     from neuralbrdf.errors import InputError
 
     if args.reference is not None and args.table is None:
-        raise InputError("--reference goes with a GCMS raw --table", column="--reference")
+        raise InputError("--reference goes with a GCMS raw --table", key="--reference")
     try:
-        viewer = api.view(*args.models, truth=args.truth, table=args.table, reference=args.reference, host=args.host,
-                          port=args.port, start=False)
+        with options():  # a unit slip in --table names --trust-units
+            table = None if args.table is None else api.read(args.table, args.reference, trust_units=args.trust_units)
+        viewer = api.view(*args.models, truth=args.truth, table=table, host=args.host, port=args.port, start=False)
     except KeyboardInterrupt:  # Ctrl-C while the files are checked: nothing was served
         print("neuralbrdf view: interrupted", file=sys.stderr)
         return 130

@@ -10,6 +10,11 @@ Tables come from colour-science (CMFs, illuminant, matrix), sampled onto the dat
 grid with colour's own reshaping (``Align``: interpolation, constant extrapolation).  Sums are
 plain Riemann sums on that grid, so the interval cancels in ``k``.
 
+**One rule for every colour** (``to-rgb``, ``plot``, the viewer, an exported RGB head): a
+spectrum is converted only when its wavelength range holds at least :data:`MIN_OBSERVER_COVERAGE`
+of each of the observer's X, Y, Z weights over the sRGB conversion's 400–700 nm
+(:func:`colour_problem`); a table of 500–800 nm would otherwise lose every blue.
+
 All conversions accept NumPy arrays and PyTorch tensors (``[..., W]`` / ``[..., 3]``); torch
 inputs keep their autograd graph.
 """
@@ -31,6 +36,12 @@ CMFS_NAME = "CIE 1931 2 Degree Standard Observer"
 ILLUMINANT_NAME = "D65"
 #: Wavelength range (nm) covered by the CIE 1931 colour-matching functions.
 CMFS_RANGE_NM = (360.0, 830.0)
+
+#: Wavelengths (nm) on which a spectral model is integrated to sRGB (docs/formats.md#spectral-to-linear-srgb).
+SRGB_GRID_NM = np.arange(400.0, 701.0, 10.0)
+#: Least share of each of the CIE 1931 X, Y, Z weights (D65, on :data:`SRGB_GRID_NM`) that a
+#: wavelength range must hold for a colour to be computed from it (module docstring).
+MIN_OBSERVER_COVERAGE = 0.99
 
 #: IEC 61966-2-1 (sRGB) XYZ → linear RGB matrix, ``rgb = M @ xyz``.
 XYZ_TO_LINEAR_SRGB = np.array(colour.RGB_COLOURSPACES["sRGB"].matrix_XYZ_to_RGB, dtype=np.float64)
@@ -103,6 +114,26 @@ def xyz_to_linear_srgb(xyz):
     if xyz.shape[-1] != 3:
         raise InputError(f"XYZ arrays need a last axis of 3, got shape {tuple(xyz.shape)}")
     return _matmul_constant(xyz, XYZ_TO_LINEAR_SRGB.T)
+
+
+def observer_coverage(wavelength_range_nm: tuple[float, float]) -> np.ndarray:
+    """The share of each of the X, Y, Z weights of the sRGB conversion's grid (docs/formats.md#spectral-to-linear-srgb) that lies
+    within ``wavelength_range_nm`` (``[3]``; the rest a colour would take by extrapolation)."""
+    weights = xyz_weights(SRGB_GRID_NM)
+    inside = (SRGB_GRID_NM >= wavelength_range_nm[0]) & (SRGB_GRID_NM <= wavelength_range_nm[1])
+    return weights[inside].sum(axis=0) / weights.sum(axis=0)
+
+
+def colour_problem(wavelength_range_nm: tuple[float, float], what: str) -> str | None:
+    """Why ``what`` (``"the model"``, a table's file) of this wavelength range has no colour, or
+    ``None`` when it has one (module docstring)."""
+    coverage = observer_coverage(wavelength_range_nm)
+    if coverage.min() >= MIN_OBSERVER_COVERAGE:
+        return None
+    low, high = wavelength_range_nm
+    return (f"{what} covers {low:g}-{high:g} nm, which holds {100 * coverage.min():.3g} % of the CIE 1931 observer's "
+            f"weight over the sRGB conversion's 400-700 nm (at least {100 * MIN_OBSERVER_COVERAGE:g} % needed): its "
+            "RGB would be extrapolated")
 
 
 def spectral_to_linear_srgb(values, wavelengths_nm):

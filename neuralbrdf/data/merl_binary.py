@@ -28,6 +28,7 @@ from neuralbrdf.data.plans import plan_label, plan_spherical
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
 from neuralbrdf.geometry import half_diff_angles, spherical_pair_to_vectors
+from neuralbrdf.limits import file_problem
 
 #: MERL's grid ``(theta_h, theta_d, phi_d)`` resolution.
 MERL_SHAPE = (90, 90, 180)
@@ -49,7 +50,7 @@ class MerlBrdf:
         """Read a ``.binary`` file, checking its header against its size before reading the data."""
         path = Path(path)
         if not path.is_file():
-            raise InputError("no such MERL .binary file", path=path)
+            raise InputError(file_problem(path) or "no such MERL .binary file", path=path)
         note_input(path)
         size = path.stat().st_size
         expected_size = HEADER_BYTES + 3 * int(np.prod(MERL_SHAPE)) * 8

@@ -42,7 +42,7 @@ from neuralbrdf.atomic import note_input
 from neuralbrdf.data.plans import plan_label, plan_spherical
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
-from neuralbrdf.limits import MAX_JSON_BYTES, check_file_size
+from neuralbrdf.limits import MAX_JSON_BYTES, check_file_size, file_problem
 from neuralbrdf.geometry import half_diff_vectors, normalize, spherical_pair_to_vectors
 
 #: The report's five MERL materials: latent-fitting test materials, never pretraining data.
@@ -99,8 +99,8 @@ class NbrdfNetwork:
         for file in (h5_path, json_path):
             if not file.is_file():
                 where = "" if file.is_absolute() else f" at {file.resolve()} (relative to the folder the command runs in)"
-                raise InputError(f"file not found{where}; an NBRDF network needs both NAME.h5 and NAME.json",
-                                 path=file)
+                raise InputError(file_problem(file) or f"file not found{where}; an NBRDF network needs both NAME.h5 "
+                                 "and NAME.json", path=file)
         note_input(h5_path)
         note_input(json_path)
         check_file_size(json_path, MAX_JSON_BYTES, "NBRDF architecture file")

@@ -50,7 +50,7 @@ from neuralbrdf.atomic import file_version
 from neuralbrdf.data.calibration import CALIBRATED_WAVELENGTHS_NM
 from neuralbrdf.data.plans import plan_label, plan_spherical
 from neuralbrdf.data.table import BrdfTable
-from neuralbrdf.data.tensor_file import read_tensor_file, write_tensor_file
+from neuralbrdf.data.tensor_file import read_tensor_file, shown, write_tensor_file
 from neuralbrdf.errors import InputError, one_line
 from neuralbrdf.geometry import spherical_pair_to_vectors
 
@@ -231,7 +231,9 @@ def _check_fields(fields: dict[str, np.ndarray], path: Path) -> bool:
     required = {**COMMON_FIELDS, values_field: ("<f4", 5), **({"wavelengths": ("<f4", 1)} if spectral else {})}
     missing = [name for name in required if name not in fields]
     if missing or (spectral and "rgb" in fields):
-        found = ", ".join(fields) or "none"
+        names = [shown(name) for name in list(fields)[:12]]
+        more = f" and {len(fields) - len(names)} more" if len(fields) > len(names) else ""
+        found = ", ".join(names) + more or "none"
         raise InputError(f"not an RGL measured BRDF: missing field(s) {', '.join(missing) or 'none'} (it has {found}); "
                          "expected description, theta_i, phi_i, ndf, sigma, vndf, luminance, jacobian and either rgb "
                          "or spectra with wavelengths", path=path)
@@ -248,8 +250,13 @@ def _check_fields(fields: dict[str, np.ndarray], path: Path) -> bool:
         raise _fail(path, "phi_i", f"{n_phi} incident azimuths: an anisotropic measurement; only isotropic files (one "
                     "phi_i) are read")
     theta = fields["theta_i"].astype(np.float64)
-    if n_theta < 1 or np.any(np.diff(theta) <= 0) or theta[0] < 0 or theta[-1] > np.pi / 2 + 1e-4:
-        raise _fail(path, "theta_i", f"expected increasing incident angles within [0, pi/2] rad, got {theta.tolist()}")
+    if n_theta < 1:
+        raise _fail(path, "theta_i", "no incident angle; expected increasing angles within [0, pi/2] rad")
+    wrong = (theta < 0) | (theta > np.pi / 2 + 1e-4) | np.concatenate([[False], np.diff(theta) <= 0])
+    if wrong.any():
+        first = int(np.argmax(wrong))
+        raise _fail(path, "theta_i", f"expected increasing incident angles within [0, pi/2] rad, got "
+                    f"{theta[first]:.6g} at index {first} ({int(wrong.sum())} of {n_theta} out of order or range)")
     values, luminance, vndf = fields[values_field], fields["luminance"], fields["vndf"]
     channels = len(fields["wavelengths"]) if spectral else 3
     n = luminance.shape[2]

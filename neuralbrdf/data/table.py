@@ -277,18 +277,23 @@ class BrdfTable:
         """Linear-sRGB version of a spectral table (docs/formats.md#spectral-to-linear-srgb); an RGB table is returned as is.
 
         Spectra outside the sRGB gamut give negative channels; they are clipped to 0 (the table
-        holds BRDF values) with a warning giving their count.
+        holds BRDF values) with a warning giving their count.  A table whose wavelengths do not
+        hold the observer's weight over 400–700 nm has no colour
+        (:func:`~neuralbrdf.data.colorimetry.colour_problem`): :class:`InputError` naming its source.
         """
         # Imported on use: plain table I/O should not pay for importing colour-science.
-        from neuralbrdf.data.colorimetry import spectral_to_linear_srgb
+        from neuralbrdf.data.colorimetry import colour_problem, spectral_to_linear_srgb
 
         if not self.is_spectral:
             return self
-        rgb = clip_negatives(
-            spectral_to_linear_srgb(self.values, self.wavelengths),
-            self.source,
-            "linear-sRGB value(s) (spectra outside the sRGB gamut)",
-        )
+        problem = colour_problem((float(self.wavelengths[0]), float(self.wavelengths[-1])), "the table")
+        if problem is not None:
+            raise InputError(f"{problem}; no colour is computed from it", path=self.source)
+        try:
+            linear = spectral_to_linear_srgb(self.values, self.wavelengths)
+        except InputError as error:
+            raise InputError(error.reason, path=self.source) if error.path is None else error from None
+        rgb = clip_negatives(linear, self.source, "linear-sRGB value(s) (spectra outside the sRGB gamut)")
         weight = None if self.weight is None else self.weight.copy()
         return BrdfTable(
             self.theta_i.copy(), self.phi_i.copy(), self.theta_o.copy(), self.phi_o.copy(),

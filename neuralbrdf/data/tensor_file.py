@@ -10,9 +10,11 @@ reader ``brdf-loader`` (``Tensor`` in ``powitacq.inl``), in which the RGL materi
   sizes;
 * each field's data at its offset, in C order (the writer aligns offsets to 8 bytes).
 
-:func:`read_tensor_file` checks all of it against the file's size before reading any data, so a
-truncated or foreign file is one :class:`~neuralbrdf.errors.InputError` naming the file and what
-was expected; :func:`write_tensor_file` writes the same layout atomically.
+:func:`read_tensor_file` checks all of it against the file's size and the limits of
+:mod:`neuralbrdf.limits` (field count, rank, name length) before it allocates anything, so memory
+stays proportional to the file and a truncated, foreign or hostile file is one
+:class:`~neuralbrdf.errors.InputError` naming the file, the first offending item and what was
+expected; :func:`write_tensor_file` writes the same layout atomically.
 """
 
 from __future__ import annotations
@@ -25,7 +27,8 @@ import numpy as np
 
 from neuralbrdf.atomic import atomic_path, note_input
 from neuralbrdf.errors import InputError
-from neuralbrdf.limits import MAX_TENSOR_FILE_BYTES, check_file_size
+from neuralbrdf.limits import (MAX_TENSOR_FIELDS, MAX_TENSOR_FILE_BYTES, MAX_TENSOR_NAME_BYTES, MAX_TENSOR_RANK,
+                               check_file_size, file_problem)
 
 MAGIC = b"tensor_file\0"
 VERSION = (1, 0)
@@ -61,7 +64,7 @@ def read_tensor_file(path: str | PathLike[str]) -> dict[str, np.ndarray]:
     if path.is_dir():
         raise InputError("is a directory; expected a tensor_file such as NAME.bsdf", path=path)
     if not path.is_file():
-        raise InputError("no such file", path=path)
+        raise InputError(file_problem(path) or "no such file", path=path)
     size = check_file_size(path, MAX_TENSOR_FILE_BYTES, "tensor_file")
     note_input(path)
     data = path.read_bytes()
@@ -76,32 +79,53 @@ def read_tensor_file(path: str | PathLike[str]) -> dict[str, np.ndarray]:
         raise InputError(f"tensor_file version {version[0]}.{version[1]}; expected {VERSION[0]}.{VERSION[1]}",
                          path=path)
     (count,) = header.take("<I", "the field count")
+    if count > MAX_TENSOR_FIELDS:
+        raise InputError(f"tensor_file header claims {count} fields; at most {MAX_TENSOR_FIELDS} are read "
+                         "(neuralbrdf.limits)", path=path)
     entries: dict[str, tuple[np.dtype, int, tuple[int, ...]]] = {}
     for index in range(count):
         (length,) = header.take("<H", f"the name of field {index + 1} of {count}")
+        if length > MAX_TENSOR_NAME_BYTES:
+            raise InputError(f"field {index + 1} of {count} has a name of {length} bytes; at most "
+                             f"{MAX_TENSOR_NAME_BYTES} (neuralbrdf.limits)", path=path)
         (raw_name,) = header.take(f"{length}s", f"the name of field {index + 1} of {count}")
         try:
             name = raw_name.decode("utf-8")
         except UnicodeDecodeError:
-            raise InputError(f"field {index + 1} of {count} has a name that is not UTF-8: {raw_name!r}",
+            raise InputError(f"field {index + 1} of {count} has a name that is not UTF-8: {shown(repr(raw_name))}",
                              path=path) from None
-        rank, code, offset = header.take("<HBQ", f"the description of field {name!r}")
-        shape = header.take(f"<{rank}Q", f"the shape of field {name!r}")
+        rank, code, offset = header.take("<HBQ", f"the description of field {shown(name)!r}")
+        if rank > MAX_TENSOR_RANK:
+            raise InputError(f"field {shown(name)!r} has rank {rank}; at most {MAX_TENSOR_RANK} (neuralbrdf.limits)",
+                             path=path)
+        shape = header.take(f"<{rank}Q", f"the shape of field {shown(name)!r}")
         if code not in DTYPES:
-            raise InputError(f"field {name!r} has type code {code}; expected one of 1-11 (u8 ... f64)", path=path)
+            raise InputError(f"field {shown(name)!r} has type code {code}; expected one of 1-11 (u8 ... f64)",
+                             path=path)
         if name in entries:
-            raise InputError(f"field {name!r} appears twice", path=path)
+            raise InputError(f"field {shown(name)!r} appears twice", path=path)
         entries[name] = (np.dtype(DTYPES[code]), offset, shape)
     fields = {}
     for name, (dtype, offset, shape) in entries.items():
+        if max(shape, default=0) > len(data):
+            raise InputError(f"truncated or corrupt tensor_file: field {shown(name)!r} claims a dimension of "
+                             f"{max(shape)} in a file of {len(data)} bytes", path=path)
         count = int(np.prod(shape, dtype=object))
+        if count * dtype.itemsize > len(data):
+            raise InputError(f"truncated or corrupt tensor_file: field {shown(name)!r} {list(shape)} needs "
+                             f"{float(count * dtype.itemsize):.3g} bytes, more than the file's {len(data)}", path=path)
         end = offset + count * dtype.itemsize
         if count and (offset < header.position or end > len(data)):
             where = "overlap the header" if offset < header.position else f"lie beyond its {len(data)} bytes"
-            raise InputError(f"truncated or corrupt tensor_file: the data of field {name!r} {list(shape)} (bytes "
-                             f"{offset}-{end}) would {where}", path=path)
+            raise InputError(f"truncated or corrupt tensor_file: the data of field {shown(name)!r} {list(shape)} "
+                             f"(bytes {offset}-{end}) would {where}", path=path)
         fields[name] = np.frombuffer(data, dtype=dtype, count=count, offset=offset if count else 0).reshape(shape)
     return fields
+
+
+def shown(text: str, limit: int = 40) -> str:
+    """``text`` shortened to ``limit`` characters for an error line (a name from a file may be long)."""
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def write_tensor_file(path: str | PathLike[str], fields: dict[str, np.ndarray]) -> None:

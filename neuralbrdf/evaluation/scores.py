@@ -332,9 +332,11 @@ def fit_scores(pred_fit, fit_values, theta_i, theta_r, pred_truth=None, truth_va
     ``inplane_glossy_rel_rmse`` and ``inplane_diffuse_rel_rmse`` of ``pred_fit`` against the
     values ``[N, C]`` the model was given, at signed in-plane angles ``theta_i, theta_r`` (rows off
     the plane of incidence count by their in-plane equivalent, ``|θi − θr| = 2 θh``); a region
-    without a sample above the floor gives ``None``.  With a truth (values on the dense Low set of
-    a virtual material or NBRDF proxy, docs/evaluate.md#metrics, the model's values there and the incident polar
-    angles), ``hemisphere_logcos_rmse``.
+    without a sample above the floor gives ``None``.  With a truth (values on the fit's evaluation
+    plan, by default the dense Löw set, of a virtual material or NBRDF proxy, the model's values
+    there and the incident polar angles), ``plan_logcos_rmse``: the log-cosine RMSE on that plan's
+    pairs, named apart from ``neuralbrdf evaluate``'s ``hemisphere_logcos_rmse`` over stratified
+    hemisphere pairs (docs/evaluate.md#metrics), a different number for the same model.
     """
     glossy = is_glossy(theta_i, theta_r)
     metrics: dict[str, float | None] = {}
@@ -345,6 +347,6 @@ def fit_scores(pred_fit, fit_values, theta_i, theta_r, pred_truth=None, truth_va
         except ValueError:
             metrics[name] = None
     if truth_values is not None:
-        metrics["hemisphere_logcos_rmse"] = hemisphere_logcos_rmse(np.clip(pred_truth, 0.0, None), truth_values,
-                                                                   truth_theta_i)
+        metrics["plan_logcos_rmse"] = hemisphere_logcos_rmse(np.clip(pred_truth, 0.0, None), truth_values,
+                                                             truth_theta_i)
     return metrics

@@ -13,6 +13,7 @@ import warnings
 
 import numpy as np
 
+from neuralbrdf.data.colorimetry import colour_problem
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.explorer.models import channel_of_rgb
 
@@ -33,9 +34,14 @@ class Measured:
         self.theta_r = np.where(flip, -theta_r, theta_r)
         self.values = table.values[rows]
         self.wavelengths = table.wavelengths
-        with warnings.catch_warnings():  # out-of-gamut samples are clipped to 0 by to_rgb; a view needs no warning
-            warnings.simplefilter("ignore")
-            self.rgb = table.to_rgb().values[rows]
+        #: Why a spectral table has no colour (:func:`~neuralbrdf.data.colorimetry.colour_problem`), else ``None``.
+        self.no_colour = None if not self.is_spectral else colour_problem(
+            (float(self.wavelengths[0]), float(self.wavelengths[-1])), "the measurement")
+        self.rgb = None
+        if self.no_colour is None:
+            with warnings.catch_warnings():  # out-of-gamut samples are clipped to 0 by to_rgb; a view needs no warning
+                warnings.simplefilter("ignore")
+                self.rgb = table.to_rgb().values[rows]
         self.n_rows, self.n_dropped = int(rows.sum()), int((~rows).sum())
 
     @property
@@ -48,7 +54,10 @@ class Measured:
 
     def channel(self, rows: np.ndarray, channel: str, wavelength_nm: float) -> np.ndarray | None:
         """Values of ``rows`` (a mask or indices) in one channel (:data:`~neuralbrdf.explorer.models.CHANNELS`):
-        at a wavelength by linear interpolation between the table's columns (``None`` for an RGB table)."""
+        at a wavelength by linear interpolation between the table's columns (``None`` for an RGB table,
+        and for a colour of a table without one)."""
+        if channel != "wavelength" and self.rgb is None:
+            return None
         if channel == "wavelength":
             if not self.is_spectral:
                 return None

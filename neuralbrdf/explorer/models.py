@@ -14,6 +14,9 @@ the viewer shows the model itself), created once.  A view asks it for one *chann
   (:func:`neuralbrdf.render.spectral_quadrature.fit_reduced_quadrature`, fitted here to the model's
   own spectra on the contract's dense probe, within a held-out relative error of 10⁻³ of the
   31-wavelength integral), so that a colour costs a handful of evaluations per direction pair.
+  A spectral model whose range does not hold the observer's weight over 400–700 nm has no colour
+  (the rule of :func:`neuralbrdf.data.colorimetry.colour_problem`, as for ``to-rgb`` and an
+  exported RGB head): the views leave it out of ``R``, ``G``, ``B`` and ``Y`` and say why.
 
 All values are BRDF values in sr⁻¹ without the cosine factor.
 """
@@ -27,6 +30,7 @@ import colour
 import numpy as np
 import onnxruntime
 
+from neuralbrdf.data.colorimetry import colour_problem
 from neuralbrdf.errors import InputError
 from neuralbrdf.kinds import load_model
 from neuralbrdf.kinds.reference import KIND as REFERENCE
@@ -71,6 +75,8 @@ class ViewedModel:
     model: OnnxModel
     session: onnxruntime.InferenceSession = field(repr=False)
     rule: ReducedQuadrature | None = field(default=None, repr=False)
+    #: Why a spectral model has no colour (:func:`~neuralbrdf.data.colorimetry.colour_problem`), else ``None``.
+    no_colour: str | None = None
 
     @classmethod
     def load(cls, path: str | Path, label: str, role: str = "model") -> ViewedModel:
@@ -81,12 +87,18 @@ class ViewedModel:
                              "written by 'neuralbrdf export-truth'); show it as a model instead", path=path)
         viewed = cls(label, role, model, session(model))
         if model.is_spectral:
-            viewed.rule = viewed._fit_rule()
+            viewed.no_colour = colour_problem(model.wavelength_range_nm, "the model")
+            if viewed.no_colour is None:
+                viewed.rule = viewed._fit_rule()
         return viewed
 
     @property
     def is_spectral(self) -> bool:
         return self.model.is_spectral
+
+    def has(self, channel: str) -> bool:
+        """Whether the model has values in ``channel`` (:data:`CHANNELS`; ``colour``: linear sRGB)."""
+        return self.is_spectral if channel == "wavelength" else self.no_colour is None
 
     def _run(self, wi: np.ndarray, wo: np.ndarray, wavelength: np.ndarray | None = None) -> np.ndarray:
         feeds = {INPUT_WI: np.asarray(wi, dtype=np.float32), INPUT_WO: np.asarray(wo, dtype=np.float32)}
@@ -120,9 +132,11 @@ class ViewedModel:
         return np.clip(spectra @ self.rule.weights, 0.0, None)
 
     def channel(self, wi: np.ndarray, wo: np.ndarray, channel: str, wavelength_nm: float) -> np.ndarray | None:
-        """``[N]`` values of ``channel`` (:data:`CHANNELS`); ``None`` for ``wavelength`` of an RGB model."""
+        """``[N]`` values of ``channel`` (:data:`CHANNELS`); ``None`` where the model has none (:meth:`has`)."""
+        if not self.has(channel):
+            return None
         if channel == "wavelength":
-            return self.spectra(wi, wo, [wavelength_nm])[:, 0] if self.is_spectral else None
+            return self.spectra(wi, wo, [wavelength_nm])[:, 0]
         return channel_of_rgb(self.linear_srgb(wi, wo), channel)
 
     def describe(self) -> dict:
@@ -140,5 +154,6 @@ class ViewedModel:
             "wavelength_range_nm": list(model.wavelength_range_nm) if model.is_spectral else None,
             "fast_paths": [path.describe() for path in model.fast_paths.values()],
             "rgb_rule": self.rule.describe() if self.rule is not None else None,
+            "no_colour": self.no_colour,
             "metadata": dict(sorted(model.metadata.items())),
         }

@@ -14,11 +14,19 @@ path                   answer
 
 A bad query is answered with status 400 and ``{"error": ONE LINE}``.  The server binds to
 ``127.0.0.1`` unless told otherwise; port 0 asks the system for a free port.
+
+**From outside.**  A request is answered only when its ``Host`` header names the viewer's own port
+with an IP address, ``localhost`` or the host it was bound to (status 403 otherwise), so a page on
+another site cannot read the scene through DNS rebinding, as local development servers refuse it.
+At most :data:`MAX_WORKERS` requests are served at once (more wait in a listen backlog of
+:data:`BACKLOG`), and a connection that sends nothing for :data:`SOCKET_TIMEOUT_S` seconds is
+closed, so neither a burst of requests nor half-open connections exhaust the process.
 """
 
 from __future__ import annotations
 
 import errno
+import ipaddress
 import json
 import socket
 import socketserver
@@ -43,6 +51,11 @@ PAGE_FILES = {
 }
 PLOTLY_PATH = "/plotly.min.js"
 DEFAULT_HOST = "127.0.0.1"
+#: Requests served at once, the connections the system queues beyond them, and the seconds a
+#: connection may stay silent (module docstring).
+MAX_WORKERS = 32
+BACKLOG = 256
+SOCKET_TIMEOUT_S = 10.0
 
 
 def plotly_js() -> bytes:
@@ -52,9 +65,12 @@ def plotly_js() -> bytes:
 
 class _Server(ThreadingHTTPServer):
     daemon_threads = True  # a browser's open connections never keep the process alive
+    request_queue_size = BACKLOG
 
     def __init__(self, address, scene: Scene) -> None:
         self.scene = scene
+        self.host_given = address[0].lower()
+        self._workers = threading.BoundedSemaphore(MAX_WORKERS)
         self.files = {path: ((STATIC / name).read_bytes(), kind) for path, (name, kind) in PAGE_FILES.items()}
         self.files[PLOTLY_PATH] = (plotly_js(), "text/javascript; charset=utf-8")
         self.address_family = socket.AF_INET6 if ":" in address[0] else socket.AF_INET
@@ -66,12 +82,50 @@ class _Server(ThreadingHTTPServer):
         socketserver.TCPServer.server_bind(self)
         self.server_name, self.server_port = self.server_address[:2]
 
+    def process_request(self, request, client_address) -> None:
+        """Serve in a new thread once one of the :data:`MAX_WORKERS` is free (until then the
+        connection waits, and the ones behind it wait in the backlog)."""
+        self._workers.acquire()
+        try:
+            super().process_request(request, client_address)
+        except BaseException:
+            self._workers.release()
+            raise
+
+    def process_request_thread(self, request, client_address) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self._workers.release()
+
+    def addressed_here(self, host_header: str | None) -> bool:
+        """Whether a request's ``Host`` names this viewer (module docstring)."""
+        if not host_header:
+            return False
+        host, _, port = host_header.rpartition(":")
+        if not port.isdigit() or int(port) != self.server_port:
+            return False
+        host = host.removeprefix("[").removesuffix("]").lower()
+        if host in ("localhost", self.host_given):
+            return True
+        try:
+            ipaddress.ip_address(host)
+        except ValueError:
+            return False
+        return True
+
 
 class _Handler(BaseHTTPRequestHandler):
     server: _Server
+    timeout = SOCKET_TIMEOUT_S
 
     def do_GET(self) -> None:  # noqa: N802 (the standard library's name)
         try:
+            if not self.server.addressed_here(self.headers.get("Host")):
+                self._json(HTTPStatus.FORBIDDEN, {"error": f"this viewer answers requests to its own address (port "
+                                                           f"{self.server.server_port}), not to Host "
+                                                           f"{str(self.headers.get('Host'))[:100]!r}"})
+                return
             self._answer(urlsplit(self.path))
         except (BrokenPipeError, ConnectionResetError):  # the page went away: nobody to answer
             pass
@@ -126,13 +180,13 @@ class Viewer:
 
     def __init__(self, scene: Scene, host: str = DEFAULT_HOST, port: int = 0) -> None:
         if not 0 <= port <= 65535:
-            raise InputError(f"expected a port from 0 to 65535 (0: a free one), got {port}", column="--port")
+            raise InputError(f"expected a port from 0 to 65535 (0: a free one), got {port}", key="--port")
         try:
             self._server = _Server((host, port), scene)
         except OSError as error:
             reason = "the port is in use (0 picks a free one)" if error.errno == errno.EADDRINUSE else (
                 error.strerror or str(error))
-            raise InputError(f"cannot listen on {host} port {port}: {reason}", column="--port") from None
+            raise InputError(f"cannot listen on {host} port {port}: {reason}", key="--port") from None
         self.scene = scene
         self._thread: threading.Thread | None = None
 

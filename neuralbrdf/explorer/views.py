@@ -120,15 +120,15 @@ class State:
             if len(control) == 2:
                 values = [value for value, _ in control[1]]
                 if text not in values:
-                    raise InputError(f"expected one of {', '.join(values)}, got {text!r}", column=name)
+                    raise InputError(f"expected one of {', '.join(values)}, got {text!r}", key=name)
                 changes[name] = text
                 continue
             try:
                 value = float(text)
             except ValueError:
-                raise InputError(f"expected a number ({control[1]}), got {text!r}", column=name) from None
+                raise InputError(f"expected a number ({control[1]}), got {text!r}", key=name) from None
             if not control[2] <= value <= control[3]:
-                raise InputError(f"expected {control[2]:g} to {control[3]:g} {control[1]}, got {text}", column=name)
+                raise InputError(f"expected {control[2]:g} to {control[3]:g} {control[1]}, got {text}", key=name)
             changes[name] = value
         return dataclasses.replace(self, **changes)
 
@@ -263,7 +263,7 @@ class Scene:
         its ``key``: a digest of the values it depends on.  ``{"key": known, "unchanged": True}``
         when ``known`` is that key (the page already shows it)."""
         if name not in VIEWS:
-            raise InputError(f"unknown view {name!r}; expected one of {', '.join(VIEWS)}", column="views")
+            raise InputError(f"unknown view {name!r}; expected one of {', '.join(VIEWS)}", key="views")
         key = (name,) + tuple((dep, getattr(state, dep)) for dep in depends(name, state))
         digest = hashlib.blake2b(repr(key).encode(), digest_size=8).hexdigest()
         if digest == known:
@@ -294,8 +294,9 @@ class Scene:
             values = values * np.clip(wi[:, 2], 0.0, None)
         return values
 
-    def _missing(self, state: State) -> list[str]:
-        return [s.label for s in self.sources if state.channel == "wavelength" and not s.is_spectral]
+    def _missing(self, state: State, channel: str | None = None) -> list[str]:
+        """The sources without values in ``channel`` (default the state's; ``colour``: linear sRGB)."""
+        return [s.label for s in self.sources if not s.has(channel or state.channel)]
 
     # ------------------------------------------------------------------ views
 
@@ -328,6 +329,8 @@ class Scene:
         maps, logs = [], {}
         for source in self.sources:
             if state.hemisphere == "colour":
+                if not source.has("colour"):
+                    continue
                 rgb = source.linear_srgb(image.wi, image.wo)
                 maps.append({"label": source.label, "png": png(rgba_image(image, hue(rgb)))})
                 continue
@@ -337,7 +340,7 @@ class Scene:
                 maps.append({"label": source.label, "z": typed(logs[source.label])})
         axis = grids.disk_coordinates(grids.HEMISPHERE_SIZE)
         return {"axis": listed(axis), "maps": maps, "zrange": log_range(*logs.values()), "diffs": self._ratios(logs),
-                "missing": [] if state.hemisphere == "colour" else self._missing(state)}
+                "missing": self._missing(state, "colour" if state.hemisphere == "colour" else None)}
 
     def _lobe(self, state: State) -> dict:
         theta_o, phi_o, wi, wo = grids.lobe_grid(state.theta_i)
@@ -365,7 +368,7 @@ class Scene:
         colour = state.sphere == "colour" or self.wavelength_range_nm is None
         shaded = {}
         for source in self.sources:
-            if colour or source.is_spectral:
+            if source.has("colour" if colour else "wavelength"):
                 shaded[source.label] = sphere_radiance(source, image, state.exposure,
                                                        None if colour else state.wavelength)
         images = [{"label": label, "png": png(rgba_image(image, rgb))} for label, rgb in shaded.items()]
@@ -381,7 +384,7 @@ class Scene:
             else:
                 ratio = log10(shaded[model.label][:, 0]) - log10(truth[:, 0])
                 diffs.append({"label": model.label, "z": typed(image.scatter(ratio)), "kind": "log10_ratio"})
-        missing = [] if colour else [s.label for s in self.sources if not s.is_spectral]
+        missing = self._missing(state, "colour" if colour else "wavelength")
         return {"axis": listed(axis), "images": images, "diffs": diffs, "colour": colour, "missing": missing}
 
     def _spectrum(self, state: State) -> dict:
@@ -390,8 +393,9 @@ class Scene:
         cosine = max(float(wi[0, 2]), 0.0) if state.cosine == "f_cos" else 1.0
         curves, colours = [], []
         for source in self.sources:
-            colours.append({"label": source.label, "rgb": listed(source.linear_srgb(wi, wo)[0] * cosine),
-                            "hue": listed(hue(source.linear_srgb(wi, wo))[0])})
+            if source.has("colour"):
+                colours.append({"label": source.label, "rgb": listed(source.linear_srgb(wi, wo)[0] * cosine),
+                                "hue": listed(hue(source.linear_srgb(wi, wo))[0])})
             if source.is_spectral:
                 low, high = source.model.wavelength_range_nm
                 wavelengths = np.arange(low, high + 1e-9, SPECTRUM_STEP_NM)

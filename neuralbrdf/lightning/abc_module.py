@@ -3,11 +3,12 @@
 The fit itself is :func:`neuralbrdf.fitting.abc_fit.fit_abc` (bounded multi-start
 minimisation of ``L_cus``, Eq. 4.2); this module runs it once on the material of
 :class:`~neuralbrdf.lightning.material_data.SingleMaterialData`, logs its outcome and, where the source has a dense ground truth
-(NBRDF proxies, virtual stand-ins), the hemisphere log-cosine RMSE on ``eval_plan``.
+(NBRDF proxies, virtual stand-ins), the log-cosine RMSE on the pairs of ``eval_plan``
+(``plan_logcos_rmse``; ``neuralbrdf evaluate``'s ``hemisphere_logcos_rmse`` is another number).
 
 ``metrics.json`` gets the shared names of :func:`~neuralbrdf.evaluation.scores.fit_scores`
 (``fit/inplane_glossy_rel_rmse``, ``fit/inplane_diffuse_rel_rmse``, and
-``fit/hemisphere_logcos_rmse`` with a truth), ``fit/abc/parameters`` (kd, A per channel; B, C, eta), ``fit/abc/success``,
+``fit/plan_logcos_rmse`` with a truth), ``fit/abc/parameters`` (kd, A per channel; B, C, eta), ``fit/abc/success``,
 ``fit/abc/failure_reason`` and ``fit/abc/gaussian_limit`` (the lobe ended in the limit ``C -> ∞``,
 stored as ``C = 1e4``; :mod:`neuralbrdf.fitting.abc_fit`): a failed fit is reported as failed (and warned about), never
 passed off as a result.  Checkpoints carry ``neuralbrdf_kind = "abc"`` (:class:`~neuralbrdf.lightning.common.WritesKind`), ``abc_parameters`` and
@@ -93,7 +94,7 @@ class AbcFitModule(WritesKind, pl.LightningModule):
                 raise ValueError(f"{material.name}: truth and fit data differ in channels")
             pred_truth = self.parameters_.evaluate(*truth.vectors())
             rmse = hemisphere_logcos_rmse(pred_truth, truth.values, truth.theta_i)
-            self.log(f"{stage}/hemisphere_logcos_rmse", rmse, batch_size=1)
+            self.log(f"{stage}/plan_logcos_rmse", rmse, batch_size=1)
         self.scores = fit_scores(pred, fit.values, *fit.inplane_angles(), pred_truth,
                                  None if truth is None else truth.values, None if truth is None else truth.theta_i)
 

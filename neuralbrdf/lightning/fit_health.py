@@ -17,9 +17,9 @@ import torch
 from pytorch_lightning.callbacks import ModelCheckpoint
 
 from neuralbrdf.errors import EnvironmentFailure, FitFailed, one_line
-from neuralbrdf.lightning.failures import input_error, interruption, signal_name
-from neuralbrdf.lightning.metrics_json import (METRICS_FILE, STATUS_FAILED, STATUS_INTERRUPTED, is_resuming, scalar,
-                                               write_metrics)
+from neuralbrdf.lightning.failures import environment_failure, input_error, interruption, signal_name
+from neuralbrdf.lightning.metrics_json import (METRICS_FILE, STATUS_ENVIRONMENT, STATUS_FAILED, STATUS_INTERRUPTED,
+                                               is_resuming, scalar, write_metrics)
 
 #: Validation metrics whose name holds this are relative errors (report Eq. 4.3): predicting 0
 #: everywhere scores exactly 1 ...
@@ -120,7 +120,8 @@ class FitHealth(pl.Callback):
                 for best in Path(callback.dirpath).glob("best*.ckpt"):
                     best.unlink(missing_ok=True)
         metrics = {f"fit/{name}": scalar(value) for name, value in trainer.callback_metrics.items()}
-        metrics.update({"status": STATUS_FAILED, "cause": cause, "fit/epochs": trainer.current_epoch})
+        status = STATUS_FAILED if environment_failure(exception) is None else STATUS_ENVIRONMENT
+        metrics.update({"status": status, "cause": cause, "fit/epochs": trainer.current_epoch})
         metrics.pop("fit/best_model_path", None)
         extras = getattr(pl_module, "metrics_json_extras", None)
         if extras is not None:

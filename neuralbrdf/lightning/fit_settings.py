@@ -2,8 +2,8 @@
 
 Lightning and PyTorch accept them and a run follows: ``trainer.max_epochs: -1`` is Lightning's
 "no limit" (with neither ``trainer.max_steps`` nor ``trainer.max_time`` set, the fit never
-ends), ``0`` epochs, steps or training batches train nothing and save the untrained model as
-``best``, a learning rate of 0 leaves the model as it started and one that is negative, infinite
+ends) and ``null`` its default of 1000 epochs, which no config means; ``0`` epochs, steps or
+training batches train nothing and save the untrained model as ``best``, a learning rate of 0 leaves the model as it started and one that is negative, infinite
 or NaN ruins it, a validation that never runs never chooses the monitored checkpoint, a
 learning-rate decay factor of 0 stops the optimiser after one step.  :func:`check_fit_settings`
 looks at the parsed configuration of ``neuralbrdf train fit`` (and so of ``nb.fit(overrides=…)``)
@@ -67,6 +67,10 @@ def _trainer_problems(trainer) -> list[tuple[str, object, str]]:
         problems.append(("trainer.max_epochs", epochs, "-1 is Lightning's 'no limit', and neither trainer.max_steps "
                                                        "nor trainer.max_time is set: the fit would never end; give a "
                                                        "number of epochs >= 1"))
+    elif epochs is None and steps in (None, -1) and time_limit is None:
+        problems.append(("trainer.max_epochs", epochs, "null leaves the limit to Lightning's default of 1000 epochs, "
+                                                       "and neither trainer.max_steps nor trainer.max_time is set; give "
+                                                       "a number of epochs >= 1"))
     elif isinstance(epochs, int) and epochs < -1:
         problems.append(("trainer.max_epochs", epochs, "expected a number of epochs >= 1"))
     if steps == 0 or (isinstance(steps, int) and steps < -1):

@@ -130,8 +130,8 @@ class LatentFitData(pl.LightningDataModule):
         Plan on which NBRDF, MERL and virtual sources (which have a truth) are compared with the
         fit; ``None``: no such evaluation.
     low2012_abc:
-        Löw et al.'s published ABC fits (``abc-low2012/low2012_abc_merl.csv``) for the
-        comparison; ``None``: no comparison; a missing file: a warning and no comparison.
+        Löw et al.'s published ABC fits (``abc-low2012/low2012_abc_merl.csv``) to compare with;
+        ``None`` or a missing file: none (a warning unless it is the reference data in ``../shared``).
     steps_per_epoch:
         Optimisation steps per epoch.
     batch_size:
@@ -197,9 +197,10 @@ class LatentFitData(pl.LightningDataModule):
             raise InputError(
                 f"material names must be unique, {duplicates} repeat (set 'name')", key="data.sources"
             )
-        if low2012_abc is not None and not os.path.isfile(low2012_abc):  # optional: said at once, then skipped
-            warnings.warn(f"data.low2012_abc: {low2012_abc} not found; no comparison with Löw et al.'s ABC fits",
-                          stacklevel=2)
+        if low2012_abc is not None and not os.path.isfile(low2012_abc):  # optional: skipped
+            if Path(low2012_abc).parts[:2] != ("..", "shared"):  # the reference data a user may never have: quietly
+                warnings.warn(f"data.low2012_abc: {low2012_abc} not found; no comparison with Löw et al.'s ABC fits",
+                              stacklevel=2)
             low2012_abc = None
         self.plan, self.eval_plan, self.low2012_abc = plan, eval_plan, low2012_abc
         for key, value in (("batch_size", batch_size), ("batch_values", batch_values),

@@ -49,11 +49,12 @@ describe the latents the fit ends with.
 
 * ``fit_logcos_rmse/<name>`` — the hemisphere log-cosine RMSE (docs/evaluate.md#metrics) of the fit on the
   material's own fitting samples;
-* for NBRDF sources, ``hemisphere_logcos_rmse/<name>`` — the same metric against the proxy on
+* for NBRDF sources, ``plan_logcos_rmse/<name>`` — the same metric against the proxy on the pairs of
   ``eval_plan`` (default the Löw et al. set, docs/measure.md#sampling-plans): how well the fit generalises;
-* and, when ``low2012_abc`` lists the proxy's material, ``abc_low2012/hemisphere_logcos_rmse/<name>``
+* and, when ``low2012_abc`` lists the proxy's material, ``abc_low2012/plan_logcos_rmse/<name>``
   — Löw et al.'s published full-data ABC fit (docs/formats.md#löw-et-als-abc-fits) on the same plan, the reference to beat;
-* ``hemisphere_logcos_rmse/mean`` over the NBRDF sources.
+* ``plan_logcos_rmse/mean`` over the NBRDF sources.  (Named apart from ``neuralbrdf evaluate``'s
+  ``hemisphere_logcos_rmse`` over stratified hemisphere pairs: the same model scores differently.)
 
 The frozen weights are checked bit for bit against the checkpoint at the end of every fit
 (:meth:`LatentFitModule.on_fit_end`).  A checkpoint of this module is a self-contained fitted

@@ -283,11 +283,11 @@ class LatentOnlyFit(pl.LightningModule):
             return
         theta_i = theta_i_deg(item.truth.wi)
         rmse = metrics.hemisphere_logcos_rmse(truth_pred, item.truth.f, theta_i)
-        self.log(f"hemisphere_logcos_rmse/{item.name}", rmse, batch_size=1)
+        self.log(f"plan_logcos_rmse/{item.name}", rmse, batch_size=1)
         self._eval_rmse.append(rmse)
         if item.abc is not None:
             abc_rmse = metrics.hemisphere_logcos_rmse(item.abc, item.truth.f, theta_i)
-            self.log(f"abc_low2012/hemisphere_logcos_rmse/{item.name}", abc_rmse, batch_size=1)
+            self.log(f"abc_low2012/plan_logcos_rmse/{item.name}", abc_rmse, batch_size=1)
 
     def on_validation_epoch_start(self) -> None:
         self._eval_rmse: list[float] = []
@@ -318,7 +318,7 @@ class LatentOnlyFit(pl.LightningModule):
 
     def on_validation_epoch_end(self) -> None:
         if self._eval_rmse:
-            self.log("hemisphere_logcos_rmse/mean", float(np.mean(self._eval_rmse)))
+            self.log("plan_logcos_rmse/mean", float(np.mean(self._eval_rmse)))
 
     def on_fit_end(self) -> None:
         for key, value in self.network.state_dict().items():

@@ -18,6 +18,8 @@ from neuralbrdf.errors import InputError
 
 METRICS_FILE = "metrics.json"
 STATUS_OK, STATUS_FAILED, STATUS_RUNNING, STATUS_INTERRUPTED = "ok", "failed", "running", "interrupted"
+#: A fit the machine stopped (a full disk, a file it could not write): not the fit's failure.
+STATUS_ENVIRONMENT = "environment"
 
 
 def scalar(value) -> float | int:

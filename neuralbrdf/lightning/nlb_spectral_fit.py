@@ -136,7 +136,7 @@ class SpectralLatentFitModule(WritesKind, LatentOnlyFit):
         check_fit_settings(init_candidates, init_starts, init_screen_steps, early_stop_patience, early_stop_tolerance)
         for key, value in (("init_screen_values", init_screen_values), ("full_batch_iterations", full_batch_iterations)):
             if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
-                raise InputError(f"must be a positive integer or null, got {value!r}", column=f"model.{key}")
+                raise InputError(f"must be a positive integer or null, got {value!r}", key=f"model.{key}")
         for key in ("shared_prior_weight", "channel_prior_weight", "smoothness_weight"):
             check_weight(locals()[key], f"model.{key}")
         if isinstance(node_step_nm, bool) or not (isinstance(node_step_nm, (int, float)) and node_step_nm > 0

@@ -57,7 +57,8 @@ raised inside the fit ends the command with status 1 and one line ``neuralbrdf t
 failed: <cause>``; ``metrics.json`` then holds ``"status": "failed"`` and ``"cause"``, and no
 checkpoint named ``best*`` is left (``last.ckpt`` stays, for inspection).  A successful fit
 writes ``"status": "ok"``; a fit stopped by Ctrl-C or SIGTERM ``"status": "interrupted"`` (its
-checkpoints stay, to ``--resume`` from; exit status 130 or 143).  ``metrics.json`` is strict
+checkpoints stay, to ``--resume`` from; exit status 130 or 143); a fit the machine stopped (a
+full disk: exit status 3) ``"status": "environment"`` with its ``"cause"``.  ``metrics.json`` is strict
 JSON: a non-finite number is written as ``null``.
 
 Bad input (a missing or malformed ``--data.path``, a missing or truncated checkpoint, a
@@ -164,7 +165,7 @@ def _summary(cli: NeuralBrdfCLI) -> str:
     path = cli.run_dir / METRICS_FILE
     metrics = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {}
     shown = [(k, v) for k, v in sorted(metrics.items()) if isinstance(v, float) and k.startswith(
-        ("fit/inplane", "fit/hemisphere", "fit/val/", "test/", "validate/", "fit/materials/"))]
+        ("fit/inplane", "fit/hemisphere", "fit/plan", "fit/val/", "test/", "validate/", "fit/materials/"))]
     if shown:
         lines.append("metrics: " + ", ".join(f"{k} {v:.4g}" for k, v in shown[:12])
                      + (f" (+{len(shown) - 12} more in {path})" if len(shown) > 12 else ""))

@@ -37,7 +37,8 @@ from pathlib import Path
 
 from neuralbrdf.atomic import TEMP_MARKER, atomic_write, remove_stale_temporaries
 from neuralbrdf.folder_lock import outermost_missing
-from neuralbrdf.lightning.metrics_json import METRICS_FILE, STATUS_FAILED, STATUS_INTERRUPTED, STATUS_OK, STATUS_RUNNING
+from neuralbrdf.lightning.metrics_json import (METRICS_FILE, STATUS_ENVIRONMENT, STATUS_FAILED, STATUS_INTERRUPTED,
+                                               STATUS_OK, STATUS_RUNNING)
 
 #: Where a run goes when nothing names its directory: ``runs/<config stem>/<timestamp>`` (:func:`fresh_run_dir`).
 RUNS_ROOT = Path("runs")
@@ -232,6 +233,7 @@ def held_run(run_dir: Path) -> str:
     if status in (STATUS_OK, STATUS_FAILED):
         return f"already holds a run ({listing})"
     why = {STATUS_RUNNING: f"its {METRICS_FILE} says it is still running, but no command runs in it: it was killed",
-           STATUS_INTERRUPTED: "it was interrupted"}.get(status, f"no {METRICS_FILE}: it ended before its fit did, or "
-                                                                 "was killed")
+           STATUS_INTERRUPTED: "it was interrupted",
+           STATUS_ENVIRONMENT: f"the machine stopped it (its {METRICS_FILE} says why)"}.get(
+        status, f"no {METRICS_FILE}: it ended before its fit did, or was killed")
     return f"already holds a run that did not finish ({listing}; {why})"

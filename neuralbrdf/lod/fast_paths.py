@@ -9,8 +9,8 @@ need it (the Mitsuba plugin picks the output; :mod:`neuralbrdf.render.fast_paths
   once per query instead of once per wavelength of the sRGB rule.  Any spectral file of the
   contract gets one, whatever its kind: it is distilled from the file itself.  The plugin uses
   it in RGB variants unless told not to.  It is made only for a model whose wavelength range
-  holds at least :data:`MIN_OBSERVER_COVERAGE` of each of the observer's X, Y, Z weights over
-  400–700 nm (:func:`rgb_head_problem`): a model of 800–900 nm would otherwise get a head
+  holds at least :data:`~neuralbrdf.data.colorimetry.MIN_OBSERVER_COVERAGE` of each of the
+  observer's X, Y, Z weights over 400–700 nm (:func:`rgb_head_problem`): a model of 800–900 nm would otherwise get a head
   distilled from its own value at 800 nm, clamped there for every wavelength of the conversion.
 * ``f_fast`` — **a compact copy** of ``f`` (RGB, or spectral for spectral models): what the
   plugin evaluates when asked (property ``fast``, ``neuralbrdf render --fast``), and a rung of
@@ -52,6 +52,7 @@ import numpy as np
 import onnx
 
 from neuralbrdf.atomic import atomic_path
+from neuralbrdf.data.colorimetry import colour_problem
 from neuralbrdf.errors import InputError
 from neuralbrdf.evaluation.scores import HEMISPHERE_STRATA, OnnxEvaluator, TorchEvaluator, hemisphere_scores
 from neuralbrdf.kinds import Exportable, load_model
@@ -60,38 +61,21 @@ from neuralbrdf.onnx_contract import OUTPUT_F, OUTPUT_FAST, OUTPUT_RGB, FastPath
 from neuralbrdf.onnx_export import save_checked, trace, validate, with_fast_paths
 
 
-#: Least share of each of the CIE 1931 X, Y, Z weights (D65, the sRGB grid 400–700 nm, docs/formats.md#spectral-to-linear-srgb)
-#: that a spectral model's wavelength range must hold for it to get an RGB head (module docstring).
-MIN_OBSERVER_COVERAGE = 0.99
-
-
-def observer_coverage(wavelength_range_nm: tuple[float, float]) -> np.ndarray:
-    """The share of each of the X, Y, Z weights of the sRGB conversion's grid (docs/formats.md#spectral-to-linear-srgb) that lies
-    within ``wavelength_range_nm`` (``[3]``; the rest the model would give by extrapolation)."""
-    from neuralbrdf.data.colorimetry import xyz_weights
-    from neuralbrdf.render.spectral_quadrature import SRGB_GRID_NM
-
-    weights = xyz_weights(SRGB_GRID_NM)
-    inside = (SRGB_GRID_NM >= wavelength_range_nm[0]) & (SRGB_GRID_NM <= wavelength_range_nm[1])
-    return weights[inside].sum(axis=0) / weights.sum(axis=0)
-
-
 def rgb_head_problem(wavelength_range_nm: tuple[float, float] | None) -> str | None:
     """Why a model of this wavelength range (``None``: RGB) gets no RGB head ``f_rgb``, or ``None``
     when it may have one (module docstring)."""
     if wavelength_range_nm is None:
         return "an RGB head (f_rgb) is for spectral models; this model is RGB"
-    coverage = observer_coverage(wavelength_range_nm)
-    if coverage.min() >= MIN_OBSERVER_COVERAGE:
-        return None
-    low, high = wavelength_range_nm
-    return (f"the model covers {low:g}-{high:g} nm, which holds {100 * coverage.min():.3g} % of the CIE 1931 "
-            f"observer's weight over the sRGB conversion's 400-700 nm (at least {100 * MIN_OBSERVER_COVERAGE:g} % "
-            "needed): its RGB would be extrapolated, so it gets no RGB head (f_rgb); render it in a spectral variant")
+    problem = colour_problem(wavelength_range_nm, "the model")
+    return None if problem is None else f"{problem}, so it gets no RGB head (f_rgb); render it in a spectral variant"
 
 
 class FastPathError(ValueError):
-    """A fast path could not be made within its error bound; nothing was written."""
+    """The fast path ``output`` could not be made within its error bound; nothing was written."""
+
+    def __init__(self, message: str, output: str) -> None:
+        super().__init__(message)
+        self.output = output
 
 
 @dataclass(frozen=True)
@@ -143,7 +127,7 @@ def _student(parent: OnnxEvaluator, output: str, settings: FastPathSettings) -> 
     if not error <= settings.max_hemisphere_logcos_rmse:
         raise FastPathError(f"the {output} student's error against the model, hemisphere log-cos RMSE {error:.3g}, "
                             f"is above the bound {settings.max_hemisphere_logcos_rmse:g} (fast_paths."
-                            "max_hemisphere_logcos_rmse)")
+                            "max_hemisphere_logcos_rmse)", output)
     # only traced to be merged into the model's graph: the file keeps the model's own metadata
     return Exportable(module, model.kind, model.material, {}, range_nm), describes, error
 
@@ -217,7 +201,7 @@ def add_fast_paths(model_path: str | Path, out: str | Path, outputs: tuple[str, 
             if not delta_e <= check.max_delta_e2000_mean:
                 raise FastPathError(f"the {output} student renders ΔE2000 {delta_e:.3g} (mean) away from the model, "
                                     f"above the bound {check.max_delta_e2000_mean:g} (fast_paths.image_check."
-                                    "max_delta_e2000_mean)")
+                                    "max_delta_e2000_mean)", output)
             entries[output] += (delta_e, where)
             metadata.update({fast_path_key(output, "image_delta_e2000_mean"): repr(delta_e),
                              fast_path_key(output, "image_check"): where})

@@ -90,7 +90,7 @@ class NlbConfig:
         for name in ("latent_dim", "width", "depth"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-                raise InputError(f"must be a positive integer, got {value!r}", column=name)
+                raise InputError(f"must be a positive integer, got {value!r}", key=name)
 
     @property
     def direction_features(self) -> int:

@@ -14,7 +14,7 @@ import onnx
 
 from neuralbrdf.atomic import note_input
 from neuralbrdf.errors import InputError
-from neuralbrdf.limits import MAX_ONNX_BYTES, check_file_size
+from neuralbrdf.limits import MAX_ONNX_BYTES, check_file_size, file_problem
 from neuralbrdf.onnx_contract.graph import output_model
 from neuralbrdf.onnx_contract.interface import check_interface
 from neuralbrdf.onnx_contract.metadata import FastPath, check_metadata, read_fast_paths
@@ -104,7 +104,7 @@ def load_generic_model(path: str | os.PathLike[str]) -> OnnxModel:
     """
     path = Path(path)
     if not path.is_file():
-        raise InputError("no such ONNX model file", path=path)
+        raise InputError(file_problem(path) or "no such ONNX model file", path=path)
     note_input(path)
     check_file_size(path, MAX_ONNX_BYTES, "ONNX model file")
     try:

@@ -18,6 +18,7 @@ import onnxruntime
 from neuralbrdf import kinds
 from neuralbrdf.atomic import file_version
 from neuralbrdf.errors import InputError
+from neuralbrdf.limits import file_problem
 from neuralbrdf.onnx_contract import INPUT_WAVELENGTH, INPUT_WI, INPUT_WO, OUTPUT_F, OnnxModel
 from neuralbrdf.render.sampling import LobeMixture, fit_proposal, probe_direction_pairs
 from neuralbrdf.render.spectral_quadrature import SRGB_GRID_NM, ReducedQuadrature, fit_reduced_quadrature, srgb_weights
@@ -76,7 +77,8 @@ def proposal_path(props: mi.Properties) -> Path | None:
         return None
     path = Path(str(mi.file_resolver().resolve(str(props.get("proposal")))))
     if not path.is_file():
-        raise InputError("no such model file for the 'proposal' property", path=path, key="proposal")
+        raise InputError(file_problem(path) or "no such model file for the 'proposal' property", path=path,
+                         key="proposal")
     return path
 
 
@@ -92,7 +94,7 @@ def validated_model(path: Path) -> OnnxModel:
     time, inode).  The file is read once per version: a file replaced while a scene loads is either
     the old model or the new one, never parts of both."""
     if not path.is_file():
-        raise InputError("no such ONNX model file", path=path)
+        raise InputError(file_problem(path) or "no such ONNX model file", path=path)
     found = _LOAD_TIME_CACHE.get(("model", file_version(path)))
     if found is None:
         found = kinds.load_model(path)

@@ -41,6 +41,7 @@ import numpy as np
 
 from neuralbrdf.atomic import atomic_write, note_input
 from neuralbrdf.errors import InputError
+from neuralbrdf.limits import file_problem
 
 PLUGIN = "neuralbrdf"
 #: A scene parameter (``<default name=... value=.../>``) naming the command that makes the scene's
@@ -65,7 +66,7 @@ class SceneFile:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         if not self.path.is_file():
-            raise InputError("no such scene file", path=self.path)
+            raise InputError(file_problem(self.path) or "no such scene file", path=self.path)
         if self.path.stat().st_size > MAX_SCENE_BYTES:
             raise InputError(f"scene file larger than {MAX_SCENE_BYTES} bytes", path=self.path)
         note_input(self.path)

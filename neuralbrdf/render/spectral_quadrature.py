@@ -37,10 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from neuralbrdf.data.colorimetry import XYZ_TO_LINEAR_SRGB, xyz_weights
-
-#: Wavelengths (nm) at which a spectral model is integrated to sRGB in RGB variants (docs/formats.md#spectral-to-linear-srgb).
-SRGB_GRID_NM = np.arange(400.0, 701.0, 10.0)
+from neuralbrdf.data.colorimetry import SRGB_GRID_NM, XYZ_TO_LINEAR_SRGB, xyz_weights
 
 #: Default held-out root-mean-square relative error the reduced rule must meet.
 DEFAULT_RMS_TOLERANCE = 1e-3

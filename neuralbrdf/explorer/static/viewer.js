@@ -233,9 +233,14 @@ function title(text) {
   return {text, font: {size: 14}, x: 0, xanchor: "left"};
 }
 
-function noteMissing(view, payload, why) {
+function noteMissing(view, payload) {
+  // why each file left out has no value here: an RGB file at one wavelength, a spectral one without colour
   const note = document.querySelector(`#view-${view} .missing`);
-  if (note) note.textContent = payload.missing && payload.missing.length ? `${why}: ${payload.missing.join(", ")}` : "";
+  if (note) note.textContent = (payload.missing || []).map((label) => {
+    const source = scene.sources.find((s) => s.label === label);
+    return source && source.spectral ? `${label}: no colour: ${source.no_colour}`
+      : `${label}: an RGB file has no value at one wavelength`;
+  }).join("; ");
 }
 
 function role(label) {
@@ -253,7 +258,7 @@ function nameOf(label) {
 // ------------------------------------------------------------------ views
 
 function drawInplane(payload) {
-  noteMissing("inplane", payload, "RGB files have no value at one wavelength");
+  noteMissing("inplane", payload);
   const traces = payload.curves.map((curve) => ({
     x: payload.x, y: curve.y, name: nameOf(curve.label), mode: "lines", line: {...styled(curve.label), width: 2},
     hovertemplate: "θr %{x}°: %{y:.4g} sr⁻¹",
@@ -265,6 +270,7 @@ function drawInplane(payload) {
   const inPlane = state.plane_phi === 0;
   const layout = {
     font: FONT, margin: {t: 36, r: 10, b: 50, l: 70}, legend: {orientation: "h", y: -0.2},
+    hovermode: "x",  // a click anywhere above or below the curves picks its outgoing angle, not only on one
     title: title(`θi = ${state.theta_i}°, plane at φ = ${state.plane_phi}°`),
     xaxis: {title: {text: inPlane ? "θr, signed outgoing angle in the plane of incidence (°; mirror at θr = θi)"
                                   : `signed outgoing angle in the plane at φ = ${state.plane_phi}° (°)`},
@@ -327,7 +333,7 @@ function pickOnClick(div, toPick) {
 }
 
 function drawHemisphere(payload) {
-  noteMissing("hemisphere", payload, "RGB files have no value at one wavelength");
+  noteMissing("hemisphere", payload);
   const divs = plotGrid("plots-hemisphere", payload.maps.length);
   const axes = {x: squareAxes("θo cos φo (°)"), y: squareAxes("θo sin φo (°)")};
   const ratios = drawRatios("plots-hemisphere-diff", payload, axes, "%{x:.0f}°, %{y:.0f}°");
@@ -375,7 +381,7 @@ function niceStep(extent) {
 // The lobe as a wire cage (rings of equal θo, meridians of equal φo) seen through camera(): drawn as
 // 2-D lines, cheap on any machine (no WebGL); the camera sliders turn it.
 function drawLobe(payload) {
-  noteMissing("lobe", payload, "RGB files have no value at one wavelength");
+  noteMissing("lobe", payload);
   const nTheta = payload.theta_o.length, nPhi = payload.phi_o.length;
   const view = camera(state.lobe_azimuth, state.lobe_elevation);
   const cages = payload.surfaces.map((surface) => {
@@ -445,7 +451,7 @@ function drawRatios(container, payload, axes, hover) {
 }
 
 function drawHalfdiff(payload) {
-  noteMissing("halfdiff", payload, "RGB files have no value at one wavelength");
+  noteMissing("halfdiff", payload);
   const axes = {x: {title: {text: "θh, half angle (°)"}, range: [0, 90], dtick: 15, constrain: "domain"},
                 y: {title: {text: "θd, difference angle (°)"}, range: [0, 90], dtick: 15}};
   const heat = (z, extra) => [{type: "heatmap", x: payload.axis, y: payload.axis, z, hoverongaps: false, ...extra}];
@@ -462,7 +468,7 @@ function drawHalfdiff(payload) {
 }
 
 function drawSphere(payload) {
-  noteMissing("sphere", payload, "RGB files have no value at one wavelength");
+  noteMissing("sphere", payload);
   const axes = {x: {title: {text: "x (sphere radii)"}, range: [-1, 1], dtick: 0.5, constrain: "domain", zeroline: false},
                 y: {title: {text: "y (sphere radii)"}, range: [-1, 1], dtick: 0.5, zeroline: false}};
   const images = plotGrid("plots-sphere", payload.images.length);
@@ -524,8 +530,9 @@ function drawSpectrum(payload) {
     item.append(swatch, `${nameOf(entry.label)}: linear sRGB (${rgb}) sr⁻¹`);
     return item;
   }));
-  if (!payload.curves.length && !payload.measured) {
-    return Plotly.react("plot-spectrum", [], {...layout, title: title("no spectral file: colours only")}, CONFIG);
+  if (!payload.curves.length && !payload.measured) {  // no axes to read: an empty chart showed −1…6 nm
+    return Plotly.react("plot-spectrum", [], {...layout, title: title("no spectral file: colours only"),
+                                              xaxis: {visible: false}, yaxis: {visible: false}}, CONFIG);
   }
   return Plotly.react("plot-spectrum", traces, layout, CONFIG);
 }
@@ -551,7 +558,8 @@ function describeSources() {
     row.insertCell().textContent = source.spectral
       ? `spectral ${source.wavelength_range_nm[0]}–${source.wavelength_range_nm[1]} nm` : "RGB (linear sRGB)";
     const details = document.createElement("details");
-    const lines = [...source.fast_paths, source.rgb_rule ? `colour from ${source.rgb_rule}` : ""].filter(Boolean);
+    const lines = [...source.fast_paths, source.rgb_rule ? `colour from ${source.rgb_rule}` : "",
+                   source.no_colour ? `no colour: ${source.no_colour}` : ""].filter(Boolean);
     details.innerHTML = `<summary>${lines.length ? lines.join("; ") : "no fast path"} — every metadata entry</summary>`;
     const entries = document.createElement("table");
     entries.insertRow().insertCell().textContent = source.file;
