@@ -130,8 +130,8 @@ class LatentFitData(pl.LightningDataModule):
         Plan on which NBRDF, MERL and virtual sources (which have a truth) are compared with the
         fit; ``None``: no such evaluation.
     low2012_abc:
-        Löw et al.'s published ABC fits (``abc-low2012/low2012_abc_merl.csv``) to compare with;
-        ``None`` or a missing file: none (a warning unless it is the reference data in ``../shared``).
+        Löw et al.'s ABC fits (``abc-low2012/low2012_abc_merl.csv``) to compare with; ``None``
+        or a missing file: none (warned, unless the reference data a clone lacks).
     steps_per_epoch:
         Optimisation steps per epoch.
     batch_size:
