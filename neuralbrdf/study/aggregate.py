@@ -45,8 +45,16 @@ BUDGETS_DELTA_E = (1.0, 2.0, 5.0, 10.0)
 CAUSES = ("non_finite_loss", "optimizer_failure", "fit_refused", "error_above_2x_ds1", "export_refused",
           "evaluation_error", "cell_crashed")
 COST_FROM_MAIN = ("render_ratio", "mqueries_per_s", "parameters", "fastest_backend")
+#: The number of direction pairs of each named in-plane plan.
+NAMED_PAIRS = {name: len(in_plane_plan(name)[0]) for name in ("DS1", "DS2", "DS3", "DS4")}
 #: The number of direction pairs of DS1, the plan of the reference condition.
-DS1_PAIRS = len(in_plane_plan("DS1")[0])
+DS1_PAIRS = NAMED_PAIRS["DS1"]
+
+
+def pairs_of(point: dict) -> int:
+    """The number of direction pairs of a point's plan (a study.json written before points recorded
+    it has only DS1..DS4, whose numbers are :data:`NAMED_PAIRS`)."""
+    return point["pairs"] if "pairs" in point else NAMED_PAIRS[point["plan"]]
 
 
 def distinct_fits(points: list[dict]) -> list[dict]:
@@ -178,14 +186,14 @@ def pair_curves(points: list[dict], metric: str) -> list[dict]:
     with values at two numbers of pairs at least in all, ``{model, method, family, rows}``, each row
     ``{pairs, plans, materials, median, q1, q3}`` in order of pairs; models in order of the points."""
     runs = [p for p in distinct_fits(points) if p["noise"] == 0.0 and p["error"].get(metric) is not None]
-    counts = {model: {p["pairs"] for p in runs if p["model"] == model} for model in dict.fromkeys(p["model"] for p in runs)}
+    counts = {model: {pairs_of(p) for p in runs if p["model"] == model} for model in dict.fromkeys(p["model"] for p in runs)}
     curves = []
     for model in (m for m, n in counts.items() if len(n) > 1):
         for family in CURVE_FAMILIES:
             mine = [p for p in runs if p["model"] == model and (p["plan"] in PLAN_NAMES) == (family == "named")]
             rows = []
-            for pairs in sorted({p["pairs"] for p in mine}):
-                at = [p for p in mine if p["pairs"] == pairs]
+            for pairs in sorted({pairs_of(p) for p in mine}):
+                at = [p for p in mine if pairs_of(p) == pairs]
                 per_material = [statistics.median(p["error"][metric] for p in at if p["material"] == m)
                                 for m in dict.fromkeys(p["material"] for p in at)]
                 q1, median, q3 = (np.quantile(per_material, (0.25, 0.5, 0.75)).tolist())

@@ -24,7 +24,7 @@ from matplotlib.text import Annotation, Text  # noqa: E402
 from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter  # noqa: E402
 
 from neuralbrdf.atomic import atomic_path  # noqa: E402
-from neuralbrdf.study.aggregate import ACCURACY_METRIC, THRESHOLD_METRIC  # noqa: E402
+from neuralbrdf.study.aggregate import ACCURACY_METRIC, CURVE_FAMILIES, THRESHOLD_METRIC  # noqa: E402
 
 DPI = 100
 #: The smallest text, in pixels of the PNG shown at its own size (the report never scales a figure down).
@@ -331,6 +331,48 @@ def failure_map(rows: list[dict], path: Path) -> str:
     ax.set_title("failed cells / cells" + (f" (causes — {key})" if key else ""))
     fig.canvas.draw()
     rotate_crowded_ticks(ax)
+    return _save(fig, path)
+
+
+#: The y axis of each metric of the pair curves.
+CURVE_AXES = {THRESHOLD_METRIC: "hemisphere log-cos RMSE vs truth", ACCURACY_METRIC: "mean ΔE2000 vs truth render"}
+#: Line and marker of each family of the pair curves (:data:`~neuralbrdf.study.aggregate.CURVE_FAMILIES`).
+CURVE_STYLES = {"named": {"ls": "-", "marker": "o"}, "files": {"ls": "--", "marker": "s"}}
+
+
+@_styled
+def pair_curves(curves: dict[str, list[dict]], title: str, path: Path) -> str:
+    """Error against the number of measured pairs (log x), one panel per metric of ``curves``
+    (metric → :func:`~neuralbrdf.study.aggregate.pair_curves`): per model a colour, per family a
+    line style, the median over materials joined and the quartiles as a band; each number of pairs
+    a tick; one legend below the panels."""
+    fig, axes = _figure(FULL_WIDTH_PX if len(curves) > 1 else HALF_WIDTH_PX, 500, 1, len(curves))
+    models = list(dict.fromkeys(c["model"] for lines in curves.values() for c in lines))
+    colours = {m: METHOD_COLOURS.get(m, plt.cm.tab10(k % 10)) for k, m in enumerate(models)}
+    handles = {}
+    for ax, (metric, lines) in zip(axes[0], curves.items()):
+        ticks = sorted({row["pairs"] for c in lines for row in c["rows"]})
+        for c in lines:
+            x = [row["pairs"] for row in c["rows"]]
+            label = f"{c['model']}, {CURVE_FAMILIES[c['family']]}"
+            handles[label], = ax.plot(x, [row["median"] for row in c["rows"]], color=colours[c["model"]], lw=1.5, ms=5,
+                                      label=label, **CURVE_STYLES[c["family"]])
+            ax.fill_between(x, [row["q1"] for row in c["rows"]], [row["q3"] for row in c["rows"]],
+                            color=colours[c["model"]], alpha=0.15, lw=0)
+        _log_scale(ax, "x")
+        _log_scale(ax, "y")
+        ax.set_xticks(ticks, [f"{t:g}" for t in ticks])
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.set_xlim(min(ticks) / 1.3, max(ticks) * 1.3)
+        ax.set_xlabel("measured direction pairs (log scale)")
+        ax.set_ylabel(CURVE_AXES[metric])
+        ax.grid(alpha=0.3, which="both")
+    fig.suptitle(title)
+    fig.legend(handles=list(handles.values()), loc="outside lower center", frameon=False,
+               ncol=min(len(handles), 4 if len(curves) > 1 else 2))
+    fig.canvas.draw()
+    for ax in axes[0]:
+        rotate_crowded_ticks(ax)
     return _save(fig, path)
 
 

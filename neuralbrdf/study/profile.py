@@ -374,9 +374,9 @@ def load_profile(name_or_path: str) -> Profile:
             if name not in [v.name for v in variants]:
                 r.fail(f"stability.variants[{i}]", f"no variant named {name!r}")
         plans = [r.plan(plan, f"stability.plans[{i}]") for i, plan in enumerate(s.get("plans", ["DS1"]))]
-        for i, (name, path) in enumerate(plans):
-            if path is not None and name in PLAN_NAMES or any(
-                    other == name and (other_path, path) != (None, None) for other, other_path in plans[:i]):
+        for i, (name, plan_file) in enumerate(plans):
+            if plan_file is not None and name in PLAN_NAMES or any(
+                    other == name and (other_file, plan_file) != (None, None) for other, other_file in plans[:i]):
                 r.fail(f"stability.plans[{i}]", f"a second plan named {name!r} (a plan file is named by its stem, "
                                                 f"which may not be another plan's name)")
         render_sweeps = s.get("render", False)
@@ -388,7 +388,8 @@ def load_profile(name_or_path: str) -> Profile:
         seeds = [r.integer(seed, f"stability.seeds[{i}]", 0) for i, seed in enumerate(s.get("seeds", [0]))]
         stability = StabilitySpec(tuple(s.get("variants", [])), tuple(dict.fromkeys(name for name, _ in plans)),
                                   tuple(float(n) for n in s.get("noise", [0.0])), tuple(seeds),
-                                  tuple((name, path) for name, path in plans if path is not None), render_sweeps)
+                                  tuple((name, plan_file) for name, plan_file in plans if plan_file is not None),
+                                  render_sweeps)
     return Profile(
         path=path,
         render=RenderSpec(r.integer(render["spp"], "render.spp"),

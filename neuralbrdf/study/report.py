@@ -278,6 +278,14 @@ def _stability_section(study: dict, figs: dict, figures_dir: Path) -> str:
              "another seed's exactly (a deterministic fit) is counted once.</p>",
              f"<p>What a seed changes:</p><ul>{seeding}</ul>" if seeding else "",
              f'<div class="pair">{"".join(sweep)}</div>']
+    if "pairs" in stability:
+        parts.append(figure(
+            figures_dir, stability["pairs"], "error against the number of measured direction pairs, one line per model "
+            "and kind of plan, hemisphere log-cos and, where the sweep was rendered, image ΔE2000",
+            "Error against the number of measured pairs (log scale), no noise: per model the median over materials "
+            "of each material's median over seeds, the band from first to third quartile over materials; solid: "
+            "the report's plans DS1–DS4, dashed: plan files (such as designed plans, <code>neuralbrdf plan design</code>). "
+            "Image ΔE2000 is shown where the sweep's cells were rendered (<code>stability.render</code>)."))
     groups = [figure(figures_dir, stability[f"group {t['group']}"],
                      f"{t['group']}: box plot of the error over seeds per member",
                      f"{_seeds(study['points'], t)} on {html.escape(', '.join(t['materials']))} (DS1, no noise).")
