@@ -340,21 +340,30 @@ CURVE_AXES = {THRESHOLD_METRIC: "hemisphere log-cos RMSE vs truth", ACCURACY_MET
 CURVE_STYLES = {"named": {"ls": "-", "marker": "o"}, "files": {"ls": "--", "marker": "s"}}
 
 
+def _materials(count: int) -> str:
+    return f"{count} material{'s' if count != 1 else ''}"
+
+
 @_styled
 def pair_curves(curves: dict[str, list[dict]], title: str, path: Path) -> str:
     """Error against the number of measured pairs (log x), one panel per metric of ``curves``
     (metric → :func:`~neuralbrdf.study.aggregate.pair_curves`): per model a colour, per family a
     line style, the median over materials joined and the quartiles as a band; each number of pairs
-    a tick; one legend below the panels."""
+    a tick; one legend below the panels.  The title says over how many materials the medians are,
+    or each line's label where lines differ."""
     fig, axes = _figure(FULL_WIDTH_PX if len(curves) > 1 else HALF_WIDTH_PX, 500, 1, len(curves))
     models = list(dict.fromkeys(c["model"] for lines in curves.values() for c in lines))
     colours = {m: METHOD_COLOURS.get(m, plt.cm.tab10(k % 10)) for k, m in enumerate(models)}
+    counts = {(c["model"], c["family"]): max(row["materials"] for row in c["rows"]) for lines in curves.values()
+              for c in lines}
+    shared = len(set(counts.values())) == 1
     handles = {}
     for ax, (metric, lines) in zip(axes[0], curves.items()):
         ticks = sorted({row["pairs"] for c in lines for row in c["rows"]})
         for c in lines:
             x = [row["pairs"] for row in c["rows"]]
-            label = f"{c['model']}, {CURVE_FAMILIES[c['family']]}"
+            label = f"{c['model']}, {CURVE_FAMILIES[c['family']]}" + (
+                "" if shared else f" ({_materials(counts[(c['model'], c['family'])])})")
             handles[label], = ax.plot(x, [row["median"] for row in c["rows"]], color=colours[c["model"]], lw=1.5, ms=5,
                                       label=label, **CURVE_STYLES[c["family"]])
             ax.fill_between(x, [row["q1"] for row in c["rows"]], [row["q3"] for row in c["rows"]],
@@ -367,7 +376,8 @@ def pair_curves(curves: dict[str, list[dict]], title: str, path: Path) -> str:
         ax.set_xlabel("measured direction pairs (log scale)")
         ax.set_ylabel(CURVE_AXES[metric])
         ax.grid(alpha=0.3, which="both")
-    fig.suptitle(title)
+    over = _materials(next(iter(counts.values()))) if shared else "each line's materials"
+    fig.suptitle(f"{title}\nmedian over {over}, band from first to third quartile")
     fig.legend(handles=list(handles.values()), loc="outside lower center", frameon=False,
                ncol=min(len(handles), 4 if len(curves) > 1 else 2))
     fig.canvas.draw()

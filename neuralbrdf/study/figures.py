@@ -68,13 +68,6 @@ def _speed_accuracy(study: dict, figures_dir: Path) -> dict:
     return figs
 
 
-def pair_curves_title(points: list[dict]) -> str:
-    """The title of the chart of error against the number of pairs: what its lines and bands are."""
-    count = len({p["material"] for p in points if p["noise"] == 0.0 and p["plan"] != "DS1"})
-    return (f"Error against the number of measured pairs (no noise)\nmedian over {count} material"
-            f"{'s' if count != 1 else ''}, band from first to third quartile")
-
-
 def _stability(study: dict, figures_dir: Path) -> dict:
     """Box plots over seeds: each distinct fit once (:func:`~neuralbrdf.study.aggregate.distinct_fits`),
     plans from most pairs to fewest (a plan file named by its stem and number of pairs); the error
@@ -97,7 +90,8 @@ def _stability(study: dict, figures_dir: Path) -> dict:
     curves = {metric: lines for metric in aggregate.CURVE_METRICS
               if (lines := aggregate.pair_curves(points, metric))}
     if curves:
-        figs["pairs"] = charts.pair_curves(curves, pair_curves_title(points), figures_dir / "stability_pairs.png")
+        figs["pairs"] = charts.pair_curves(curves, "Error against the number of measured pairs (no noise)",
+                                          figures_dir / "stability_pairs.png")
     for g, table in enumerate(study.get("groups", [])):
         # over the materials every member fits (a member may fit more materials than the others)
         values = {row["label"]: [p["error"][aggregate.THRESHOLD_METRIC] for p in points
