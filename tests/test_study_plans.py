@@ -50,13 +50,14 @@ def _plan(path: Path, rows: list[str]) -> Path:
     ("DS9", None, "or an in-plane plan file"),
     ("low", None, "or an in-plane plan file"),
     ("DS4.csv", ["30,20"], "a second plan named 'DS4'"),                      # its stem is a plan's name
+    ("my plan.csv", ["30,20"], "without spaces"),
 ])
 def test_a_bad_plan_is_one_line_naming_the_profile_the_key_and_the_file(tmp_path, plan, rows, said):
     if rows is not None:
         _plan(tmp_path / plan, rows)
     if plan == "sphere.csv":
         (tmp_path / plan).write_text("theta_i,phi_i,theta_o,phi_o\n30,0,20,90\n")
-    path = _profile(tmp_path, plan)
+    path = _profile(tmp_path, f'"{plan}"')
     with pytest.raises(InputError) as error:
         load_profile(str(path))
     message = str(error.value)

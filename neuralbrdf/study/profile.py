@@ -276,6 +276,8 @@ class _Reader:
             check_plan(path, in_plane=True)
         except InputError as error:
             self.fail(key, f"{expected}; {error}")
+        if any(c.isspace() for c in Path(path).stem):  # a condition is the plan's name, a space, the noise
+            self.fail(key, f"{path}: a plan file's name names its cells and conditions; expected one without spaces")
         return Path(path).stem, path
 
     def file(self, value, key: str, shipped_folder: str | None = None) -> str:
