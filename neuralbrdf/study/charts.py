@@ -24,7 +24,7 @@ from matplotlib.text import Annotation, Text  # noqa: E402
 from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter  # noqa: E402
 
 from neuralbrdf.atomic import atomic_path  # noqa: E402
-from neuralbrdf.study.aggregate import ACCURACY_METRIC, CURVE_FAMILIES, THRESHOLD_METRIC  # noqa: E402
+from neuralbrdf.study.aggregate import ACCURACY_METRIC, CURVE_FAMILIES, NAMED_PAIRS, THRESHOLD_METRIC  # noqa: E402
 
 DPI = 100
 #: The smallest text, in pixels of the PNG shown at its own size (the report never scales a figure down).
@@ -309,9 +309,12 @@ def group_boxes(values: dict[str, list[float]], title: str, path: Path) -> str:
 @_styled
 def failure_map(rows: list[dict], path: Path) -> str:
     """Model × condition grid: failed/cells and the causes' letters in each square, coloured by the
-    failed fraction (colour bar); the letters used are spelled out in the title."""
+    failed fraction (colour bar), conditions from most pairs to fewest; the letters used are spelled
+    out in the title."""
     models = list(dict.fromkeys(r["model"] for r in rows))
-    conditions = sorted(dict.fromkeys(r["condition"] for r in rows), key=_condition_order)
+    pairs = {r["condition"]: r["pairs"] if "pairs" in r else NAMED_PAIRS[r["condition"].partition(" ")[0]]
+             for r in rows}  # a study.json written before rows recorded their pairs has only DS1..DS4
+    conditions = sorted(pairs, key=lambda condition: _condition_order(condition, pairs[condition]))
     grid = np.full((len(models), len(conditions)), np.nan)
     fig, axes = _figure(min(FULL_WIDTH_PX, 330 + 125 * len(conditions)), 170 + 30 * len(models))
     ax = axes[0, 0]
@@ -386,9 +389,10 @@ def pair_curves(curves: dict[str, list[dict]], title: str, path: Path) -> str:
     return _save(fig, path)
 
 
-def _condition_order(condition: str):
+def _condition_order(condition: str, pairs: int):
+    """Plans from most pairs to fewest (DS1..DS4 before a plan file of as many), each from no noise up."""
     plan, _, rest = condition.partition(" ")
-    return plan, float(rest.split("%")[0]) if rest else 0.0
+    return -pairs, plan not in NAMED_PAIRS, plan, float(rest.split("%")[0]) if rest else 0.0
 
 
 def _style_of(index: int) -> dict:
