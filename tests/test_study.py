@@ -286,7 +286,7 @@ def test_threshold_failures_and_budgets():
         _point("y", "DS1", 0.0, 0, None, failure="export_refused", main=True),
         _point("z", "DS1", 0.0, 0, 0.5, main=True, ratio=0.5, delta_e=8.0),
     ]
-    points = aggregate.points_from_results(results, {"x": "abc", "y": "nlb", "z": "abc"})
+    points = aggregate.points_from_results(results, {"x": "abc", "y": "nlb", "z": "abc"}, aggregate.NAMED_PAIRS)
     assert [p["failure"] for p in points] == [None, None, "error_above_2x_ds1", None, "export_refused", None]
     assert points[3]["cost"]["render_ratio"] == 2.0  # the variant's main-cell cost
     rows = {(r["model"], r["condition"]): r for r in aggregate.failures(points)}
@@ -300,10 +300,10 @@ def test_threshold_failures_and_budgets():
     sentences = aggregate.method_sentences(points, aggregate.failures(points))
     assert "DS4" in sentences["x"] and "no failure" in sentences["z"]
     assert "6 in-plane pairs instead of DS1's 1001" in sentences["x"]  # why: what DS4 takes from the fit
-    assert aggregate.condition_change("DS1 10% noise") == "10% relative noise on every sample"
+    assert aggregate.condition_change("DS1 10% noise", 1001) == "10% relative noise on every sample"
     assert set(aggregate.CAUSE_MEANING) == set(aggregate.CAUSES)
     # a seed that fails at DS1 without noise: no condition to blame, the general meaning
-    rows = [{"model": "g", "condition": "DS1", "cells": 10, "failed": 1, "causes": {"error_above_2x_ds1": 1}}]
+    rows = [{"model": "g", "condition": "DS1", "pairs": 1001, "cells": 10, "failed": 1, "causes": {"error_above_2x_ds1": 1}}]
     sentence = aggregate.method_sentences([{"model": "g", "failure": "error_above_2x_ds1", "message": None}], rows)["g"]
     assert "the reference condition: this seed's fit is far from the others'" in sentence
 
@@ -358,7 +358,7 @@ def synthetic_study(crashed: int = 0) -> dict:
         results[-1 - i] = {**results[-1 - i], "failure": "cell_crashed", "error": {},
                            "message": "the cell's worker process died: Killed (log: cells/x/log.txt)"}
     methods = {m: "abc" if m == "abc" else "nlb" if m.startswith("nlb") else "spectral_mlp" for m in SYNTHETIC_MODELS}
-    points = aggregate.points_from_results(results, methods)
+    points = aggregate.points_from_results(results, methods, aggregate.NAMED_PAIRS)
     failures = aggregate.failures(points)
     return {"format": 1, "points": points, "pareto": aggregate.pareto(points), "failures": failures,
             "failure_causes": list(aggregate.CAUSES), "summary": aggregate.budgets(points),
@@ -397,9 +397,9 @@ def test_every_chart_is_legible_at_its_own_size(synthetic):
     from neuralbrdf.study.charts import FULL_WIDTH_PX
 
     figs = synthetic["figures"]
-    assert set(figs["stability"]) == {"plans", "noise", "group NLB latent size"}
+    assert set(figs["stability"]) == {"plans", "noise", "pairs", "group NLB latent size"}
     assert set(figs["rel_rmse_vs_angle"]) == set(figs["per_channel"]) == {"gold", "nylon"}
-    assert len(synthetic["problems"]) == 1 + 3 + 3 + 1 + 2 + 2
+    assert len(synthetic["problems"]) == 1 + 3 + 4 + 1 + 2 + 2
     assert {name: p for name, p in synthetic["problems"].items() if p} == {}
     assert max(synthetic["widths"].values()) <= FULL_WIDTH_PX
 

@@ -10,7 +10,7 @@ DESCRIPTION = (
     "Mitsuba's roughconductor, and write DIR/study.json, DIR/figures/*.png and DIR/index.html (docs/study.md). "
     "Finished cells are cached under DIR/cells/ by their settings: a rerun does only what is new, a killed run "
     "resumes; cached files that are damaged or belong elsewhere are redone. One study at a time runs in DIR. "
-    "PROFILE is a shipped profile (quick, full, spectral, latent_prior: configs/study/) or your own YAML file. "
+    "PROFILE is a shipped profile (quick, full, spectral, latent_prior, budget: configs/study/) or your own YAML file. "
     "With --cluster ADDRESS the cells run as tasks on the workers of a running Dask scheduler, the same cells with "
     "the same cache and report. With --report-only, DIR/figures and DIR/index.html are drawn again from "
     "DIR/study.json and no cell runs. Exit status: 0 when every cell gave a model; 1 when a cell crashed (the study is "
@@ -21,7 +21,7 @@ DESCRIPTION = (
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--profile", help="quick, full, spectral, latent_prior or a profile YAML file (needed unless --report-only)")
+    parser.add_argument("--profile", help="quick, full, spectral, latent_prior, budget or a profile YAML file (needed unless --report-only)")
     parser.add_argument("--out", required=True, help="output folder (cache, figures, study.json, index.html)")
     parser.add_argument("--jobs", type=int, default=None, help="cells run at once on this machine, one core each (default 1)")
     parser.add_argument("--cluster", metavar="ADDRESS",

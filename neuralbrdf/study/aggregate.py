@@ -1,6 +1,7 @@
 """From cell results to the study's evidence: points, Pareto fronts, failures, budgets (docs/study.md).
 
-* **Points** — one per cell: ``material, model, method, plan, noise, seed``, ``cost`` (the render
+* **Points** — one per cell: ``material, model, method, plan, pairs`` (the number of direction
+  pairs its plan measures), ``noise, seed``, ``cost`` (the render
   ratio against ``roughconductor``, M queries/s of the fastest backend and the parameter count
   of the variant's main cell — speed does not depend on the weights — and the cell's own fit
   wall time) and ``error`` (the metrics of :mod:`neuralbrdf.evaluation`), ``failure``; a rendered
@@ -16,6 +17,10 @@
   on (a model fitted to fewer materials, e.g. the spectral MLP without the RGB MERL proxies, would
   otherwise be compared on easier or harder ones).
 * **Budgets** — per material and ΔE budget, the model of lowest render ratio within it.
+* **Pair curves** — per sweep model, its error against the number of measured pairs: per plan
+  without noise the median over materials of each material's median over seeds, and the
+  quartiles over materials; DS1..DS4 and plan files (designed plans) as two curves, as two plans
+  with one number of pairs (DS4 and a designed 6-pair plan) are what the curve compares.
 * **Groups** — per group of variants (γ and angle unit, latent size), each member's median
   :data:`THRESHOLD_METRIC` over seeds per material (DS1, no noise), on the materials every member
   fits.
@@ -25,9 +30,10 @@ from __future__ import annotations
 
 import statistics
 from collections import Counter, defaultdict
-from functools import lru_cache
 
-from neuralbrdf.data.plans import in_plane_plan
+import numpy as np
+
+from neuralbrdf.data.plans import PLAN_NAMES, in_plane_plan
 
 THRESHOLD_FACTOR = 2.0
 THRESHOLD_METRIC = "hemisphere_logcos_rmse"
@@ -39,6 +45,16 @@ BUDGETS_DELTA_E = (1.0, 2.0, 5.0, 10.0)
 CAUSES = ("non_finite_loss", "optimizer_failure", "fit_refused", "error_above_2x_ds1", "export_refused",
           "evaluation_error", "cell_crashed")
 COST_FROM_MAIN = ("render_ratio", "mqueries_per_s", "parameters", "fastest_backend")
+#: The number of direction pairs of each named in-plane plan.
+NAMED_PAIRS = {name: len(in_plane_plan(name)[0]) for name in ("DS1", "DS2", "DS3", "DS4")}
+#: The number of direction pairs of DS1, the plan of the reference condition.
+DS1_PAIRS = NAMED_PAIRS["DS1"]
+
+
+def pairs_of(point: dict) -> int:
+    """The number of direction pairs of a point's plan (a study.json written before points recorded
+    it has only DS1..DS4, whose numbers are :data:`NAMED_PAIRS`)."""
+    return point["pairs"] if "pairs" in point else NAMED_PAIRS[point["plan"]]
 
 
 def distinct_fits(points: list[dict]) -> list[dict]:
@@ -55,8 +71,9 @@ def distinct_fits(points: list[dict]) -> list[dict]:
     return kept
 
 
-def points_from_results(results: list[dict], methods: dict[str, str]) -> list[dict]:
-    """The points of module docstring (threshold failures included), in cell order."""
+def points_from_results(results: list[dict], methods: dict[str, str], pairs: dict[str, int]) -> list[dict]:
+    """The points of module docstring (threshold failures included), in cell order; ``pairs``: the
+    number of direction pairs of each plan."""
     main_cost = {(r["material"], r["variant"]): r.get("cost", {}) for r in results if r.get("is_main")}
     points = []
     for r in results:
@@ -66,7 +83,7 @@ def points_from_results(results: list[dict], methods: dict[str, str]) -> list[di
         cost["fit_time_s"] = own.get("fit_time_s")
         points.append({
             "material": r["material"], "model": r["variant"], "method": methods[r["variant"]], "plan": r["plan"],
-            "noise": r["noise"], "seed": r["seed"], "is_main": bool(r.get("is_main")), "cost": cost,
+            "pairs": pairs[r["plan"]], "noise": r["noise"], "seed": r["seed"], "is_main": bool(r.get("is_main")), "cost": cost,
             "error": r.get("error") or {}, "failure": r.get("failure"), "message": r.get("message"),
             "key": r.get("key"), **({"per_angle": r["per_angle"]} if r.get("per_angle") else {}),
         })
@@ -139,7 +156,7 @@ def pareto(points: list[dict]) -> dict:
 
 
 def failures(points: list[dict]) -> list[dict]:
-    """Per (model, condition): cells, failures and counts by cause, and the seed-to-seed spread of
+    """Per (model, condition): its plan's number of pairs, cells, failures and counts by cause, and the seed-to-seed spread of
     :data:`THRESHOLD_METRIC` (median and sample standard deviation over the cells with a value)."""
     cells: dict[tuple[str, str], list[dict]] = defaultdict(list)
     for p in points:
@@ -149,12 +166,42 @@ def failures(points: list[dict]) -> list[dict]:
     for (model, condition), ps in cells.items():
         counts = Counter(p["failure"] for p in ps if p["failure"])
         values = [p["error"][THRESHOLD_METRIC] for p in ps if p["error"].get(THRESHOLD_METRIC) is not None]
-        rows.append({"model": model, "method": ps[0]["method"], "condition": condition, "cells": len(ps),
+        rows.append({"model": model, "method": ps[0]["method"], "condition": condition, "pairs": ps[0]["pairs"],
+                     "cells": len(ps),
                      "failed": sum(counts.values()), "causes": dict(counts),
                      "materials": sorted({p["material"] for p in ps}),
                      "median_error": statistics.median(values) if values else None,
                      "seed_std_error": statistics.stdev(values) if len(values) > 1 else None})
     return rows
+
+
+#: The metrics of the pair curves: the hemisphere error and the image error.
+CURVE_METRICS = (THRESHOLD_METRIC, ACCURACY_METRIC)
+#: The two curves of a model: the report's plans, and plan files.
+CURVE_FAMILIES = {"named": "DS1–DS4", "files": "plan files"}
+
+
+def pair_curves(points: list[dict], metric: str) -> list[dict]:
+    """The pair curves of ``metric`` (module docstring): per model and family (:data:`CURVE_FAMILIES`)
+    with values at two numbers of pairs at least in all, ``{model, method, family, rows}``, each row
+    ``{pairs, plans, materials, median, q1, q3}`` in order of pairs; models in order of the points."""
+    runs = [p for p in distinct_fits(points) if p["noise"] == 0.0 and p["error"].get(metric) is not None]
+    counts = {model: {pairs_of(p) for p in runs if p["model"] == model} for model in dict.fromkeys(p["model"] for p in runs)}
+    curves = []
+    for model in (m for m, n in counts.items() if len(n) > 1):
+        for family in CURVE_FAMILIES:
+            mine = [p for p in runs if p["model"] == model and (p["plan"] in PLAN_NAMES) == (family == "named")]
+            rows = []
+            for pairs in sorted({pairs_of(p) for p in mine}):
+                at = [p for p in mine if pairs_of(p) == pairs]
+                per_material = [statistics.median(p["error"][metric] for p in at if p["material"] == m)
+                                for m in dict.fromkeys(p["material"] for p in at)]
+                q1, median, q3 = (np.quantile(per_material, (0.25, 0.5, 0.75)).tolist())
+                rows.append({"pairs": pairs, "plans": list(dict.fromkeys(p["plan"] for p in at)),
+                             "materials": len(per_material), "median": median, "q1": q1, "q3": q3})
+            if rows:
+                curves.append({"model": model, "method": mine[0]["method"], "family": family, "rows": rows})
+    return curves
 
 
 def groups(points: list[dict], members: dict[str, list[tuple[str, str]]], material_order: list[str]) -> list[dict]:
@@ -194,11 +241,6 @@ def budgets(points: list[dict]) -> list[dict]:
     return rows
 
 
-@lru_cache(maxsize=None)
-def _pairs(plan: str) -> int:
-    return len(in_plane_plan(plan)[0])
-
-
 #: What each failure cause means for the fit.
 CAUSE_MEANING = {"non_finite_loss": "training diverged", "optimizer_failure": "the optimiser gave up",
                  "fit_refused": "the fit refused its data", "error_above_2x_ds1": "this seed's fit is far from the others'",
@@ -216,12 +258,13 @@ def _meaning(cause: str, condition: str) -> str:
     return " and ".join(reasons) or CAUSE_MEANING[cause]
 
 
-def condition_change(condition: str) -> str:
-    """What a condition (``DS4``, ``DS1 10% noise``) takes from a fit, against DS1 without noise."""
+def condition_change(condition: str, pairs: int) -> str:
+    """What a condition (``DS4``, ``DS1 10% noise``) whose plan measures ``pairs`` direction pairs
+    takes from a fit, against DS1 without noise."""
     plan, _, noise = condition.partition(" ")
     changes = []
     if plan != "DS1":
-        changes.append(f"{_pairs(plan)} in-plane pairs instead of DS1's {_pairs('DS1')}")
+        changes.append(f"{pairs} in-plane pairs instead of DS1's {DS1_PAIRS}")
     if noise:
         changes.append(f"{noise.removesuffix(' noise')} relative noise on every sample")
     return " and ".join(changes) or "the reference condition"
@@ -242,7 +285,7 @@ def method_sentences(points: list[dict], failure_rows: list[dict]) -> dict[str, 
         for r in broken:
             causes = ", ".join(f"{cause.replace('_', ' ')} ×{n}" for cause, n in sorted(r["causes"].items()))
             meaning = "; ".join(dict.fromkeys(_meaning(c, r["condition"]) for c in r["causes"]))
-            parts.append(f"{r['condition']} ({r['failed']}/{r['cells']}: {causes}) — {condition_change(r['condition'])}: "
+            parts.append(f"{r['condition']} ({r['failed']}/{r['cells']}: {causes}) — {condition_change(r['condition'], r['pairs'])}: "
                          f"{meaning}")
         example = next((p["message"] for p in points if p["model"] == model and p["failure"] and p["message"]), "")
         sentences[model] = (f"{model}: breaks in {failed} of {total} cells — " + "; ".join(parts)

@@ -3,8 +3,10 @@
     python -m neuralbrdf.study.cell CELL_DIR      # one cell
     python -m neuralbrdf.study.cell --serve       # a worker: one CELL_DIR per stdin line
 
-``CELL_DIR/cell.json`` (written by the runner) holds the cell, its key, the material and variant
-entries of the profile, the truth file and its SHA-256, and the render/cost settings; this writes
+``CELL_DIR/cell.json`` (written by the runner) holds the cell, its key, what its plan is measured
+on (DS1..DS4 or a plan file's path), the material and variant entries of the profile, the truth
+file and its SHA-256, the render/cost settings and whether the cell is the main one (rendered and
+timed) or renders for its image metrics only; this writes
 ``CELL_DIR/result.json`` (recording the key and the truth's SHA-256, by which the runner checks a
 cached result) last (atomically), so a cell whose ``result.json`` exists is finished and any other is rerun from
 scratch.  A worker (:func:`serve`) imports torch, Lightning, onnxruntime and Mitsuba once (about
@@ -27,7 +29,7 @@ once per worker) and the truth's two renders (:data:`TRUTH_RENDERS`).  Steps:
 3. **Export** through the checkpoint's kind (:func:`neuralbrdf.onnx_export.export_checkpoint`, what
    ``neuralbrdf export`` runs); a graph that fails its validation is "export refused".
 4. **Evaluate** with :func:`neuralbrdf.evaluation.evaluate.evaluate` (direction metrics; for the
-   main cell also the renders) and the glossy relative RMSE per incident angle and per channel
+   main cell, and every cell of a profile that renders its sweeps, also the renders) and the glossy relative RMSE per incident angle and per channel
    (:func:`neuralbrdf.metrics.relative_rmse_by_theta_i`, report Figs. 4.6/4.7 and 5.3).
 5. **Cost** (main cell): :mod:`neuralbrdf.study.cost`.
 
@@ -108,12 +110,12 @@ def write_data(spec: dict, out: Path) -> Path:
     if material["truth"].startswith("virtual:"):
         from neuralbrdf.sources import virtual_measurement
 
-        table = virtual_measurement(material["truth"].split(":", 1)[1], cell["plan"], cell["noise"], cell["seed"],
+        table = virtual_measurement(material["truth"].split(":", 1)[1], spec["plan"], cell["noise"], cell["seed"],
                                     cell["seed"] + REFERENCE_SEED_OFFSET)
     else:  # an NBRDF proxy, a MERL or an RGL measurement
         from neuralbrdf.sources import sample_file
 
-        table = sample_file(material["truth"], cell["plan"])
+        table = sample_file(material["truth"], spec["plan"])
         if cell["noise"]:
             rng = np.random.default_rng([cell["seed"], 7])
             noisy = table.values * (1.0 + cell["noise"] * rng.standard_normal(table.values.shape))
@@ -363,7 +365,7 @@ def run_cell(cell_dir: Path) -> dict:
         try:
             settings = RenderSettings(variant=variant, spp=spec["render"]["spp"],
                                       resolution=spec["render"]["resolution"], seed=0)
-            evaluation = evaluate(model, truth, cell_dir / "evaluation", settings, render_images=spec["is_main"],
+            evaluation = evaluate(model, truth, cell_dir / "evaluation", settings, render_images=spec["images"],
                                   strata=tuple(spec["render"]["hemisphere_strata"]), truth_evaluator=truth_evaluator(truth),
                                   truth_renders=TRUTH_RENDERS)
             result["error"] = {k: evaluation.get(k) for k in (

@@ -1,16 +1,19 @@
 """The cells of a study and their cache keys (docs/study.md).
 
-A cell is one fit and its evaluation: ``(material, variant, plan, noise, seed)``.  Its key hashes
+A cell is one fit and its evaluation: ``(material, variant, plan, noise, seed)``, the plan by its
+name (DS1..DS4, a plan file's stem: :class:`~neuralbrdf.study.profile.StabilitySpec`).  Its key hashes
 everything that changes its result — the material's truth and table (file contents), the
 variant's method, config file contents and overrides (with the contents of any ``--config`` overlay
 among them; for NLB, the pretrained network's file
-contents too), plan, noise, seed, and for the *main*
+contents too), plan (a plan file's pairs, not its path: an edited file reruns its cells, a moved
+one does not), noise, seed, and for the *main*
 cell of a (material, variant) (DS1, no noise, seed 0: the one that is rendered and timed, unless the
-variant is a sweep only — ``speed_accuracy: false``) the render and cost settings — so a finished cell is found again under ``DIR/cells/KEY/`` by a later
+variant is a sweep only — ``speed_accuracy: false``) the render and cost settings (the render
+settings of every sweep cell too where the profile renders them, ``stability.render``) — so a finished cell is found again under ``DIR/cells/KEY/`` by a later
 run with the same settings, and a changed config reruns only what it touches.
 
 :func:`plan_cells` expands a profile: every variant on every material it applies to (the
-spectral MLP needs spectral samples) as a main cell; for the stability variants every plan at
+spectral MLP needs spectral samples) as a main cell; for the stability variants every plan (DS1..DS4 and plan files) at
 no noise and every noise level on DS1, at every seed (noise and plan sweeps need the virtual
 instrument or an NBRDF proxy; a user's own table is fitted as it is); for grouped variants
 (γ, angle unit, latent size) every seed at DS1 without noise.
@@ -31,6 +34,7 @@ from dataclasses import asdict, dataclass
 from functools import lru_cache
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from neuralbrdf.atomic import file_version
@@ -125,6 +129,21 @@ def _digest(version: tuple) -> str:
     return hashlib.sha256(Path(version[0]).read_bytes()).hexdigest()
 
 
+def plan_digest(path: str) -> str:
+    """SHA-256 of a plan file's pairs (signed in-plane angles rounded to the file's 1e-6°), in the
+    file's order: what its cells measure, whatever the file's formatting; read again only when the
+    file changed."""
+    return _plan_digest(file_version(path))
+
+
+@lru_cache(maxsize=None)
+def _plan_digest(version: tuple) -> str:
+    from neuralbrdf.data.plans import in_plane_plan
+
+    pairs = np.round(np.stack(in_plane_plan(version[0]), axis=1), 6) + 0.0  # + 0.0: -0.0 is 0.0
+    return hashlib.sha256(np.ascontiguousarray(pairs, dtype="<f8").tobytes()).hexdigest()
+
+
 def flag_values(args, flag: str) -> list[str]:
     """The values given to ``flag`` in command-line ``args``, as ``FLAG VALUE`` or ``FLAG=VALUE``, in order."""
     args = list(args)
@@ -165,6 +184,12 @@ def is_rendered(cell: Cell, profile: Profile) -> bool:
     return cell.is_main and profile.variant(cell.variant).speed_accuracy
 
 
+def renders_images(cell: Cell, profile: Profile) -> bool:
+    """Whether ``cell``'s evaluation renders the preview scene (image metrics): a rendered main cell,
+    and every cell of a stability variant where the profile renders the sweeps (``stability.render``)."""
+    return is_rendered(cell, profile) or (profile.stability.render and cell.variant in profile.stability.variants)
+
+
 def cell_settings(cell: Cell, profile: Profile) -> dict:
     """Everything a cell's result depends on (module docstring), as plain JSON values."""
     material = next(m for m in profile.materials if m.name == cell.material)
@@ -190,9 +215,13 @@ def cell_settings(cell: Cell, profile: Profile) -> dict:
     if variant.method in NETWORK_DEFAULTS:  # a retrained network changes every NLB result
         network = resolve_pretrained(pretrained_network(variant), NETWORK_DEFAULTS[variant.method])
         settings["variant"]["pretrained"] = file_digest(str(network))
+    plan = profile.stability.plan(cell.plan)
+    if plan != cell.plan:  # a plan file (only then: the keys of DS1..DS4 cells stay what they were)
+        settings["plan"] = plan_digest(plan)
     settings["hemisphere_strata"] = list(profile.render.hemisphere_strata)
-    if is_rendered(cell, profile):
+    if renders_images(cell, profile):
         settings["render"] = {**asdict(profile.render), "format": RENDER_FORMAT}
+    if is_rendered(cell, profile):
         settings["cost"] = asdict(profile.cost)
     return settings
 

@@ -24,7 +24,7 @@ from matplotlib.text import Annotation, Text  # noqa: E402
 from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter  # noqa: E402
 
 from neuralbrdf.atomic import atomic_path  # noqa: E402
-from neuralbrdf.study.aggregate import ACCURACY_METRIC, THRESHOLD_METRIC  # noqa: E402
+from neuralbrdf.study.aggregate import ACCURACY_METRIC, CURVE_FAMILIES, NAMED_PAIRS, THRESHOLD_METRIC  # noqa: E402
 
 DPI = 100
 #: The smallest text, in pixels of the PNG shown at its own size (the report never scales a figure down).
@@ -309,9 +309,12 @@ def group_boxes(values: dict[str, list[float]], title: str, path: Path) -> str:
 @_styled
 def failure_map(rows: list[dict], path: Path) -> str:
     """Model × condition grid: failed/cells and the causes' letters in each square, coloured by the
-    failed fraction (colour bar); the letters used are spelled out in the title."""
+    failed fraction (colour bar), conditions from most pairs to fewest; the letters used are spelled
+    out in the title."""
     models = list(dict.fromkeys(r["model"] for r in rows))
-    conditions = sorted(dict.fromkeys(r["condition"] for r in rows), key=_condition_order)
+    pairs = {r["condition"]: r["pairs"] if "pairs" in r else NAMED_PAIRS[r["condition"].partition(" ")[0]]
+             for r in rows}  # a study.json written before rows recorded their pairs has only DS1..DS4
+    conditions = sorted(pairs, key=lambda condition: _condition_order(condition, pairs[condition]))
     grid = np.full((len(models), len(conditions)), np.nan)
     fig, axes = _figure(min(FULL_WIDTH_PX, 330 + 125 * len(conditions)), 170 + 30 * len(models))
     ax = axes[0, 0]
@@ -334,9 +337,62 @@ def failure_map(rows: list[dict], path: Path) -> str:
     return _save(fig, path)
 
 
-def _condition_order(condition: str):
+#: The y axis of each metric of the pair curves.
+CURVE_AXES = {THRESHOLD_METRIC: "hemisphere log-cos RMSE vs truth", ACCURACY_METRIC: "mean ΔE2000 vs truth render"}
+#: Line and marker of each family of the pair curves (:data:`~neuralbrdf.study.aggregate.CURVE_FAMILIES`).
+CURVE_STYLES = {"named": {"ls": "-", "marker": "o"}, "files": {"ls": "--", "marker": "s"}}
+
+
+def _materials(count: int) -> str:
+    return f"{count} material{'s' if count != 1 else ''}"
+
+
+@_styled
+def pair_curves(curves: dict[str, list[dict]], title: str, path: Path) -> str:
+    """Error against the number of measured pairs (log x), one panel per metric of ``curves``
+    (metric → :func:`~neuralbrdf.study.aggregate.pair_curves`): per model a colour, per family a
+    line style, the median over materials joined and the quartiles as a band; each number of pairs
+    a tick; one legend below the panels.  The title says over how many materials the medians are,
+    or each line's label where lines differ."""
+    fig, axes = _figure(FULL_WIDTH_PX if len(curves) > 1 else HALF_WIDTH_PX, 500, 1, len(curves))
+    models = list(dict.fromkeys(c["model"] for lines in curves.values() for c in lines))
+    colours = {m: METHOD_COLOURS.get(m, plt.cm.tab10(k % 10)) for k, m in enumerate(models)}
+    counts = {(c["model"], c["family"]): max(row["materials"] for row in c["rows"]) for lines in curves.values()
+              for c in lines}
+    shared = len(set(counts.values())) == 1
+    handles = {}
+    for ax, (metric, lines) in zip(axes[0], curves.items()):
+        ticks = sorted({row["pairs"] for c in lines for row in c["rows"]})
+        for c in lines:
+            x = [row["pairs"] for row in c["rows"]]
+            label = f"{c['model']}, {CURVE_FAMILIES[c['family']]}" + (
+                "" if shared else f" ({_materials(counts[(c['model'], c['family'])])})")
+            handles[label], = ax.plot(x, [row["median"] for row in c["rows"]], color=colours[c["model"]], lw=1.5, ms=5,
+                                      label=label, **CURVE_STYLES[c["family"]])
+            ax.fill_between(x, [row["q1"] for row in c["rows"]], [row["q3"] for row in c["rows"]],
+                            color=colours[c["model"]], alpha=0.15, lw=0)
+        _log_scale(ax, "x")
+        _log_scale(ax, "y")
+        ax.set_xticks(ticks, [f"{t:g}" for t in ticks])
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.set_xlim(min(ticks) / 1.3, max(ticks) * 1.3)
+        ax.set_xlabel("measured direction pairs (log scale)")
+        ax.set_ylabel(CURVE_AXES[metric])
+        ax.grid(alpha=0.3, which="both")
+    over = _materials(next(iter(counts.values()))) if shared else "each line's materials"
+    fig.suptitle(f"{title}\nmedian over {over}, band from first to third quartile")
+    fig.legend(handles=list(handles.values()), loc="outside lower center", frameon=False,
+               ncol=min(len(handles), 4 if len(curves) > 1 else 2))
+    fig.canvas.draw()
+    for ax in axes[0]:
+        rotate_crowded_ticks(ax)
+    return _save(fig, path)
+
+
+def _condition_order(condition: str, pairs: int):
+    """Plans from most pairs to fewest (DS1..DS4 before a plan file of as many), each from no noise up."""
     plan, _, rest = condition.partition(" ")
-    return plan, float(rest.split("%")[0]) if rest else 0.0
+    return -pairs, plan not in NAMED_PAIRS, plan, float(rest.split("%")[0]) if rest else 0.0
 
 
 def _style_of(index: int) -> dict:

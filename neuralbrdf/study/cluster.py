@@ -59,10 +59,11 @@ _threads = threading.local()
 
 
 def cell_inputs(spec: dict) -> list[str]:
-    """The files the cell of ``spec`` reads: its truth, the variant's config and the material's
-    table or measured source."""
+    """The files the cell of ``spec`` reads: its truth, the variant's config, the material's table
+    or measured source and its plan file."""
     material = spec["material"]
-    sources = [material["table"], None if material["truth"].startswith("virtual:") else material["truth"]]
+    sources = [material["table"], None if material["truth"].startswith("virtual:") else material["truth"],
+               spec["plan"] if spec["plan"] != spec["cell"]["plan"] else None]
     return [spec["truth"], spec["variant"]["config"], *(path for path in sources if path)]
 
 

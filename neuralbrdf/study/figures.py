@@ -16,7 +16,6 @@ from pathlib import Path
 from neuralbrdf.atomic import atomic_path
 from neuralbrdf.study import aggregate, charts
 
-PLAN_ORDER = ("DS1", "DS2", "DS3", "DS4")
 RENDERS = "renders"
 
 
@@ -70,20 +69,29 @@ def _speed_accuracy(study: dict, figures_dir: Path) -> dict:
 
 
 def _stability(study: dict, figures_dir: Path) -> dict:
-    """Box plots over seeds: each distinct fit once (:func:`~neuralbrdf.study.aggregate.distinct_fits`)."""
+    """Box plots over seeds: each distinct fit once (:func:`~neuralbrdf.study.aggregate.distinct_fits`),
+    plans from most pairs to fewest (a plan file named by its stem and number of pairs); the error
+    against the number of pairs."""
     points, figs = aggregate.distinct_fits(study["points"]), {}
     models = sweep_models(points)
     sweep = [p for p in points if p["model"] in models]
-    plans = [plan for plan in PLAN_ORDER if any(p["plan"] == plan for p in sweep)]
+    pairs = {p["plan"]: aggregate.pairs_of(p) for p in sweep}
+    plans = sorted(pairs, key=lambda plan: (-pairs[plan], plan not in aggregate.NAMED_PAIRS, plan))
     if len(plans) > 1:
         figs["plans"] = charts.box_by_condition(
-            [p for p in sweep if p["noise"] == 0.0], models, plans, lambda p: p["plan"], str,
+            [p for p in sweep if p["noise"] == 0.0], models, plans, lambda p: p["plan"],
+            lambda plan: plan if plan in aggregate.NAMED_PAIRS else f"{plan} ({pairs[plan]} pairs)",
             "Error per sampling plan (no noise)", figures_dir / "stability_plans.png")
     noise = sorted({p["noise"] for p in sweep if p["plan"] == "DS1"})
     if len(noise) > 1:
         figs["noise"] = charts.box_by_condition(
             [p for p in sweep if p["plan"] == "DS1"], models, noise, lambda p: p["noise"], lambda n: f"{n * 100:g}%",
             "Error per relative measurement noise (DS1)", figures_dir / "stability_noise.png")
+    curves = {metric: lines for metric in aggregate.CURVE_METRICS
+              if (lines := aggregate.pair_curves(points, metric))}
+    if curves:
+        figs["pairs"] = charts.pair_curves(curves, "Error against the number of measured pairs (no noise)",
+                                          figures_dir / "stability_pairs.png")
     for g, table in enumerate(study.get("groups", [])):
         # over the materials every member fits (a member may fit more materials than the others)
         values = {row["label"]: [p["error"][aggregate.THRESHOLD_METRIC] for p in points

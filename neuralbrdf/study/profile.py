@@ -20,9 +20,10 @@ A profile is a YAML file (``configs/study/quick.yaml``, ``full.yaml``, or a user
          args: [--trainer.max_epochs, "5"], group: "γ / angle unit", label: "γ=3 rad"}
     stability:
       variants: [spectral_mlp, abc]            # methods whose failures are mapped
-      plans: [DS1, DS2, DS3, DS4]
+      plans: [DS1, DS2, DS3, DS4, configs/plans/nlb_spectral_12.csv]   # names or plan files
       noise: [0.0, 0.01, 0.03, 0.1]            # relative, the virtual instrument's --noise
       seeds: [0, 1, 2, 3, 4]
+      render: false                            # true: every sweep cell is rendered too (image ΔE2000)
 
 Paths starting with ``configs/`` name the shipped configs (:mod:`neuralbrdf.configs_dir`), those
 starting with ``../shared`` are relative to the repository root, others to the profile file.  ``method`` is ``spectral_mlp``, ``abc``, ``nlb`` or
@@ -36,6 +37,13 @@ fits a variant to those materials only (default: every material it applies to). 
 studies the model's fast path instead of the model: each fitted model is exported with its
 ``f_fast`` (``neuralbrdf export --fast``, :mod:`neuralbrdf.lod.fast_paths`) and that output, cut
 out as a model file of its own, is what the cell scores, renders and times.
+A plan of ``stability.plans`` is DS1..DS4 or an in-plane plan file (:mod:`neuralbrdf.data.plans`:
+the CSV of ``theta_i,theta_r`` pairs that ``neuralbrdf plan`` writes): ``configs/plans/NAME.csv``
+names a shipped one, any other path is taken as the other paths are.  The file is read when the
+profile is; its stem (``nlb_spectral_12``) names it in cells and the report, so two plans may not
+share a name.  ``stability.render: true`` renders every cell of the sweeps as the main cells are
+(only the main cells are timed), so the sweeps have image metrics too (the ``budget`` profile's
+error against the number of measured pairs).
 Every error names the profile file and the key (``materials[1].truth``): among others a virtual
 material that does not exist, a truth ``.onnx`` that is not a valid ground truth (kind
 ``reference``, ``neuralbrdf export-truth``), render sizes outside what an evaluation accepts
@@ -53,17 +61,19 @@ from pathlib import Path
 import yaml
 
 from neuralbrdf.configs_dir import CONFIGS_DIR, resolve_config
-from neuralbrdf.data.plans import PLAN_NAMES
+from neuralbrdf.data.plans import INPLANE_PLAN_COLUMNS, PLAN_NAMES, check_plan, in_plane_plan
 from neuralbrdf.errors import InputError
 from neuralbrdf.study.cost import MAX_BATCH
 from neuralbrdf.evaluation.evaluate import MAX_RESOLUTION, MIN_RESOLUTION, REFERENCE_KIND
 from neuralbrdf.evaluation.scores import HEMISPHERE_STRATA, check_strata
-from neuralbrdf.virtual.materials import MATERIALS
+from neuralbrdf.virtual.materials import MATERIALS, VALIDATION_MATERIALS
 
 METHODS = ("spectral_mlp", "abc", "nlb", "nlb_spectral")
 BUILTIN_DIR = CONFIGS_DIR / "study"
 REPO_ROOT = Path(__file__).resolve().parents[2]
 MAX_NOISE = 1.0
+#: The named plans a stability sweep takes (besides plan files): the instrument's in-plane plans.
+SWEEP_PLANS = ("DS1", "DS2", "DS3", "DS4")
 
 
 @dataclass(frozen=True)
@@ -127,10 +137,23 @@ class VariantSpec:
 
 @dataclass(frozen=True)
 class StabilitySpec:
+    """``plans``: the names the cells know them by (DS1..DS4, a plan file's stem); ``plan_files``:
+    the path each plan file's name stands for; ``render``: the sweep cells are rendered too."""
+
     variants: tuple[str, ...] = ()
     plans: tuple[str, ...] = ("DS1",)
     noise: tuple[float, ...] = (0.0,)
     seeds: tuple[int, ...] = (0,)
+    plan_files: tuple[tuple[str, str], ...] = ()
+    render: bool = False
+
+    def plan(self, name: str) -> str:
+        """What a plan's cells are measured on: the plan file a name stands for, else the name (DS1..DS4)."""
+        return dict(self.plan_files).get(name, name)
+
+    def pairs(self, name: str) -> int:
+        """The number of direction pairs of the plan ``name`` (the main plan DS1 included)."""
+        return len(in_plane_plan(self.plan(name))[0])
 
 
 @dataclass(frozen=True)
@@ -187,9 +210,9 @@ class _Reader:
         ``.bsdf`` or a ground truth ``.onnx``."""
         truth = self.file(value, key)
         if truth.startswith("virtual:"):
-            if truth.split(":", 1)[1] not in MATERIALS:
+            if truth.split(":", 1)[1] not in (*MATERIALS, *VALIDATION_MATERIALS):
                 self.fail(key, f"no virtual material {truth.split(':', 1)[1]!r}; expected one of "
-                               f"{', '.join('virtual:' + name for name in MATERIALS)}")
+                               f"{', '.join('virtual:' + name for name in (*MATERIALS, *VALIDATION_MATERIALS))}")
             return truth
         if Path(truth).suffix not in (".h5", ".binary", ".bsdf", ".onnx"):
             self.fail(key, "expected virtual:NAME, an NBRDF .h5, a MERL .binary, an RGL .bsdf or a reference .onnx")
@@ -239,13 +262,35 @@ class _Reader:
             self.fail(key, f"expected a non-empty list, got {value!r}")
         return value
 
-    def file(self, value, key: str) -> str:
+    def plan(self, value, key: str) -> tuple[str, str | None]:
+        """A plan of the stability sweep (module docstring): ``(name, None)`` for DS1..DS4,
+        ``(stem, path)`` for an in-plane plan file, read now."""
+        expected = f"expected {', '.join(SWEEP_PLANS)} or an in-plane plan file (CSV of {','.join(INPLANE_PLAN_COLUMNS)})"
+        text = self.string(value, key)
+        if text in SWEEP_PLANS:
+            return text, None
+        if Path(text).suffix.lower() != ".csv":
+            self.fail(key, f"{expected}, got {text!r}")
+        path = self.file(text, key, shipped_folder="plans")
+        try:
+            check_plan(path, in_plane=True)
+        except InputError as error:
+            self.fail(key, f"{expected}; {error}")
+        if any(c.isspace() for c in Path(path).stem):  # a condition is the plan's name, a space, the noise
+            self.fail(key, f"{path}: a plan file's name names its cells and conditions; expected one without spaces")
+        return Path(path).stem, path
+
+    def file(self, value, key: str, shipped_folder: str | None = None) -> str:
+        """A file the profile names (module docstring), as an absolute path; ``shipped_folder``: a
+        ``configs/`` path names a file of that shipped folder as it is (not a YAML config)."""
         text = self.string(value, key)
         if text.startswith("virtual:"):
             return text
         path = Path(text)
         if not path.is_absolute():
-            if text.startswith("configs/"):
+            if text.startswith(f"configs/{shipped_folder}/"):
+                anchored = CONFIGS_DIR.joinpath(*path.parts[1:])
+            elif text.startswith("configs/"):
                 anchored = resolve_config(text)
             elif text.startswith("../shared"):
                 anchored = REPO_ROOT / path
@@ -326,19 +371,27 @@ def load_profile(name_or_path: str) -> Profile:
         r.fail("hemisphere_strata", error.reason)
     stability = StabilitySpec()
     if "stability" in raw:
-        s = r.mapping(raw["stability"], "stability", ("variants", "plans", "noise", "seeds"))
+        s = r.mapping(raw["stability"], "stability", ("variants", "plans", "noise", "seeds", "render"))
         for i, name in enumerate(s.get("variants", [])):
             if name not in [v.name for v in variants]:
                 r.fail(f"stability.variants[{i}]", f"no variant named {name!r}")
-        for i, plan in enumerate(s.get("plans", ["DS1"])):
-            if plan not in PLAN_NAMES or plan == "low":
-                r.fail(f"stability.plans[{i}]", f"expected DS1..DS4, got {plan!r}")
+        plans = [r.plan(plan, f"stability.plans[{i}]") for i, plan in enumerate(s.get("plans", ["DS1"]))]
+        for i, (name, plan_file) in enumerate(plans):
+            if plan_file is not None and name in PLAN_NAMES or any(
+                    other == name and (other_file, plan_file) != (None, None) for other, other_file in plans[:i]):
+                r.fail(f"stability.plans[{i}]", f"a second plan named {name!r} (a plan file is named by its stem, "
+                                                f"which may not be another plan's name)")
+        render_sweeps = s.get("render", False)
+        if not isinstance(render_sweeps, bool):
+            r.fail("stability.render", f"expected true or false, got {render_sweeps!r}")
         for i, noise in enumerate(s.get("noise", [0.0])):
             if isinstance(noise, bool) or not isinstance(noise, (int, float)) or not 0.0 <= noise <= MAX_NOISE:
                 r.fail(f"stability.noise[{i}]", f"expected a relative noise in [0, {MAX_NOISE}], got {noise!r}")
         seeds = [r.integer(seed, f"stability.seeds[{i}]", 0) for i, seed in enumerate(s.get("seeds", [0]))]
-        stability = StabilitySpec(tuple(s.get("variants", [])), tuple(s.get("plans", ["DS1"])),
-                                  tuple(float(n) for n in s.get("noise", [0.0])), tuple(seeds))
+        stability = StabilitySpec(tuple(s.get("variants", [])), tuple(dict.fromkeys(name for name, _ in plans)),
+                                  tuple(float(n) for n in s.get("noise", [0.0])), tuple(seeds),
+                                  tuple((name, plan_file) for name, plan_file in plans if plan_file is not None),
+                                  render_sweeps)
     return Profile(
         path=path,
         render=RenderSpec(r.integer(render["spp"], "render.spp"),

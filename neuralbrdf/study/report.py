@@ -267,6 +267,19 @@ def _per_material_section(study: dict, figs: dict, figures_dir: Path) -> str:
     return _section("Speed against accuracy per material", "".join(parts))
 
 
+def _pairs_part(figs: dict, figures_dir: Path) -> str:
+    """The chart of error against the number of measured pairs, with its heading; none without a plan sweep."""
+    if "pairs" not in figs["stability"]:
+        return ""
+    return "<h2>Error against the number of measured pairs</h2>" + figure(
+        figures_dir, figs["stability"]["pairs"], "error against the number of measured direction pairs, one line per "
+        "model and kind of plan, hemisphere log-cos and, where the sweep was rendered, image ΔE2000",
+        "Without noise: per model the median over materials of each material's median over seeds, the band from "
+        "first to third quartile over materials; solid: the report's plans DS1–DS4, dashed: plan files (such as "
+        "designed plans, <code>neuralbrdf plan design</code>). Image ΔE2000 is shown where the sweep's cells were "
+        "rendered (<code>stability.render</code>).")
+
+
 def _stability_section(study: dict, figs: dict, figures_dir: Path) -> str:
     stability = figs["stability"]
     sweep = [figure(figures_dir, stability[key], alt) for key, alt in (
@@ -400,6 +413,7 @@ def write_report(study: dict, figs: dict, out_dir: str | Path) -> Path:
                f"Pareto front (dashed: no other model is both cheaper and more accurate) against render cost: "
                f"<b>{_names(fronts['render_ratio']['pooled'])}</b>; against fit time: "
                f"<b>{_names(fronts['fit_time_s']['pooled'])}</b>."),
+        _pairs_part(figs, figures_dir),
         "<h2>Details</h2>",
         _per_material_section(study, figs, figures_dir),
         _stability_section(study, figs, figures_dir),

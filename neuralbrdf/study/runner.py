@@ -43,7 +43,7 @@ from neuralbrdf.folder_lock import folder_lock
 from neuralbrdf.study import aggregate
 from neuralbrdf.study.cache import Repairs, cached_result, read_runs, truth_file, write_runs
 from neuralbrdf.study.cell import WORKER_THREADS
-from neuralbrdf.study.cells import Cell, cell_key, is_rendered, plan_cells, seeding_description
+from neuralbrdf.study.cells import Cell, cell_key, is_rendered, plan_cells, renders_images, seeding_description
 from neuralbrdf.study.figures import write_figures
 from neuralbrdf.study.health import health
 from neuralbrdf.study.profile import Profile, load_profile
@@ -56,7 +56,8 @@ def cell_spec(cell: Cell, key: str, profile: Profile, truth: tuple[Path, str]) -
     """What ``cells/KEY/cell.json`` holds: everything the cell's worker needs to run it
     (:mod:`neuralbrdf.study.cell`)."""
     material = next(m for m in profile.materials if m.name == cell.material)
-    return {"cell": asdict(cell), "key": key, "is_main": is_rendered(cell, profile), "material": asdict(material),
+    return {"cell": asdict(cell), "key": key, "is_main": is_rendered(cell, profile),
+            "images": renders_images(cell, profile), "plan": profile.stability.plan(cell.plan), "material": asdict(material),
             "variant": asdict(profile.variant(cell.variant)), "truth": str(truth[0].resolve()),
             "truth_sha256": truth[1],
             "render": asdict(profile.render), "cost": asdict(profile.cost)}
@@ -197,7 +198,8 @@ def _run_locked(profile: Profile, profile_name: str, out_dir: Path, cells: Cells
     # still shows the run that computed them, its wall time above all)
     results, ran = run_cells(profile, out_dir, cells, repairs, progress)
     methods = {v.name: v.method for v in profile.variants}
-    points = aggregate.points_from_results(results, methods)
+    pairs = {plan: profile.stability.pairs(plan) for plan in dict.fromkeys(r["plan"] for r in results)}
+    points = aggregate.points_from_results(results, methods, pairs)
     failure_rows = aggregate.failures(points)
     study = {
         "format": STUDY_FORMAT,
