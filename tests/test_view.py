@@ -257,6 +257,37 @@ def test_a_burst_of_connections_waits_in_the_backlog_and_is_answered(scene):
     assert statuses == [200] * 200
 
 
+def test_ctrl_c_while_a_request_thread_starts_stops_the_server(scene, monkeypatch):
+    """A Ctrl-C that lands while a worker thread is being started (its request may already be
+    served) must reach serve_forever, not be lost in the bookkeeping of the worker slots."""
+    import threading
+
+    from neuralbrdf.explorer import server
+
+    started = threading.Thread.start
+
+    def start_then_interrupted(thread):
+        started(thread)
+        thread.join()
+        raise KeyboardInterrupt
+
+    viewer = Viewer(scene)
+    try:
+        connection = socket.create_connection(viewer.address, timeout=30)
+        connection.sendall(f"GET /api/scene HTTP/1.0\r\nHost: 127.0.0.1:{viewer.address[1]}\r\n\r\n".encode())
+        monkeypatch.setattr(threading.Thread, "start", start_then_interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            viewer._server.handle_request()
+        monkeypatch.undo()
+        assert connection.recv(12).startswith(b"HTTP/1.0 200")
+        connection.close()
+        # every slot is free again, none freed twice
+        assert all(viewer._server._workers.acquire(blocking=False) for _ in range(server.MAX_WORKERS))
+        assert not viewer._server._workers.acquire(blocking=False)
+    finally:
+        viewer.stop()
+
+
 def test_silent_connections_hold_a_bounded_number_of_threads_and_are_closed(scene, monkeypatch):
     """1 000 half-open connections held 1 000 threads for ever: now at most MAX_WORKERS threads
     serve at once and a connection silent for the socket timeout is closed."""

@@ -88,8 +88,8 @@ class _Server(ThreadingHTTPServer):
         self._workers.acquire()
         try:
             super().process_request(request, client_address)
-        except BaseException:
-            self._workers.release()
+        except RuntimeError:  # no thread could be started: its slot is free again (a Ctrl-C while one
+            self._workers.release()  # starts is not caught: that thread runs and frees its own slot)
             raise
 
     def process_request_thread(self, request, client_address) -> None:
