@@ -1,13 +1,14 @@
 """Simulated measuring sessions on validation materials: does ``neuralbrdf acquire`` reach the DS3 fit's error within its budget, and does its interval hold the true error (docs/how-many-measurements.md)?
 
     python benchmarks/acquisition_sessions.py [--groups virtual_validation,rgl_validation]
-        [--count 6] [--max 24] [--plans benchmarks/acquisition_plans.json] [--out ...]
+        [--count 6] [--max 24] [--ds3 benchmarks/acquisition_calibration_validation.json] [--out ...]
 
 For every material of the groups, a session (:func:`neuralbrdf.acquisition.session.run_session`)
 starts from the config's start plan (the shipped six-pair design), asks ``plan next`` for
 ``--count`` pairs at each step and stops at ``--max`` pairs; each step's fit is scored over the
 hemisphere against the truth (no renders).  Compared with the error of the same material's DS3 fit
-(57 pairs, the same noise) from ``acquisition_plans.json`` (``benchmarks/acquisition.py``).  Writes
+(57 pairs, the same noise and seed) from ``acquisition_calibration_validation.json``
+(``benchmarks/acquisition_calibration.py --split validation``, or ``--ds3`` the plans benchmark's file).  Writes
 per material the steps (pairs, estimate, interval, true error), and in ``summary``: the share of
 materials whose session reaches its DS3 error within the budget, the median over materials of the
 last step's error over DS3's, and the share of steps whose 80 % interval holds the true error.
@@ -50,26 +51,39 @@ def session(source: str, config, count: int, max_pairs: int, work: Path) -> list
     return json.loads(path.read_text())
 
 
+def ds3_of(path: Path) -> dict[str, float]:
+    """Each material's DS3 hemisphere log-cos (same noise and seed as a session's measurements) from
+    ``acquisition_calibration_validation.json`` or ``acquisition_plans.json``; empty without the file."""
+    if not path.is_file():
+        return {}
+    data = json.loads(path.read_text())
+    if "cells" in data:
+        return {c["source"].removeprefix("virtual:"): c["logcos"] for c in data["cells"] if c["plan"] == "DS3"}
+    return {name: plans["DS3"] for group in data["materials"].values() for name, plans in group.items()
+            if "DS3" in plans}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], allow_abbrev=False)
     parser.add_argument("--groups", default="virtual_validation,rgl_validation")
     parser.add_argument("--count", type=int, default=6, help="pairs asked for at each step")
     parser.add_argument("--max", type=int, default=24, dest="max_pairs", help="the budget of pairs")
-    parser.add_argument("--plans", default=str(REPO / "benchmarks" / "acquisition_plans.json"),
-                        help="the plans benchmark's result, for each material's DS3 error")
+    parser.add_argument("--ds3", default=str(REPO / "benchmarks" / "acquisition_calibration_validation.json"),
+                        help="each material's DS3 error: the calibration check's result on the validation split "
+                             "(or the plans benchmark's)")
     parser.add_argument("--work", default=str(REPO / "runs" / "acquisition"))
     parser.add_argument("--out", default=str(REPO / "benchmarks" / "acquisition_sessions.json"))
     args = parser.parse_args(argv)
     config = load_acquisition_config()
     groups = args.groups.split(",") if SHARED.is_dir() else ["virtual_validation"]
-    plans = json.loads(Path(args.plans).read_text())["materials"] if Path(args.plans).is_file() else {}
+    ds3_errors = ds3_of(Path(args.ds3))
     started, load_before = time.perf_counter(), os.getloadavg()
     rows: dict = {}
     for group in groups:
         for source in GROUPS[group]():
             name = Path(source).stem if not source.startswith("virtual:") else source.split(":")[1]
             steps = session(source, config, args.count, args.max_pairs, Path(args.work))
-            ds3 = plans.get(group, {}).get(name, {}).get("DS3")
+            ds3 = ds3_errors.get(name)
             rows.setdefault(group, {})[name] = {"steps": steps, "ds3": ds3}
             print(f"{group} {name}: " + ", ".join(f"{s['pairs']}: {s['true_logcos']:.4f}" for s in steps)
                   + (f"; DS3 {ds3:.4f}" if ds3 else ""), flush=True)

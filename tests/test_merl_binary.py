@@ -149,7 +149,8 @@ def test_a_merl_file_is_a_material_source_and_a_study_truth(merl_file, tmp_path)
 
     material = load_material(merl=str(merl_file), plan="DS2", eval_plan="DS1")
     assert material.name == "analytic" and material.fit.n_rows == 185 and material.truth.n_rows == 1001
-    spec = {"cell": {"plan": "DS3", "noise": 0.0, "seed": 0}, "material": {"table": None, "truth": str(merl_file)}}
+    spec = {"cell": {"plan": "DS3", "noise": 0.0, "seed": 0}, "plan": "DS3",
+            "material": {"table": None, "truth": str(merl_file)}}
     assert read_table(write_data(spec, tmp_path / "data" / "analytic.csv")).n_rows == 57
     profile = tmp_path / "merl.yaml"
     profile.write_text(f"render: {{spp: 2, resolution: 16}}\ncost: {{spp: 2, resolution: 16, repeats: 1, batch: 4096}}\n"

@@ -552,7 +552,7 @@ def test_a_study_profile_takes_an_rgl_truth(files, tmp_path):
                        "variants:\n  - {name: abc, method: abc, config: configs/abc.yaml}\n")
     material = load_profile(str(profile)).materials[0]
     assert material.truth == str(files["spectral"]) and material.is_spectral
-    spec = {"cell": {"plan": "DS3", "noise": 0.0, "seed": 0}, "material": {"table": None, "truth": material.truth},
+    spec = {"cell": {"plan": "DS3", "noise": 0.0, "seed": 0}, "plan": "DS3", "material": {"table": None, "truth": material.truth},
             "variant": {"render_variant": None}}
     assert read_table(write_data(spec, tmp_path / "data" / "spec.csv")).wavelengths.size == 31
     assert render_variant(spec, Path(material.truth)) == "llvm_ad_spectral"
