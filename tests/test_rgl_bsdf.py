@@ -561,3 +561,19 @@ def test_a_study_profile_takes_an_rgl_truth(files, tmp_path):
     profile.write_text(profile.read_text().replace(str(files["spectral"]), str(bad)))
     with pytest.raises(InputError, match="not a readable RGL measurement: not a Mitsuba tensor_file"):
         load_profile(str(profile))
+
+
+def test_round_off_below_zero_in_a_distribution_is_read_and_a_real_negative_is_refused(files, tmp_path):
+    """The database's ilm_solo_m_68_rgb.bsdf holds a luminance of -3.98e-10: float round-off, readable."""
+    fields = read_tensor_file(files["rgb"])
+    peak = float(fields["luminance"].max())
+    for value, readable in ((-1e-9 * peak, True), (-1e-3 * peak, False)):
+        luminance = fields["luminance"].copy()
+        luminance.flat[7] = value
+        path = tmp_path / f"luminance_{readable}.bsdf"
+        write_tensor_file(path, {**fields, "luminance": luminance})
+        if readable:
+            assert RglBsdf.load(path).description == RglBsdf.load(files["rgb"]).description
+        else:
+            with pytest.raises(InputError, match="field 'luminance': negative value"):
+                RglBsdf.load(path)
