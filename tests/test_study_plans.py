@@ -110,6 +110,8 @@ def test_a_cluster_worker_checks_it_sees_the_plan_file(tmp_path):
     assert cell_inputs({**spec, "cell": {"plan": "DS4"}, "plan": "DS4"}) == ["t.onnx", "c.yaml"]
 
 
+@pytest.mark.skipif(not (ROOT.parent / "shared" / "data" / "rgl-nbrdf").is_dir(),
+                    reason="the budget profile's RGL validation proxies are reference data (../shared)")
 def test_the_budget_profile_sweeps_the_designed_plans_on_validation_materials():
     from neuralbrdf.data.proxy_corpus import RGL_VALIDATION
     from neuralbrdf.virtual.materials import VALIDATION_MATERIALS
