@@ -10,7 +10,7 @@ import signal
 from pytorch_lightning.utilities.exceptions import SIGTERMException
 
 from neuralbrdf.atomic import environment_oserror
-from neuralbrdf.errors import EnvironmentFailure, FitFailed, InputError
+from neuralbrdf.errors import EnvironmentFailure, FitFailed, InputError, Interrupted
 
 #: Errors raised inside a fit that mean the data cannot support it (e.g. no measured value above
 #: the metric's floor in all-zero data): reported like :class:`FitFailed`, in one line, exit 1.
@@ -71,3 +71,27 @@ def input_error(exc: BaseException) -> InputError | None:
         seen.add(id(exc))
         exc = exc.__cause__ or exc.__context__
     return None
+
+
+def run_failure(exc: BaseException) -> BaseException | None:
+    """What an exception out of a run means to its caller, ``None`` where it stays as it is: bad
+    input or the machine (:func:`input_error`, :func:`environment_failure`), a failed fit
+    (:class:`FitFailed` with the run's folder), or Ctrl-C or SIGTERM (:class:`Interrupted`, which
+    Lightning raises as ``SystemExit``)."""
+    if isinstance(exc, Exception):
+        error = input_error(exc) or environment_failure(exc)
+        if error is not None:
+            return error
+        cause = fit_failure(exc)
+        if cause is None:
+            return None
+        failure = FitFailed(cause)
+        failure.neuralbrdf_run_dir = getattr(exc, "neuralbrdf_run_dir", None)
+        return failure
+    signal_number = interruption(exc)
+    if signal_number is None:
+        return None
+    run_dir = getattr(exc, "neuralbrdf_run_dir", None)
+    kept = f"; {run_dir} keeps what the run saved (a fit: --resume continues it)" if run_dir else ""
+    return Interrupted(signal_number, f"interrupted by {signal_name(signal_number)}{kept}")
+

@@ -26,9 +26,9 @@ from jsonargparse import ActionConfigFile, ArgumentError, Namespace
 
 from neuralbrdf.atomic import command_inputs
 from neuralbrdf.configs_dir import config_not_found, overlay_base, resolve_config
-from neuralbrdf.errors import FitFailed, InputError, Interrupted
+from neuralbrdf.errors import FitFailed, InputError
 from neuralbrdf.lightning.config_errors import describe as describe_config_error
-from neuralbrdf.lightning.failures import environment_failure, fit_failure, input_error, interruption, signal_name
+from neuralbrdf.lightning.failures import run_failure
 from neuralbrdf.lightning.metrics_json import MetricsJson, strict_json
 from neuralbrdf.lightning.run import _quiet, fitted_checkpoint
 from neuralbrdf.lightning.train_cli import NeuralBrdfCLI
@@ -137,21 +137,9 @@ def fit_run(configs: list[str], overrides: Mapping[str, Any], verbose: bool = Fa
     except ArgumentError as exc:  # the configuration does not parse: one line naming the key
         parser = getattr(exc, "neuralbrdf_parsers", {}).get(SUBCOMMAND)
         raise describe_config_error(str(exc), _as_given(files, overrides), files, parser) from None
-    except Exception as exc:
-        error = input_error(exc) or environment_failure(exc)
-        if error is not None:
-            raise error from None
-        cause = fit_failure(exc)
-        if cause is None:
+    except BaseException as exc:
+        failure = run_failure(exc)
+        if failure is None:
             raise
-        failure = FitFailed(cause)
-        failure.neuralbrdf_run_dir = getattr(exc, "neuralbrdf_run_dir", None)
-        raise failure from exc
-    except BaseException as exc:  # Ctrl-C or SIGTERM (Lightning makes them SystemExit), else as it is
-        signal_number = interruption(exc)
-        if signal_number is None:
-            raise
-        run_dir = getattr(exc, "neuralbrdf_run_dir", None)
-        kept = f"; {run_dir} keeps what the run saved (a fit: --resume continues it)" if run_dir else ""
-        raise Interrupted(signal_number, f"interrupted by {signal_name(signal_number)}{kept}") from None
+        raise failure from (exc if isinstance(failure, FitFailed) else None)
     return FitRun(cli.run_dir, fitted_checkpoint(cli.run_dir), cli.written)

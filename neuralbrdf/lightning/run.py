@@ -86,7 +86,7 @@ from neuralbrdf.configs_dir import config_not_found, overlay_base, resolve_confi
 from neuralbrdf.console import clean_warnings
 from neuralbrdf.lightning.common import WritesKind
 from neuralbrdf.lightning.config_errors import describe as describe_config_error
-from neuralbrdf.lightning.failures import environment_failure, fit_failure, input_error, interruption, signal_name
+from neuralbrdf.lightning.failures import run_failure
 from neuralbrdf.lightning.metrics_json import METRICS_FILE
 from neuralbrdf.lightning.train_cli import PROG, NeuralBrdfCLI, config_args
 from neuralbrdf.lightning.train_help import help_text
@@ -224,23 +224,11 @@ def train(args: list[str], verbose: bool = False) -> NeuralBrdfCLI:
     except ArgumentError as exc:  # the configuration does not parse: one line naming the key
         parser = getattr(exc, "neuralbrdf_parsers", {}).get(args[0] if args else "")
         raise describe_config_error(str(exc), args, config_args(args)[1], parser) from None
-    except Exception as exc:
-        error = input_error(exc) or environment_failure(exc)
-        if error is not None:
-            raise error from None
-        cause = fit_failure(exc)
-        if cause is None:
+    except BaseException as exc:
+        failure = run_failure(exc)
+        if failure is None:
             raise
-        failure = FitFailed(cause)
-        failure.neuralbrdf_run_dir = getattr(exc, "neuralbrdf_run_dir", None)
-        raise failure from exc
-    except BaseException as exc:  # Ctrl-C or SIGTERM (Lightning makes them SystemExit), else as it is
-        signal_number = interruption(exc)
-        if signal_number is None:
-            raise
-        run_dir = getattr(exc, "neuralbrdf_run_dir", None)
-        kept = f"; {run_dir} keeps what the run saved (a fit: --resume continues it)" if run_dir else ""
-        raise Interrupted(signal_number, f"interrupted by {signal_name(signal_number)}{kept}") from None
+        raise failure from (exc if isinstance(failure, FitFailed) else None)
 
 
 def _main(args: list[str] | None) -> int:
