@@ -59,11 +59,11 @@ class Exported:
     fast_paths: tuple[FastPath, ...]
 
 
-def fast_paths_wanted(kind: str, wavelength_range_nm, present, fast: bool | None,
+def fast_paths_wanted(kind: str, metadata, wavelength_range_nm, present, fast: bool | None,
                       rgb_head: bool) -> tuple[tuple[str, ...], str | None]:
-    """The fast paths to add to a model of ``kind`` (of this wavelength range, ``None`` for RGB, with
-    the fast paths ``present``); ``fast`` ``None``: ``f_fast`` when the kind gets it by default
-    (:attr:`~neuralbrdf.kinds.Kind.fast_by_default`).  And why the RGB head is left out, when a
+    """The fast paths to add to a model of ``kind`` (with this ``metadata`` and wavelength range, ``None``
+    for RGB, with the fast paths ``present``); ``fast`` ``None``: ``f_fast`` when the kind gets it by
+    default (:meth:`~neuralbrdf.kinds.Kind.fast_default`).  And why the RGB head is left out, when a
     spectral model outside the colour conversion's range would get one
     (:func:`~neuralbrdf.lod.fast_paths.rgb_head_problem`), else ``None``."""
     from neuralbrdf.lod.fast_paths import rgb_head_problem
@@ -73,7 +73,7 @@ def fast_paths_wanted(kind: str, wavelength_range_nm, present, fast: bool | None
         problem = rgb_head_problem(wavelength_range_nm)
         if problem is None:
             wanted.append(OUTPUT_RGB)
-    if fast or (fast is None and kinds.get(kind).fast_by_default and OUTPUT_FAST not in present):
+    if fast or (fast is None and kinds.get(kind).fast_default(metadata) and OUTPUT_FAST not in present):
         wanted.append(OUTPUT_FAST)
     return tuple(wanted), problem
 
@@ -114,8 +114,8 @@ def export_model(out: PathLike, *, checkpoint: PathLike | None = None, model: Pa
                 raise InputError("a material goes with a checkpoint (a model file holds one material)",
                                  key="--material")
             parent = kinds.load_model(model)
-            wanted, problem = fast_paths_wanted(parent.kind, parent.wavelength_range_nm, parent.fast_paths, fast,
-                                                rgb_head)
+            wanted, problem = fast_paths_wanted(parent.kind, parent.metadata, parent.wavelength_range_nm,
+                                                parent.fast_paths, fast, rgb_head)
             if not wanted:
                 why = problem or ("it has its RGB head already" if OUTPUT_RGB in parent.fast_paths else
                                   "an RGB head is for spectral models" if parent.wavelength_range_nm is None else
@@ -123,7 +123,8 @@ def export_model(out: PathLike, *, checkpoint: PathLike | None = None, model: Pa
                 raise InputError(f"nothing to add: {why}; ask for f_fast with fast (--fast)", path=model)
         else:
             exportable = kinds.load_exportable(checkpoint, material)
-            wanted, problem = fast_paths_wanted(exportable.kind, exportable.wavelength_range_nm, (), fast, rgb_head)
+            wanted, problem = fast_paths_wanted(exportable.kind, exportable.metadata, exportable.wavelength_range_nm,
+                                                (), fast, rgb_head)
         check_outputs(out)  # after the inputs are read: an output may not be one of them
         if problem is not None:
             warnings.warn(problem, stacklevel=2)

@@ -13,20 +13,15 @@ that measures a fraction of the pairs is.
 
 from __future__ import annotations
 
-import functools
-import importlib
 from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
-import yaml
 
-from neuralbrdf.configs_dir import config_not_found, overlay_base, resolve_config
 from neuralbrdf.data.table import BrdfTable
-from neuralbrdf.errors import InputError
+from neuralbrdf.lightning.config_models import spectral_latent_fit
 from neuralbrdf.lightning.latent_fit_data import FitSamples, table_samples as _samples
 from neuralbrdf.lightning.nlb_spectral_fit import SpectralLatentFitModule
 from neuralbrdf.models.directional import SpectralNlbWithCodes
@@ -63,39 +58,10 @@ class FittedCodes:
         return SpectralNlbWithCodes(self.network, self.shared, self.nodes, self.node_wavelengths_nm)
 
 
-def _factory(spec: Any):
-    """A callable from a config's ``{class_path, init_args}`` (the optimiser of the screening)."""
-    if not isinstance(spec, Mapping) or "class_path" not in spec:
-        raise InputError(f"expected {{class_path: ..., init_args: ...}}, got {spec!r}", key="model.init_args.optimizer")
-    module, _, name = str(spec["class_path"]).rpartition(".")
-    return functools.partial(getattr(importlib.import_module(module), name), **(spec.get("init_args") or {}))
-
-
-def model_settings(config: str = FIT_CONFIG) -> dict:
-    """The ``model.init_args`` of a spectral NLB fit config (its overlay base first)."""
-    path = resolve_config(config)
-    if not Path(path).is_file():
-        raise config_not_found(config)
-    settings: dict = {}
-    for file in (overlay_base(path), path):
-        if file is None:
-            continue
-        model = (yaml.safe_load(Path(file).read_text(encoding="utf-8")) or {}).get("model") or {}
-        if model.get("class_path", "").rpartition(".")[2] not in ("", SpectralLatentFitModule.__name__):
-            raise InputError(f"is a {model['class_path']} config; expected a spectral NLB fit", path=file)
-        settings.update(model.get("init_args") or {})
-    return settings
-
-
 def fit_module(config: str = FIT_CONFIG, overrides: Mapping[str, Any] | None = None) -> SpectralLatentFitModule:
-    """A fresh :class:`SpectralLatentFitModule` of ``config`` with ``overrides`` of its ``model.init_args``."""
-    settings = {**model_settings(config), **(overrides or {})}
-    unknown = sorted(set(overrides or {}) - set(settings) - {"optimizer", "lr_scheduler"})
-    if unknown:
-        raise InputError("unknown setting of the spectral NLB fit", key=f"model.{unknown[0]}")
-    optimizer = _factory(settings.pop("optimizer", {"class_path": "torch.optim.Adam"}))
-    settings.pop("lr_scheduler", None)  # steps no optimiser in a small fit
-    return SpectralLatentFitModule(**settings, optimizer=optimizer)
+    """A fresh :class:`SpectralLatentFitModule` of ``config`` with ``overrides`` of its ``model.init_args``
+    (:func:`~neuralbrdf.lightning.config_models.spectral_latent_fit`)."""
+    return spectral_latent_fit(config, overrides)
 
 
 def table_samples(table: BrdfTable) -> FitSamples:

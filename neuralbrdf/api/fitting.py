@@ -15,6 +15,7 @@ from neuralbrdf.errors import InputError
 
 #: Fit kinds and the shipped config each runs (``configs/NAME.yaml``): a new kind is one entry.
 FIT_KINDS: dict[str, str] = {
+    "auto": "auto",
     "abc": "abc",
     "spectral_mlp": "spectral_mlp",
     "nlb": "nlb_latent",
@@ -72,7 +73,7 @@ def _data_options(config: str, source: Source) -> dict[str, Any]:
 def fit(kind: str, data: Source | PathLike | None = None, *, config: PathLike | None = None,
         run_dir: PathLike | None = None, overrides: Mapping[str, Any] | None = None,
         overwrite: bool = False) -> FitResult:
-    """Fit a model of ``kind`` (:data:`FIT_KINDS`: ``abc``, ``spectral_mlp``, ``nlb``, ``nlb_spectral``) to ``data``
+    """Fit a model of ``kind`` (:data:`FIT_KINDS`: ``auto``, ``abc``, ``spectral_mlp``, ``nlb``, ``nlb_spectral``) to ``data``
     (a :class:`Source` or what :func:`read` takes; ``None``: the config's own data) through the
     kind's shipped config, or ``config`` (a shipped name or a YAML file); ``overrides`` sets config
     keys to values, typed as the config's (``{"trainer.max_epochs": 5}``, what ``--trainer.max_epochs 5``

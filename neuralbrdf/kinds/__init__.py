@@ -101,6 +101,9 @@ class Kind:
     fast_by_default:
         ``neuralbrdf export`` adds the fast path ``f_fast`` to its models unless told not to
         (``--no-fast``): for kinds whose full network renders well above analytic cost.
+    wants_fast:
+        ``metadata -> bool``, for kinds whose files differ in that (``auto``: as the chosen kind);
+        when given it decides instead of ``fast_by_default`` (:meth:`fast_default`).
     """
 
     name: str
@@ -112,6 +115,11 @@ class Kind:
     recognises: Callable[[dict], bool] | None = None
     scalar_parameters: int = 0
     fast_by_default: bool = False
+    wants_fast: Callable[[Mapping[str, str]], bool] | None = None
+
+    def fast_default(self, metadata: Mapping[str, str]) -> bool:
+        """Whether ``neuralbrdf export`` adds ``f_fast`` to a file of this kind with ``metadata`` unasked."""
+        return self.wants_fast(metadata) if self.wants_fast is not None else self.fast_by_default
 
 
 _REGISTRY: dict[str, Kind] = {}

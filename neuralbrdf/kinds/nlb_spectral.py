@@ -57,7 +57,9 @@ class FittedSpectralNlb:
         return SpectralNlbWithCodes(self.network, self.shared[name], self.channels[name], self.node_wavelengths_nm)
 
 
-def _fitted(checkpoint: dict, path: Path) -> FittedSpectralNlb:
+def fitted_from(checkpoint: dict, path: Path) -> FittedSpectralNlb:
+    """The fitted materials of a spectral NLB fit checkpoint's entries (or an ``auto`` checkpoint's
+    ``nlb_spectral_fit``), else :class:`InputError` naming ``path``."""
     from neuralbrdf.checkpoints import check_weights_match
     from neuralbrdf.models.nlb_spectral import SpectralNlbNetwork
 
@@ -88,7 +90,7 @@ def load_fitted_spectral(path: str | os.PathLike[str]) -> FittedSpectralNlb:
     from neuralbrdf.checkpoints import read_checkpoint
 
     path = Path(path)
-    return _fitted(read_checkpoint(path, "fitted spectral NLB checkpoint"), path)
+    return fitted_from(read_checkpoint(path, "fitted spectral NLB checkpoint"), path)
 
 
 def _pairs(count: int, seed: int):
@@ -153,7 +155,7 @@ def exportable(module: SpectralNlbWithCodes, name: str, provenance_text: str) ->
 
 
 def from_checkpoint(checkpoint: dict, path: Path, material: str | None) -> Exportable:
-    fitted = _fitted(checkpoint, path)
+    fitted = fitted_from(checkpoint, path)
     name = pick_material(list(fitted.shared), material, path)
     return exportable(fitted.model(name), name, provenance(checkpoint, path))
 

@@ -374,6 +374,8 @@ def fit_abc_mixture(brdf: ProbeFunction, abc: AbcMetadata) -> LobeMixture:
 PROPOSALS: dict[str, Callable[[ProbeFunction, object], LobeMixture]] = {
     "fitted_ggx": lambda brdf, details: fit_neural_mixture(brdf),
     "abc_lobe": fit_abc_mixture,
+    # a file holding another kind's model (kind auto): that kind's proposal, fitted to its details
+    "chosen": lambda brdf, details: fit_proposal(details.proposal, brdf, details.chosen_details),
 }
 
 
