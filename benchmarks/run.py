@@ -15,6 +15,8 @@
      does: ``f`` without the units the material never fires, its RGB head ``f_rgb`` and its fast path
      ``f_fast``;
    * ``abc`` — an ABC model with fixed parameters (:data:`ABC_BENCH_PARAMETERS`);
+   * ``auto`` — the ``auto`` fit of the same virtual gold measurement (``configs/auto.yaml``), exported
+     as ``neuralbrdf export`` does: the chosen candidate's graph (for the gold, ABC: no fast path);
    * ``flat`` — a nearly free spectral model (:class:`FlatSpectrum`): the plugin's own cost.
 
    The fast paths are distilled with the settings of ``configs/lod/default.yaml`` (``fast_paths``;
@@ -98,6 +100,8 @@ TARGETS = {
     "llvm_ad_spectral/spectral_mlp/drjit": "<= 1.05",
     "llvm_ad_rgb/abc/drjit": "<= 1.2",
     "llvm_ad_spectral/abc/drjit": "<= 1.2",
+    "llvm_ad_rgb/auto/drjit": "<= 1.2",
+    "llvm_ad_spectral/auto/drjit": "<= 1.2",
     "llvm_ad_rgb/nlb_fast/drjit": "<= 1.2",
     "llvm_ad_spectral/nlb_fast/drjit": "<= 1.2",
     "nlb fast path image dE2000 mean": "<= 1.0",
@@ -136,6 +140,7 @@ def render_configs() -> tuple[RenderConfig, ...]:
         RenderConfig("spectral_mlp/onnxruntime", "spectral_mlp", backend="onnxruntime", wavefront=True),
         RenderConfig("spectral_mlp_integrated/drjit", "spectral_mlp", rgb_head=False, variants=("llvm_ad_rgb",)),
         RenderConfig("abc/drjit", "abc"),
+        RenderConfig("auto/drjit", "auto"),
         RenderConfig("nlb/drjit", "nlb"),
         RenderConfig("nlb_fast/drjit", "nlb", fast=True),
         RenderConfig("nlb_spectral/drjit", "nlb_spectral"),
@@ -223,6 +228,26 @@ def fit_spectral_nlb(settings: Settings, workdir: Path) -> dict:
             "train_command_s": train_s, "fit_wall_time_s": metrics.get("fit/wall_time_s"),
             "hidden_units": kinds.load_model(model).metadata.get("neuralbrdf.nlb_spectral.hidden_units"),
             "export_s": time.perf_counter() - start, "export_max_rel_error": report.max_rel_error}
+
+
+def fit_auto(workdir: Path) -> dict:
+    """The ``auto`` fit of :data:`NLB_SPECTRAL_MATERIAL`'s shipped measurement (``neuralbrdf train fit
+    --config auto``), exported as ``neuralbrdf export`` exports it; paths, choice, fit and export times."""
+    run_dir = workdir / "auto_run"
+    command = [
+        sys.executable, "-m", "neuralbrdf", "train", "fit", "--config", str(ROOT / "configs" / "auto.yaml"),
+        "--data.virtual", NLB_SPECTRAL_MATERIAL, "--data.eval_plan", "null", "--run_dir", str(run_dir),
+        "--trainer.enable_progress_bar", "false",
+    ]
+    train_s = _timed(lambda: subprocess.run(command, cwd=ROOT, check=True, capture_output=True, text=True))
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    checkpoint = run_dir / "checkpoints" / "best.ckpt"
+    model = workdir / f"{NLB_SPECTRAL_MATERIAL}_auto.onnx"
+    start = time.perf_counter()
+    onnx_export.export_checkpoint(checkpoint, model)
+    return {"path": str(model), "checkpoint": str(checkpoint), "material": NLB_SPECTRAL_MATERIAL,
+            "choice": metrics["fit/auto/choice"], "train_command_s": train_s,
+            "fit_wall_time_s": metrics.get("fit/wall_time_s"), "export_s": time.perf_counter() - start}
 
 
 def train_spectral_mlp(settings: Settings, workdir: Path) -> dict:
@@ -430,21 +455,24 @@ def run(quick: bool, out: Path, repeats: int | None = None) -> dict:
         abc = abc_kind.exportable(ABC_BENCH_PARAMETERS, "benchmark", "benchmarks/run.py")
         abc_path = onnx_export.write_model(abc, workdir / "abc.onnx").path
         spectral_nlb = fit_spectral_nlb(settings, workdir)
+        auto = fit_auto(workdir)
         spectral_path, spectral_paths = with_fast_paths(Path(spectral["path"]), (OUTPUT_RGB,), settings)
         nlb_fast_path, nlb_paths = with_fast_paths(nlb_path, (OUTPUT_FAST,), settings)
         spectral_nlb_path, spectral_nlb_paths = with_fast_paths(Path(spectral_nlb["path"]), (OUTPUT_RGB, OUTPUT_FAST),
                                                                 settings)
         results["models"] = {"spectral_mlp": spectral, "nlb": {"network": PRETRAINED_DEFAULT.name, "latent": NLB_MATERIAL},
-                             "abc": ABC_BENCH_PARAMETERS.to_dict(), "nlb_spectral": spectral_nlb}
+                             "abc": ABC_BENCH_PARAMETERS.to_dict(), "nlb_spectral": spectral_nlb,
+                             "auto": auto}
         results["fast_paths"] = {f"{model} {output}": entry
                                  for model, paths in (("spectral_mlp", spectral_paths), ("nlb", nlb_paths),
                                                       ("nlb_spectral", spectral_nlb_paths))
                                  for output, entry in paths.items()}
-        models = {"spectral_mlp": spectral_path, "nlb": nlb_fast_path, "abc": abc_path,
+        models = {"spectral_mlp": spectral_path, "nlb": nlb_fast_path, "abc": abc_path, "auto": Path(auto["path"]),
                   "nlb_spectral": spectral_nlb_path, "flat": write_flat_model(workdir / "flat.onnx")}
         results["render"] = {variant: bench_renders(models, variant, settings) for variant in VARIANTS}
         modules = {"spectral_mlp": kinds.load_exportable(spectral["checkpoint"]).module, "nlb": nlb.module,
-                   "abc": abc.module, "nlb_spectral": kinds.load_exportable(spectral_nlb["checkpoint"]).module}
+                   "abc": abc.module, "nlb_spectral": kinds.load_exportable(spectral_nlb["checkpoint"]).module,
+                   "auto": kinds.load_exportable(auto["checkpoint"]).module}
         results["throughput"] = bench_models_throughput(models, modules, settings)
     results["load_average"]["after"] = list(os.getloadavg())
     results["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024

@@ -86,6 +86,13 @@ def test_the_file_says_what_it_chose_and_samples_with_the_chosen_kinds_proposal(
     assert not kinds.get("auto").fast_default(loaded.metadata)  # an ABC graph renders at analytic cost already
 
 
+def test_the_viewers_file_table_shows_the_choice(abc_choice):
+    from neuralbrdf.explorer.models import ViewedModel
+
+    described = ViewedModel.load(abc_choice[1].path, "auto.onnx").describe()
+    assert described["kind"] == "auto" and described["metadata"]["neuralbrdf.auto.choice"] == "abc"
+
+
 def test_the_chosen_proposal_is_the_chosen_kinds_own():
     from neuralbrdf.render.sampling import fit_proposal
 
@@ -159,3 +166,19 @@ def test_the_metadata_reader_takes_a_good_file_and_names_the_key_of_a_bad_one():
         assert error.value.key == key and "m.onnx" in str(error.value)
     with pytest.raises(InputError, match="lacks metadata keys"):
         auto_kind.read_metadata(_metadata(**{"neuralbrdf.auto.abc.C": None}), "m.onnx", False)
+
+
+def test_an_auto_file_renders_as_its_candidates_file_does(abc_choice, tmp_path):
+    """Same graph, same proposal (the ABC lobe), same seed: the same image as the abc kind's file."""
+    pytest.importorskip("mitsuba")
+    result, model = abc_choice
+    fitted = AbcParameters.from_dict(result.metrics["fit/auto/abc_parameters"], source="metrics")
+    from neuralbrdf.kinds import abc as abc_kind
+    from neuralbrdf.onnx_export import write_model
+
+    abc_file = write_model(abc_kind.exportable(fitted, "glossy", "test"), tmp_path / "abc.onnx").path
+    settings = {"spp": 4, "resolution": 16, "variant": "llvm_ad_rgb"}
+    auto_image = nb.render_image(model, **settings)
+    abc_image = nb.render_image(nb.load(abc_file), **settings)
+    assert np.all(np.isfinite(auto_image)) and auto_image.max() > 0
+    assert np.allclose(auto_image, abc_image, rtol=1e-4, atol=1e-5)
