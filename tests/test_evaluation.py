@@ -194,6 +194,7 @@ def test_evaluate_truth_against_itself_is_zero_everywhere(truth_files, tmp_path,
         assert result[name] == 0.0, name
     assert result["image_delta_e2000_mean"] <= 0.01 and result["image_delta_e2000_p95"] <= 0.01
     assert result["noise"]["image_delta_e2000_mean"] > 0  # other seeds: noise, stated
+    assert "sampled as this model samples" not in result["noise"]["what"]  # a model truth keeps its own proposal
     assert result["direction_details"]["per_wavelength"]["wavelength_nm"][0] == 400.0
     for name in ("model.png", "truth.png", "error_map.png", "comparison.png"):
         assert (out / name).stat().st_size > 0

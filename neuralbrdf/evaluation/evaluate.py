@@ -86,6 +86,13 @@ NOISE_DESCRIPTION = (
     "Model and truth are rendered with the same seeds, so most of that noise is shared and cancels in their "
     "difference; a model error well below this level is still resolved"
 )
+#: The same for a measurement as the truth: its renders sample with the model's proposal (matched paths), so
+#: the noise of its render depends on the model it is compared with.
+NOISE_DESCRIPTION_MEASURED = (
+    NOISE_DESCRIPTION + ". A measurement as the truth is rendered with the model's sampling proposal, so this "
+    "noise is that of the truth sampled as this model samples: two models scored against one measurement state "
+    "different noise levels"
+)
 FILES = ("evaluation.json", "model.png", "truth.png", "error_map.png", "comparison.png")
 #: Narrowest evaluation image: the preview's sphere spans about 59 % of the width (a disc of about
 #: 27 % of the pixels), so 16 pixels give it about 70; at a few pixels the image metrics score the
@@ -343,7 +350,7 @@ def evaluate(model_path: str | Path, truth_path: str | Path, out_dir: str | Path
         image_metrics, delta_e = image_scores(model_image, truth_image)
         noise, _ = image_scores(truth_again, truth_image)
         result.update(image_metrics)
-        result["noise"] = {**noise, "what": NOISE_DESCRIPTION}
+        result["noise"] = {**noise, "what": NOISE_DESCRIPTION_MEASURED if measured else NOISE_DESCRIPTION}
         images = (model_image, truth_image, delta_e)
         if output != OUTPUT_F:  # what the fast path changes in the picture: f at the same seed and paths
             f_image = _render(model_path, replace(settings, fast=False), settings.seed, proposal=model_proposal,
