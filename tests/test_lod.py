@@ -131,6 +131,54 @@ def test_a_failed_fit_is_listed_not_written(tmp_path):
     assert table["kind"] == "table" and table["hemisphere_logcos_rmse"] < 1e-6
 
 
+def _auto_file(path: Path) -> Path:
+    """A model file of kind ``auto`` that chose ABC (RGB), written as ``neuralbrdf export`` writes one."""
+    from neuralbrdf.kinds import auto as auto_kind
+    from neuralbrdf.onnx_export import write_model
+    from neuralbrdf.physics.abc import AbcParameters
+
+    parameters = AbcParameters(kd=np.array([0.3, 0.2, 0.1]), A=np.array([2.0, 2.5, 3.0]), B=400.0, C=0.8, eta=1.5)
+    checkpoint = {"auto_choice": "abc", "material": "glossy", "auto_inplane_logcos_rmse": {"abc": 0.01, "nlb_spectral": 0.02},
+                  "abc_parameters": parameters.to_dict()}
+    write_model(auto_kind.from_checkpoint(checkpoint, path.with_suffix(".ckpt"), None), path)
+    return path
+
+
+def test_an_auto_file_is_laddered_and_selected_like_any_model(tmp_path):
+    """Nothing of the ladder or the selector depends on the parent's kind: an ``auto`` file gets its
+    rungs, its stand-ins sample with its proposal (the chosen kind's: here the ABC lobe), and a fast
+    path ``f_fast`` in it is a rung of ``select`` without a ladder folder (one that chose ABC has none
+    unless exported with it)."""
+    import onnx
+    from onnx_fixtures import Lambert, export_module
+
+    from neuralbrdf.lod.ladder import FAST_RUNG, embedded_ladder
+    from neuralbrdf.onnx_contract import OUTPUT_FAST, fast_path_key
+    from neuralbrdf.onnx_export import with_fast_paths
+    from neuralbrdf.render.load_time import fitted_proposal
+    from neuralbrdf.render.sampling import AbcLobe
+
+    parent = _auto_file(tmp_path / "auto.onnx")
+    assert load_model(parent).kind == "auto" and embedded_ladder(parent) is None
+    settings = dataclasses.replace(FAST, abc_pairs=256, abc_starts=1, cost_batches=(2**10, 2**12))
+    document = build_ladder(parent, tmp_path / "auto.ladder", settings, log=lambda *_: None)
+    assert document["parent"]["kind"] == "auto" and not document["failed"], document["failed"]
+    kinds = {r["name"]: r["kind"] for r in document["rungs"]}
+    assert kinds == {"full": "auto", "abc": "abc", "table_12x8x4": "table"}
+    read = read_ladder(tmp_path / "auto.ladder")
+    assert read.rungs[0].kind == "auto" and {r.name for r in read.rungs} == set(kinds)
+    # select renders each stand-in with its parent's file as the proposal: the auto file's is the chosen ABC lobe
+    assert fitted_proposal(load_model(parent)).lobe == AbcLobe(400.0, 0.8)
+    fast = onnx.load(str(export_module(Lambert((0.1, 0.2, 0.3)), tmp_path / "fast.onnx", {}, spectral=False)))
+    entries = {fast_path_key(OUTPUT_FAST, "approximates"): "a fixture",
+               fast_path_key(OUTPUT_FAST, "hemisphere_logcos_rmse"): "0.01", fast_path_key(OUTPUT_FAST, "relative_cost"): "0.5"}
+    with_fast = tmp_path / "auto_fast.onnx"
+    onnx.save(with_fast_paths(onnx.load(str(parent)), {OUTPUT_FAST: fast}, entries), str(with_fast))
+    ladder = embedded_ladder(with_fast)
+    assert [(r.name, r.kind) for r in ladder.rungs] == [("full", "auto"), (FAST_RUNG, "auto")]
+    assert dict(ladder.rungs[1].properties) == {"fast": "true"} and ladder.rungs[1].relative_cost == 0.5
+
+
 # --------------------------------------------------------------------------- choosing
 
 

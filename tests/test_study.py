@@ -810,3 +810,140 @@ def test_seeds_that_repeat_a_fit_exactly_count_once():
         ("nlb", 0, 0.0), *[("abc", s, 0.0) for s in range(5)], ("nlb", 0, 0.01)]
     table = aggregate.groups(same + varied, {"g": [("NLB", "nlb"), ("ABC", "abc")]}, ["gold"])[0]
     assert [row["cells"] for row in table["members"]] == [1, 5]
+
+
+# --------------------------------------------------------------------------- the auto method
+
+AUTO = BASE + "  - {name: auto, method: auto, config: configs/auto.yaml}\n"
+
+
+def test_every_list_of_methods_knows_auto():
+    """The methods a profile may name are those whose checkpoint, seeding and colour the study knows;
+    ``auto`` is deterministic without noise (its ABC candidate's starts come from its ABC config)."""
+    import yaml
+
+    from neuralbrdf.configs_dir import resolve_config
+    from neuralbrdf.study.cell import CHECKPOINTS
+    from neuralbrdf.study.cells import SEEDING, seed_args, seeding_description
+    from neuralbrdf.study.charts import METHOD_COLOURS
+    from neuralbrdf.study.profile import METHODS
+
+    assert "auto" in METHODS
+    assert set(METHODS) == set(CHECKPOINTS) == set(SEEDING) == set(METHOD_COLOURS)
+    assert len(set(METHOD_COLOURS.values())) == len(METHOD_COLOURS)  # one colour per method
+    callbacks = yaml.safe_load(resolve_config("auto").read_text())["trainer"]["callbacks"]
+    saved = next(c["init_args"]["filename"] for c in callbacks if c["class_path"].endswith("ModelCheckpoint"))
+    assert CHECKPOINTS["auto"] == f"{saved}.ckpt" == CHECKPOINTS["abc"]
+    assert seed_args("auto", 3) == [] and SEEDING["auto"].varies is None
+    assert "seed 0 only" in seeding_description("auto") and "model.seed" in seeding_description("auto")
+
+
+def test_an_auto_variant_is_fitted_like_abc_and_keyed_by_its_candidates(tmp_path):
+    """A profile naming ``method: auto`` validates; its cells pass the data as ABC's do, with no seed
+    option, run noise-free at seed 0 only, and their keys hold the contents of both candidates'
+    configs and of the spectral NLB's pretrained network."""
+    from neuralbrdf.configs_dir import resolve_config
+    from neuralbrdf.shipped import SPECTRAL_DEFAULT
+    from neuralbrdf.study.cell import fit_arguments
+    from neuralbrdf.study.cells import file_digest
+    from neuralbrdf.study.runner import cell_spec
+
+    profile = load_profile(str(_write(tmp_path, AUTO + "stability: {variants: [abc, auto], plans: [DS1, DS4], "
+                                                       "noise: [0.0, 0.1], seeds: [0, 1]}\n")))
+    assert profile.variant("auto").method == "auto"
+    assert Path(profile.variant("auto").config) == resolve_config("auto").resolve()
+    assert [c for c in plan_cells(profile) if c.variant == "auto"] == [
+        Cell("gold", "auto", "DS1", 0.0, 0), Cell("gold", "auto", "DS4", 0.0, 0),
+        Cell("gold", "auto", "DS1", 0.1, 0), Cell("gold", "auto", "DS1", 0.1, 1)]
+    table, run = tmp_path / "gold.csv", tmp_path / "run"
+
+    def arguments(variant: str) -> list[str]:
+        spec = cell_spec(Cell("gold", variant, "DS4", 0.1, 1), "k", profile, (tmp_path / "truth.onnx", "sha"))
+        return fit_arguments(spec, table, run)
+
+    common = ["--data.path", str(table), "--run_dir", str(run), "--seed_everything", "1"]
+    assert arguments("auto") == ["fit", "--config", profile.variant("auto").config, *common,
+                                 "--trainer.enable_progress_bar", "false"]
+    assert arguments("abc") == ["fit", "--config", profile.variant("abc").config, *common, "--model.seed", "1",
+                                "--trainer.enable_progress_bar", "false"]
+    main = Cell("gold", "auto", "DS1", 0.0, 0)
+    candidates = cell_settings(main, profile)["variant"]["candidates"]
+    assert candidates == {"configs": {"abc": [file_digest(str(resolve_config("abc")))],
+                                      "nlb_spectral": [file_digest(str(resolve_config("nlb_spectral")))]},
+                          "pretrained": file_digest(str(SPECTRAL_DEFAULT))}
+    assert "candidates" not in cell_settings(Cell("gold", "abc", "DS1", 0.0, 0), profile)["variant"]
+    # another ABC candidate (an override naming its config): another key
+    mine = tmp_path / "my_abc.yaml"
+    mine.write_text(resolve_config("abc").read_text().replace("n_starts: 8", "n_starts: 2"))
+    other = load_profile(str(_write(tmp_path, BASE + "  - {name: auto, method: auto, config: configs/auto.yaml, "
+                                                     f"args: [--model.abc_config, {mine}]}}\n")))
+    assert cell_settings(main, other)["variant"]["candidates"]["configs"]["abc"] == [file_digest(str(mine))]
+    assert cell_key(main, other) != cell_key(main, profile)
+
+
+def test_an_auto_fit_in_which_neither_candidate_fits_is_an_optimiser_failure(tmp_path, monkeypatch):
+    """As an ABC fit that reports failure: the cell's cause is ``optimizer_failure`` with the fit's own
+    reason, though that reason names the spectral NLB's error that is not finite."""
+    from neuralbrdf.lightning.auto_fit import NEITHER_FITTED, AutoFitModule
+    from neuralbrdf.study import cell as cell_module
+    from neuralbrdf.study.runner import cell_spec
+
+    monkeypatch.setattr(AutoFitModule, "_fit_nlb", lambda self, table: self.errors.update(nlb_spectral=math.nan))
+    monkeypatch.setattr(AutoFitModule, "_fit_abc", lambda self, table: setattr(self, "abc_failure", "test: no ABC"))
+    profile = load_profile(str(_write(tmp_path, AUTO)))
+    spec = cell_spec(Cell("gold", "auto", "DS4", 0.0, 0), "k", profile, (tmp_path / "truth.onnx", "sha"))
+    table = cell_module.write_data(spec, tmp_path / "data" / "gold.csv")
+    with pytest.raises(cell_module.CellFailure) as failure:
+        cell_module.fit(spec, table, tmp_path / "run")
+    assert failure.value.cause == "optimizer_failure", failure.value
+    assert NEITHER_FITTED in str(failure.value) and "test: no ABC" in str(failure.value)
+    assert not (tmp_path / "run" / "checkpoints" / "best.ckpt").exists()
+
+
+def test_an_auto_cell_runs_and_records_its_choice(tmp_path):
+    """One real cell of ``auto`` (the virtual gold on DS4, scored on few hemisphere pairs, no render):
+    the exported file says the choice the cell records, the lower of the candidates' in-plane
+    errors; the choice reaches study.json's point, the report's table and the model's sentence."""
+    from neuralbrdf.kinds import load_model
+    from neuralbrdf.study import cell as cell_module
+    from neuralbrdf.study.cache import Repairs, truth_file
+    from neuralbrdf.study.report import _points_table
+    from neuralbrdf.study.runner import cell_spec
+
+    profile = load_profile(str(_write(tmp_path, BASE.replace("  - {name: abc, method: abc, config: configs/abc.yaml}\n",
+                                                             "") + "  - {name: auto, method: auto, config: "
+                                      "configs/auto.yaml, speed_accuracy: false}\nhemisphere_strata: [4, 5]\n")))
+    cell = Cell("gold", "auto", "DS4", 0.0, 0)
+    folder = tmp_path / "cell"
+    folder.mkdir()
+    spec = cell_spec(cell, cell_key(cell, profile), profile, truth_file(profile.materials[0], tmp_path, Repairs(tmp_path)))
+    (folder / "cell.json").write_text(json.dumps(spec))
+    result = cell_module.run_cell(folder)
+    assert result["failure"] is None, result["message"]
+    assert json.loads((folder / "result.json").read_text())["auto"] == result["auto"]
+    chosen, errors = result["auto"]["choice"], result["auto"]["inplane_logcos_rmse"]
+    assert chosen == min(errors, key=lambda kind: math.inf if errors[kind] is None else errors[kind])
+    assert set(errors) == {"abc", "nlb_spectral"} and result["error"]["hemisphere_logcos_rmse"] > 0
+    assert load_model(folder / "model.onnx").details.choice == chosen
+    points = aggregate.points_from_results([result], {"auto": "auto"}, {"DS4": 6})
+    assert points[0]["method"] == "auto" and points[0]["auto"] == result["auto"]
+    assert f"Its fit kept {chosen} in 1 of 1 fitted cells." in aggregate.method_sentences(points, [])["auto"]
+    assert f"auto ({chosen})" in _points_table({"points": points})
+
+
+def test_parameter_count_of_an_auto_file_is_that_of_the_graph_it_holds(tmp_path):
+    """An auto file that chose ABC holds ABC's graph: its scalars B, C and eta count as an ABC file's do."""
+    from neuralbrdf.kinds import auto as auto_kind
+    from neuralbrdf.kinds import load_model
+    from neuralbrdf.onnx_export import write_model
+    from neuralbrdf.physics.abc import AbcParameters
+    from neuralbrdf.study.cost import graph_kind, parameter_count
+
+    parameters = AbcParameters(kd=[0.1, 0.2, 0.3], A=[1.0, 0.9, 0.8], B=40.0, C=1.5, eta=1.5)
+    checkpoint = {"auto_choice": "abc", "material": "m", "auto_inplane_logcos_rmse": {"abc": 0.01, "nlb_spectral": 0.02},
+                  "abc_parameters": parameters.to_dict()}
+    path = tmp_path / "auto.onnx"
+    write_model(auto_kind.from_checkpoint(checkpoint, tmp_path / "auto.ckpt", None), path)
+    model = load_model(path)
+    assert model.kind == "auto" and graph_kind(model) == "abc"
+    assert parameter_count(model.proto, graph_kind(model)) == 3 + 3 + 3

@@ -52,6 +52,8 @@ from neuralbrdf.sources import MaterialData, require_lobe
 
 #: The candidates, by kind name, in the order a tie is broken (the analytic model first).
 CANDIDATES = ("abc", "nlb_spectral")
+#: The words of the fit's failure when neither candidate gave a model (read by the study's cells).
+NEITHER_FITTED = "neither candidate fitted"
 
 
 def _nlb_values(model: SpectralNlbWithCodes, table: BrdfTable) -> np.ndarray:
@@ -161,7 +163,7 @@ class AutoFitModule(WritesKind, pl.LightningModule):
                 abc_done.result()
             self.choice = choose(self.errors)
             if self.choice is None:
-                self.failure = (f"auto fit of {self.material_name}: neither candidate fitted (ABC: {self.abc_failure}; "
+                self.failure = (f"auto fit of {self.material_name}: {NEITHER_FITTED} (ABC: {self.abc_failure}; "
                                 f"spectral NLB: in-plane error {self.errors['nlb_spectral']})")
                 return
         self.log("train/loss", float(self.errors[self.choice]), batch_size=1)

@@ -7,7 +7,8 @@
   wall time) and ``error`` (the metrics of :mod:`neuralbrdf.evaluation`), ``failure``; a rendered
   main cell also ``per_angle`` (the glossy relative RMSE per incident angle and per angle ×
   channel, :func:`neuralbrdf.study.cell.per_angle`), so that every figure can be drawn again from
-  ``study.json`` alone.
+  ``study.json`` alone; a cell of method ``auto`` also ``auto`` (which candidate its fit kept, each
+  candidate's in-plane error, why ABC was none: :data:`neuralbrdf.study.cell.AUTO_RESULT_KEYS`).
 * **Error threshold** — a cell that ran but whose ``hemisphere_logcos_rmse`` exceeds
   :data:`THRESHOLD_FACTOR` × the median of the same (material, model) at DS1 without noise gets
   the cause ``error_above_2x_ds1``.
@@ -86,6 +87,7 @@ def points_from_results(results: list[dict], methods: dict[str, str], pairs: dic
             "pairs": pairs[r["plan"]], "noise": r["noise"], "seed": r["seed"], "is_main": bool(r.get("is_main")), "cost": cost,
             "error": r.get("error") or {}, "failure": r.get("failure"), "message": r.get("message"),
             "key": r.get("key"), **({"per_angle": r["per_angle"]} if r.get("per_angle") else {}),
+            **({"auto": r["auto"]} if r.get("auto") else {}),
         })
     reference: dict[tuple[str, str], list[float]] = defaultdict(list)
     for p in points:
@@ -270,15 +272,26 @@ def condition_change(condition: str, pairs: int) -> str:
     return " and ".join(changes) or "the reference condition"
 
 
+def auto_choices(points: list[dict], model: str) -> str:
+    """For a model of method ``auto``: which candidate its fits kept, e.g. ``" Its fit kept abc in 3
+    and nlb_spectral in 5 of 8 fitted cells."``; empty for other models."""
+    kept = Counter(p["auto"]["choice"] for p in points if p["model"] == model and (p.get("auto") or {}).get("choice"))
+    if not kept:
+        return ""
+    listed = " and ".join(f"{choice} in {n}" for choice, n in sorted(kept.items()))
+    return f" Its fit kept {listed} of {sum(kept.values())} fitted cells."
+
+
 def method_sentences(points: list[dict], failure_rows: list[dict]) -> dict[str, str]:
-    """One sentence per model on where it breaks and why (from the failure map)."""
+    """One sentence per model on where it breaks and why (from the failure map); for an ``auto``
+    model also which candidate its fits kept (:func:`auto_choices`)."""
     sentences = {}
     for model in dict.fromkeys(p["model"] for p in points):
         rows = [r for r in failure_rows if r["model"] == model]
         total, failed = sum(r["cells"] for r in rows), sum(r["failed"] for r in rows)
         conditions = ", ".join(sorted({r["condition"] for r in rows}))
         if failed == 0:
-            sentences[model] = f"{model}: no failure in {total} cells ({conditions})."
+            sentences[model] = f"{model}: no failure in {total} cells ({conditions})." + auto_choices(points, model)
             continue
         broken = sorted((r for r in rows if r["failed"]), key=lambda r: -r["failed"] / r["cells"])
         parts = []
@@ -289,5 +302,5 @@ def method_sentences(points: list[dict], failure_rows: list[dict]) -> dict[str, 
                          f"{meaning}")
         example = next((p["message"] for p in points if p["model"] == model and p["failure"] and p["message"]), "")
         sentences[model] = (f"{model}: breaks in {failed} of {total} cells — " + "; ".join(parts)
-                            + (f". Example: {example}" if example else "."))
+                            + (f". Example: {example}" if example else ".") + auto_choices(points, model))
     return sentences

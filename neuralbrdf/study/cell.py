@@ -24,8 +24,11 @@ once per worker) and the truth's two renders (:data:`TRUTH_RENDERS`).  Steps:
    (:func:`neuralbrdf.sources.sample_file`) and given the same multiplicative Gaussian noise;
    a user's table is used as it is.
 2. **Fit** with ``train.py``'s entry (:func:`neuralbrdf.lightning.run.main`): the variant's config
-   and overrides, the data, ``--seed_everything SEED`` and the method's own seed options
-   (:data:`~neuralbrdf.study.cells.SEEDING`: ABC's ``--model.seed``); wall time measured.
+   and overrides, the data (``--data.path``, for every method), ``--seed_everything SEED`` and the
+   method's own seed options (:data:`~neuralbrdf.study.cells.SEEDING`: ABC's ``--model.seed``);
+   wall time measured.  An ``auto`` cell records which candidate its fit kept, each candidate's
+   in-plane error and why ABC was no candidate, if it was not (``result.json``'s ``auto``:
+   :data:`AUTO_RESULT_KEYS`).
 3. **Export** through the checkpoint's kind (:func:`neuralbrdf.onnx_export.export_checkpoint`, what
    ``neuralbrdf export`` runs); a graph that fails its validation is "export refused".
 4. **Evaluate** with :func:`neuralbrdf.evaluation.evaluate.evaluate` (direction metrics; for the
@@ -34,10 +37,10 @@ once per worker) and the truth's two renders (:data:`TRUTH_RENDERS`).  Steps:
 5. **Cost** (main cell): :mod:`neuralbrdf.study.cost`.
 
 Failure causes recorded (``failure``): ``non_finite_loss`` (a logged loss or the fit's own loss is
-NaN/inf), ``optimizer_failure`` (the fit reported failure, e.g. ABC's ``success: false``, or
-training stopped with an error), ``fit_refused`` (the fit rejected the data as bad input, exit
-status 2: e.g. a plan without samples in a required split, or arguments of the variant the
-command line does not accept), ``export_refused``,
+NaN/inf), ``optimizer_failure`` (the fit reported failure, e.g. ABC's ``success: false`` or an
+``auto`` fit in which neither candidate fitted, or training stopped with an error), ``fit_refused``
+(the fit rejected the data as bad input, exit status 2: e.g. a plan without samples in a required
+split, or arguments of the variant the command line does not accept), ``export_refused``,
 ``evaluation_error``.  The fourth cause of
 the failure map, error above twice the method's DS1 noise-free error, is decided across cells
 by :mod:`neuralbrdf.study.aggregate`.
@@ -67,7 +70,11 @@ from neuralbrdf.errors import EXIT_BAD_INPUT, EXIT_ENVIRONMENT, EnvironmentFailu
 
 #: Reference seed offset: the Munsell N9 is measured with its own noise stream.
 REFERENCE_SEED_OFFSET = 1
-CHECKPOINTS = {"spectral_mlp": "best.ckpt", "abc": "best.ckpt", "nlb": "fitted.ckpt", "nlb_spectral": "fitted.ckpt"}
+CHECKPOINTS = {"spectral_mlp": "best.ckpt", "abc": "best.ckpt", "nlb": "fitted.ckpt", "nlb_spectral": "fitted.ckpt",
+               "auto": "best.ckpt"}
+#: What a cell of method ``auto`` records of its fit (``result.json``'s ``auto``): ``metrics.json``'s
+#: ``fit/auto/KEY`` for each key.
+AUTO_RESULT_KEYS = ("choice", "inplane_logcos_rmse", "abc_failure")
 #: Incident angles (degrees) of the per-angle relative RMSE: the DS1 grid.
 PER_ANGLE_THETA_I = np.arange(-60.0, 60.1, 5.0)
 LOSS_COLUMN_WORDS = ("loss",)
@@ -202,12 +209,23 @@ def fit(spec: dict, table: Path, run_dir: Path) -> tuple[float, dict]:
         reason = _errors(captured.getvalue())[-1:]
         reason = reason[0][:300] if reason else f"training exited with status {status}"
         finite = "finite" in reason.lower() or "nan" in reason.lower()
+        from neuralbrdf.lightning.auto_fit import NEITHER_FITTED
+
+        if spec["variant"]["method"] == "auto" and NEITHER_FITTED in reason:
+            # the fit's own verdict: neither candidate gave a model (an ABC failure and a spectral NLB
+            # error that is not finite are its causes, named in the message), as ABC's success: false
+            finite = False
         raise CellFailure("non_finite_loss" if finite else "optimizer_failure", reason)
     metrics_path = run_dir / "metrics.json"
     metrics = json.loads(metrics_path.read_text()) if metrics_path.is_file() else {}
     if metrics.get("fit/abc/success") is False:
         raise CellFailure("optimizer_failure", f"ABC fit: {metrics.get('fit/abc/failure_reason')}")
     return wall, metrics
+
+
+def auto_result(metrics: dict) -> dict:
+    """What an ``auto`` cell records of its fit's ``metrics.json`` (:data:`AUTO_RESULT_KEYS`)."""
+    return {key: metrics.get(f"fit/auto/{key}") for key in AUTO_RESULT_KEYS}
 
 
 def export(spec: dict, run_dir: Path, out: Path) -> Path:
@@ -333,7 +351,7 @@ def cost(spec: dict, model: Path, variant: str) -> dict:
         "mqueries_per_s": throughput[fastest]["queries_per_s"] / 1e6,
         "fastest_backend": fastest,
         "throughput": {b: {"queries_per_s": r["queries_per_s"], "median_s": r["median_s"]} for b, r in throughput.items()},
-        "parameters": costs.parameter_count(proto, loaded.kind),
+        "parameters": costs.parameter_count(proto, costs.graph_kind(loaded)),
     }
 
 
@@ -355,8 +373,10 @@ def run_cell(cell_dir: Path) -> dict:
     try:
         table = write_data(spec, cell_dir / "data" / f"{cell['material']}.csv")
         step("data")
-        fit_s, _ = fit(spec, table, cell_dir / "run")
+        fit_s, metrics = fit(spec, table, cell_dir / "run")
         result["cost"]["fit_time_s"] = fit_s
+        if spec["variant"]["method"] == "auto":
+            result["auto"] = auto_result(metrics)
         step("fit")
         model = export(spec, cell_dir / "run", cell_dir / "model.onnx")
         step("export")
@@ -423,8 +443,9 @@ def _run_logged(cell_dir: Path) -> None:
 def _import_fitting() -> None:
     """Import what every fit uses before the first cell, so that no cell's fit time includes it."""
     import neuralbrdf.lightning.run  # noqa: F401
-    from neuralbrdf.lightning import (abc_module, latent_fit_data, latent_fit_module, material_data,  # noqa: F401
-                                      measurement_data, spectral_mlp_module)
+    from neuralbrdf.lightning import (abc_module, auto_fit, config_models, latent_fit_data,  # noqa: F401
+                                      latent_fit_module, material_data, measurement_data, nlb_spectral_fit,
+                                      spectral_mlp_module)
 
 
 #: Environment variable naming the study process a worker serves (:func:`die_with_study`).

@@ -5,8 +5,9 @@ name (DS1..DS4, a plan file's stem: :class:`~neuralbrdf.study.profile.StabilityS
 everything that changes its result — the material's truth and table (file contents), the
 variant's method, config file contents and overrides (with the contents of any ``--config`` overlay
 among them; for NLB, the pretrained network's file
-contents too), plan (a plan file's pairs, not its path: an edited file reruns its cells, a moved
-one does not), noise, seed, and for the *main*
+contents too; for ``auto``, the contents of its two candidates' configs and of the spectral NLB
+candidate's pretrained network: :func:`auto_candidates`), plan (a plan file's pairs, not its path:
+an edited file reruns its cells, a moved one does not), noise, seed, and for the *main*
 cell of a (material, variant) (DS1, no noise, seed 0: the one that is rendered and timed, unless the
 variant is a sweep only — ``speed_accuracy: false``) the render and cost settings (the render
 settings of every sweep cell too where the profile renders them, ``stability.render``) — so a finished cell is found again under ``DIR/cells/KEY/`` by a later
@@ -21,7 +22,9 @@ instrument or an NBRDF proxy; a user's own table is fitted as it is); for groupe
 **Seeds.** A cell's seed changes what :data:`SEEDING` says for its method — the spectral MLP's
 initial weights and batch order, ABC's random starts — and, with noise, the noise drawn.  The
 NLB latent fits take nothing random from the seed (screened starts from pretrained codes; the
-RGB fit's full-batch steps, the spectral fit's subsets drawn from its config's ``data.seed``), so
+RGB fit's full-batch steps, the spectral fit's subsets drawn from its config's ``data.seed``), nor
+does ``auto`` (its ABC candidate's starts come from its ABC config's ``model.seed``, which no
+``--model.*`` option of ``auto`` sets; its spectral NLB candidate is the spectral latent fit), so
 their noise-free cells run at seed 0 only: a spread over seeds that were all the same fit would
 be no evidence of stability.
 """
@@ -38,7 +41,7 @@ import numpy as np
 import yaml
 
 from neuralbrdf.atomic import file_version
-from neuralbrdf.configs_dir import resolve_config
+from neuralbrdf.configs_dir import overlay_base, resolve_config
 from neuralbrdf.shipped import PRETRAINED_DEFAULT, SPECTRAL_DEFAULT, resolve_pretrained
 from neuralbrdf.study.profile import Profile, VariantSpec
 
@@ -71,6 +74,9 @@ SEEDING = {
                              "of every study plan"),
     "nlb_spectral": Seeding((), None, "the latent fit starts from screened codes and draws any subsets of samples "
                                       "its steps see from the config's data.seed"),
+    "auto": Seeding((), None, "its ABC candidate's random starts come from its ABC config's model.seed, which no "
+                              "option of the auto fit sets, and its spectral NLB candidate is the spectral NLB's "
+                              "latent fit, which takes nothing random from the seed"),
 }
 #: What the seed changes in every cell with noise (:func:`neuralbrdf.study.cell.write_data`).
 NOISE_SEEDING = "the measurement noise drawn"
@@ -170,6 +176,50 @@ def pretrained_network(variant: VariantSpec) -> str | None:
     return ((config.get("model") or {}).get("init_args") or {}).get("checkpoint")
 
 
+#: The ``auto`` fit's candidates: its ``model.init_args`` key naming each one's config, and the
+#: config each defaults to (:class:`~neuralbrdf.lightning.auto_fit.AutoFitModule`).
+AUTO_CANDIDATE_CONFIGS = {"abc": ("abc_config", "abc"), "nlb_spectral": ("nlb_spectral_config", "nlb_spectral")}
+
+
+def _config_files(path) -> list[Path]:
+    """A config file and the base it overlays (read first), those that exist."""
+    path = resolve_config(path)
+    if not Path(path).is_file():
+        return []
+    base = overlay_base(path)
+    return [file for file in (base, Path(path)) if file is not None and Path(file).is_file()]
+
+
+def _init_arg(files: list[Path], key: str):
+    """``model.init_args.KEY`` as the last of ``files`` that sets it gives it, else ``None``."""
+    value = None
+    for file in files:
+        model = (yaml.safe_load(Path(file).read_text(encoding="utf-8")) or {}).get("model") or {}
+        init_args = (model.get("init_args") or {}) if isinstance(model, dict) else {}
+        if isinstance(init_args, dict) and key in init_args:
+            value = init_args[key]
+    return value
+
+
+def auto_candidates(variant: VariantSpec) -> dict:
+    """What an ``auto`` variant's result depends on beyond its own config and arguments: the contents
+    of each candidate's config (and the base it overlays; a file that does not exist is left out,
+    the fit refuses it) and of the pretrained network its spectral NLB candidate fits on.  The
+    candidate configs are named as the fit reads them: the variant's config, then its ``--config``
+    overlays, then ``--model.abc_config`` / ``--model.nlb_spectral_config`` (the last wins)."""
+    files = _config_files(variant.config) + [file for path in flag_values(variant.args, "--config")
+                                             for file in _config_files(path)]
+    digests, nlb_files = {}, []
+    for candidate, (key, default) in AUTO_CANDIDATE_CONFIGS.items():
+        named = (flag_values(variant.args, f"--model.{key}") or [None])[-1] or _init_arg(files, key) or default
+        candidate_files = _config_files(named)
+        digests[candidate] = [file_digest(str(file)) for file in candidate_files]
+        if candidate == "nlb_spectral":
+            nlb_files = candidate_files
+    network = resolve_pretrained(_init_arg(nlb_files, "checkpoint"), SPECTRAL_DEFAULT)
+    return {"configs": digests, "pretrained": file_digest(str(network)) if network.is_file() else str(network)}
+
+
 def overlay_digests(variant: VariantSpec) -> list[str]:
     """Contents (digests) of the config files a variant's arguments add with ``--config``."""
     return [file_digest(str(resolve_config(path))) for path in flag_values(variant.args, "--config")]
@@ -215,6 +265,8 @@ def cell_settings(cell: Cell, profile: Profile) -> dict:
     if variant.method in NETWORK_DEFAULTS:  # a retrained network changes every NLB result
         network = resolve_pretrained(pretrained_network(variant), NETWORK_DEFAULTS[variant.method])
         settings["variant"]["pretrained"] = file_digest(str(network))
+    if variant.method == "auto":  # an edited ABC or spectral NLB config, or a retrained network, changes its result
+        settings["variant"]["candidates"] = auto_candidates(variant)
     plan = profile.stability.plan(cell.plan)
     if plan != cell.plan:  # a plan file (only then: the keys of DS1..DS4 cells stay what they were)
         settings["plan"] = plan_digest(plan)

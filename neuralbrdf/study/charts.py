@@ -36,7 +36,8 @@ STYLE = {"font.size": 10, "axes.titlesize": 10.5, "axes.labelsize": 10, "xtick.l
          "ytick.labelsize": 9.5, "legend.fontsize": 9.5, "figure.titlesize": 11.5, "figure.dpi": DPI,
          "savefig.dpi": DPI}
 LABEL_PT = 9
-METHOD_COLOURS = {"spectral_mlp": "tab:blue", "abc": "tab:orange", "nlb": "tab:green", "nlb_spectral": "tab:purple"}
+METHOD_COLOURS = {"spectral_mlp": "tab:blue", "abc": "tab:orange", "nlb": "tab:green", "nlb_spectral": "tab:purple",
+                  "auto": "tab:red"}
 COST_AXES = {"render_ratio": "render time ÷ roughconductor (same run)", "fit_time_s": "fit wall time (s)"}
 MARKERS = ("o", "s", "^", "D", "v")
 #: One letter per failure cause in the failure map (``C``: the cell crashed).

@@ -12,7 +12,8 @@ and ``benchmarks/run.py``).
 * :func:`drjit_operation_count` — the operations of the Dr.Jit kernel that evaluates a graph: a
   cost counted, not timed;
 * :func:`parameter_count` — float weights stored in the ``.onnx`` file and the fitted scalars its
-  kind keeps as constants (:attr:`neuralbrdf.kinds.Kind.scalar_parameters`);
+  kind keeps as constants (:attr:`neuralbrdf.kinds.Kind.scalar_parameters`; for an ``auto`` file
+  the kind of the graph it holds, :func:`graph_kind`);
 * :func:`machine` — CPU, cores, versions and thread counts, recorded beside every figure.
 """
 
@@ -195,6 +196,15 @@ def bench_throughput(proto, spectral: bool, batch: int, repeats: int, module=Non
     for entry in results.values():
         entry["queries_per_s"] = batch / entry["median_s"]
     return results
+
+
+def graph_kind(model) -> str:
+    """The kind whose graph the loaded model file ``model`` holds: its own kind, or for an ``auto``
+    file the candidate it chose (``abc`` or ``nlb_spectral``; its graph is that kind's, constants
+    included)."""
+    from neuralbrdf.kinds import auto
+
+    return model.details.choice if model.kind == auto.NAME else model.kind
 
 
 def parameter_count(proto, kind: str | None = None) -> int:

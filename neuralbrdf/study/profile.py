@@ -26,8 +26,10 @@ A profile is a YAML file (``configs/study/quick.yaml``, ``full.yaml``, or a user
       render: false                            # true: every sweep cell is rendered too (image ΔE2000)
 
 Paths starting with ``configs/`` name the shipped configs (:mod:`neuralbrdf.configs_dir`), those
-starting with ``../shared`` are relative to the repository root, others to the profile file.  ``method`` is ``spectral_mlp``, ``abc``, ``nlb`` or
-``nlb_spectral`` (how data are passed and which checkpoint is exported); ``render_variant`` renders a model in another
+starting with ``../shared`` are relative to the repository root, others to the profile file.  ``method`` is ``spectral_mlp``, ``abc``, ``nlb``,
+``nlb_spectral`` or ``auto`` (ABC and the spectral NLB fitted side by side, the better on the measured pairs kept:
+``configs/auto.yaml``): which checkpoint is exported and what the cell's seed changes (every method takes the
+material's samples as ``--data.path``); ``render_variant`` renders a model in another
 Mitsuba variant (a spectral model in ``llvm_ad_rgb`` uses the reduced-wavelength rule).  Variants
 with a ``group`` are also run at every stability seed (DS1, no noise) and box-plotted by ``label``.
 ``speed_accuracy: false`` makes a variant a sweep only: its DS1 noise-free seed-0 cell is neither
@@ -68,7 +70,7 @@ from neuralbrdf.evaluation.evaluate import MAX_RESOLUTION, MIN_RESOLUTION, REFER
 from neuralbrdf.evaluation.scores import HEMISPHERE_STRATA, check_strata
 from neuralbrdf.virtual.materials import MATERIALS, VALIDATION_MATERIALS
 
-METHODS = ("spectral_mlp", "abc", "nlb", "nlb_spectral")
+METHODS = ("spectral_mlp", "abc", "nlb", "nlb_spectral", "auto")
 BUILTIN_DIR = CONFIGS_DIR / "study"
 REPO_ROOT = Path(__file__).resolve().parents[2]
 MAX_NOISE = 1.0

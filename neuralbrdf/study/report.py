@@ -206,7 +206,9 @@ def _points_table(study: dict) -> str:
         "material", "model", "plan", "noise", "seed", *COST_COLUMNS, *ERROR_COLUMNS, "failure"))
     rows = []
     for i, p in enumerate(study["points"]):
-        cells = [text(p["material"]), text(p["model"]), text(p["plan"]), number(p["noise"], f"points.{i}.noise"),
+        chose = (p.get("auto") or {}).get("choice")  # an auto fit: the candidate it kept
+        cells = [text(p["material"]), text(p["model"] + (f" ({chose})" if chose else "")), text(p["plan"]),
+                 number(p["noise"], f"points.{i}.noise"),
                  number(p["seed"], f"points.{i}.seed")]
         cells += [number(p["cost"][k], f"points.{i}.cost.{k}") if k in p["cost"] else text(None) for k in COST_COLUMNS]
         cells += [number(p["error"][k], f"points.{i}.error.{k}") if k in p["error"] else text(None)
