@@ -82,6 +82,17 @@ SPECTRAL_NLB_VALIDATION = "benchmarks/spectral_nlb_validation.json"
 SPECTRAL_NLB_TIMING = "benchmarks/spectral_nlb_timing.json"
 SPECTRAL_PRETRAIN = "benchmarks/nlb_spectral_pretrain.json"
 RGL_REAL = ("benchmarks/rgl_real.json", "python benchmarks/rgl_real.py")
+AUTO = ("benchmarks/auto.json", "python benchmarks/auto.py")
+AUTO_RULES = ("benchmarks/auto_rules.json", "python benchmarks/auto_rules.py")
+AUTO_TIMING = ("benchmarks/auto_timing.json", "python benchmarks/auto_timing.py")
+#: The groups of benchmarks/auto.json and what each is for the choice of the rule.
+AUTO_GROUPS = {
+    "virtual_validation": "six virtual validation materials, spectral, 1 % noise (validation)",
+    "rgl_validation": "nine RGL validation proxies, RGB (validation)",
+    "rgl_real": "the ten real RGL measurements, truth Mitsuba's `measured` plugin (validation on real data; the "
+                "materials are among the pretraining proxies)",
+    "merl_held_out": "the ten held-out MERL proxies (a test set: the rule was not chosen on it)",
+}
 #: Methods of ``benchmarks/rgl_real.py`` as the page names them.
 RGL_METHODS = {"abc": "ABC", "spectral_mlp": "spectral MLP", "nlb": "RGB NLB", "nlb_spectral": "spectral NLB"}
 
@@ -496,7 +507,7 @@ def lod_section() -> list[str]:
              "and on the preview scene with the gold alone; both tolerances 1.0. ΔE: the selected scene at matched "
              "paths against the all-full one (the stand-ins' bias), over the whole image and over each object's "
              "pixels. Speed: shortest of the interleaved renders after a compiling one (Dr.Jit symbolic mode).", ""]
-    lines += [f"Source: [`benchmarks/lod_demo/`](../benchmarks/lod_demo/). Reproduce: "
+    lines += ["Source: [`benchmarks/lod_demo/`](../benchmarks/lod_demo/). Reproduce: "
               "`bash export/lod_models.sh && python benchmarks/lod_demo.py --variant V [--preview-gold]`.",
               machine_line(load(str(runs[0].relative_to(ROOT))).get("machine")) if runs else "", ""]
     rows = []
@@ -785,6 +796,107 @@ def spectral_nlb_tables(data: dict) -> list[str]:
 # -- the page -----------------------------------------------------------------------------------
 
 
+def _auto_rows(materials: dict) -> list[list[str]]:
+    rows = []
+    for name, row in materials.items():
+        cells = []
+        for method in ("abc", "nlb_spectral", "auto"):
+            r = row[method]
+            if "failed" in r:
+                cells.append("failed")
+                continue
+            image = r.get("image_delta_e2000_mean")
+            cells.append(num(r["hemisphere_logcos_rmse"]) + (f" ({image:.2f})" if image is not None else ""))
+        auto = row["auto"]
+        ratio = (auto["hemisphere_logcos_rmse"] / row["abc"]["hemisphere_logcos_rmse"]
+                 if "failed" not in auto and "failed" not in row["abc"] else None)
+        inplane = auto.get("inplane_logcos_rmse") or {}
+        rows.append([name, *cells, auto.get("choice", "—"), num(ratio, 3),
+                     f"{num(inplane.get('abc'))} / {num(inplane.get('nlb_spectral'))}"])
+    return rows
+
+
+def auto_section() -> list[str]:
+    relative, command = AUTO
+    lines = ["## Auto against ABC and the spectral NLB", ""]
+    if not (ROOT / relative).is_file():
+        return lines + [f"No result file is committed: `{command}` writes `{relative}`.", ""]
+    data = load(relative)
+    lines += source_lines(relative, command, data.get("machine"))
+    lines += ["Each material's measurement on DS1 fitted three times: `configs/abc.yaml`, `configs/nlb_spectral.yaml` "
+              "and `configs/auto.yaml` (the better of the two on the measured samples, [models.md](models.md#auto)); "
+              "each exported and scored by `neuralbrdf evaluate` against the truth: hemisphere log-cos RMSE "
+              "(102 400 pairs) and, for the virtual materials, the image ΔE2000 mean in brackets (`llvm_ad_spectral`, "
+              "128 px, 64 spp, matched seeds). The last columns: the choice, auto's error over ABC's, and the two "
+              "candidates' log-cos RMSE on the measured samples that the choice was made on. This run's fit times "
+              "were taken on a loaded machine; the fit times below are from an idle one.", ""]
+    pooled = {}
+    for group, block in data["groups"].items():
+        summary = block["summary"]
+        lines += [f"### {group}", "", AUTO_GROUPS.get(group, group) + ".", ""]
+        lines += table(["material", "ABC", "spectral NLB", "auto", "choice", "auto / ABC", "in-plane ABC / NLB"],
+                       _auto_rows(block["materials"]))
+        for metric, label in (("hemisphere_logcos_rmse", "Hemisphere log-cos RMSE"),
+                              ("image_delta_e2000_mean", "Image ΔE2000 mean")):
+            m = summary.get(metric)
+            if m:
+                lines += [f"{label}: medians ABC {num(m['median']['abc'])}, spectral NLB "
+                          f"{num(m['median']['nlb_spectral'])}, auto {num(m['median']['auto'])}; auto within 1.02× "
+                          f"ABC on {m['auto_within_1.02_abc']:.0%} of the materials, closer than ABC on "
+                          f"{m['auto_closer_than_abc']:.0%}, at worst {m['auto_over_abc_max']:.2f}× ABC; auto's median "
+                          f"over the spectral NLB's {m['auto_median_over_nlb_spectral_median']:.3f}.", ""]
+        lines += [f"Choices: ABC {summary['choices']['abc']}, spectral NLB {summary['choices']['nlb_spectral']}.", ""]
+        if group in ("virtual_validation", "rgl_validation"):
+            pooled.update(block["materials"])
+    if pooled:
+        value = {m: [r[m]["hemisphere_logcos_rmse"] for r in pooled.values()] for m in ("abc", "nlb_spectral", "auto")}
+        within = sum(u <= 1.02 * a for u, a in zip(value["auto"], value["abc"]))
+        lines += ["### Against the targets", "",
+                  f"On the {len(pooled)} validation materials (virtual and RGL proxies together): auto within 1.02× "
+                  f"ABC's hemisphere error on {within} of {len(pooled)} ({within / len(pooled):.0%}; target ≥ 90 %), "
+                  f"median {num(median(value['auto']))} against the spectral NLB's {num(median(value['nlb_spectral']))} "
+                  f"and ABC's {num(median(value['abc']))} (target: no worse than the spectral NLB's).", ""]
+    timing_relative, timing_command = AUTO_TIMING
+    lines += ["### Auto's fit time", ""]
+    if not (ROOT / timing_relative).is_file():
+        lines += [f"No result file is committed: `{timing_command}` writes `{timing_relative}`.", ""]
+    else:
+        timing = load(timing_relative)
+        lines += source_lines(timing_relative, timing_command)
+        load_before = timing["machine"]["load_average_before"][0]
+        load_after = timing["machine"]["load_average_after"][0]
+        for table_kind, r in timing["fits"].items():
+            candidates = r["runs_s"]["auto_candidates"]
+            abc = median([c.get("abc") for c in candidates])
+            nlb = median([c.get("nlb_spectral") for c in candidates])
+            lines += [f"- {table_kind} table: auto {num(r['median_s']['auto'], 2)} s against the spectral NLB's "
+                      f"{num(r['median_s']['nlb_spectral'], 2)} s (`fit/wall_time_s`, median of {timing['repeats']}), "
+                      f"**{r['auto_over_nlb_spectral']:.2f}×** (target ≤ 1.5×); inside the auto fit, side by side, ABC "
+                      f"{num(abc, 2)} s and the spectral NLB {num(nlb, 2)} s."]
+        lines += ["", f"Load average {load_before:.2f} before and {load_after:.2f} after the run.", ""]
+    rules_relative, rules_command = AUTO_RULES
+    if (ROOT / rules_relative).is_file():
+        rules = load(rules_relative)
+        lines += ["### The rule and its alternatives", ""]
+        lines += source_lines(rules_relative, rules_command)
+        lines += ["Both candidates' predictions at the measured pairs and on 36 864 hemisphere pairs; each rule sees "
+                  "the measured pairs only ([design.md](design.md#never-worse-than-abc)). Per rule: the median of its "
+                  "hemisphere error over ABC's, the share of materials within 1.02× ABC and below ABC, the worst "
+                  "ratio, and its median over the spectral NLB's median. `oracle` is the best blend for the "
+                  "hemisphere (it needs the truth: a bound, not a rule).", ""]
+        blocks = [("validation: virtual and RGL proxies", rules.get("validation_pooled"))]
+        blocks += [(group, block["summary"]) for group, block in rules["groups"].items() if group == "rgl_real"]
+        for label, summary in blocks:
+            if not summary:
+                continue
+            lines += [f"{label}:", ""]
+            lines += table(["rule", "median / ABC", "≤ 1.02× ABC", "< ABC", "worst / ABC", "median / NLB median"],
+                           [[rule, num(s["median_over_abc"], 3), f"{s['within_1.02_abc']:.0%}", f"{s['below_abc']:.0%}",
+                             num(s["worst_over_abc"], 2), num(s["median_over_nlb_spectral_median"], 3)]
+                            for rule, s in summary.items()])
+    return lines
+
+
 def rgl_real_section() -> list[str]:
     relative, command = RGL_REAL
     lines = ["## A real measurement: RGL green acrylic felt", ""]
@@ -879,9 +991,11 @@ def build() -> str:
              "[ABC against NLB in the image](#abc-against-nlb-in-the-image-the-reports-five) · "
              "[speed](#rendering-speed-and-throughput) · [level of detail](#level-of-detail-selection-on-the-demo-scenes) · "
              "[study](#the-study) · [spectral NLB](#the-spectral-nlb) · "
+             "[auto](#auto-against-abc-and-the-spectral-nlb) · "
              "[a real measurement](#a-real-measurement-rgl-green-acrylic-felt)", ""]
     for section in (nlb_section, networks_section, prior_section, render_check_section, accuracy_section,
-                    speed_section, lod_section, studies_section, spectral_nlb_section, rgl_real_section):
+                    speed_section, lod_section, studies_section, spectral_nlb_section, auto_section,
+                    rgl_real_section):
         lines += section()
     while lines and lines[-1] == "":
         lines.pop()
