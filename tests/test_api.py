@@ -81,7 +81,7 @@ def test_read_an_nbrdf_proxy():
     (lambda f: nb.read(f / "blue.binary", plan="DS9"), "unknown plan 'DS9'"),
     (lambda f: nb.read(f / "cyan.csv"), "is a GCMS raw file"),
     (lambda f: nb.read(f / "missing.csv"), "missing.csv"),
-    (lambda f: nb.fit("mlp", "virtual:gold"), "unknown fit kind 'mlp'; expected one of abc, spectral_mlp, nlb, nlb_spectral"),
+    (lambda f: nb.fit("mlp", "virtual:gold"), "unknown fit kind 'mlp'; expected one of auto, abc, spectral_mlp, nlb, nlb_spectral, pca"),
     (lambda f: nb.truth(nb.read(f / "cyan_table.csv"), f / "t.onnx"), "a measurement (table) is known only where"),
     (lambda f: nb.evaluate("m.onnx", "t.onnx", f / "e", material="gold"), "give the scene too"),
     (lambda f: nb.evaluate("m.onnx", "t.onnx", f / "e", spp=0), "spp must be a positive integer"),
@@ -179,7 +179,7 @@ def test_a_model_scored_against_itself_is_said_as_the_command_says_it(tmp_path):
 def test_every_fit_kind_names_a_shipped_config():
     from neuralbrdf.configs_dir import resolve_config
 
-    assert set(nb.FIT_KINDS) == {"abc", "spectral_mlp", "nlb", "nlb_spectral"}
+    assert set(nb.FIT_KINDS) == {"auto", "abc", "spectral_mlp", "nlb", "nlb_spectral", "pca"}
     assert all(resolve_config(config).is_file() for config in nb.FIT_KINDS.values())
 
 

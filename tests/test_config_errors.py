@@ -73,7 +73,7 @@ def test_a_bad_value_names_the_flag_not_the_file_that_set_it_first(tmp_path, cap
 def test_an_unknown_config_lists_the_shipped_ones(tmp_path, capsys):
     line = run_fails(["fit", "--config", "abcd"], tmp_path, capsys)
     assert "abcd: no such configuration file" in line and "did you mean abc?" in line
-    assert "shipped: abc, auto, nlb_latent," in line and "spectral_mlp" in line
+    assert "shipped: abc, auto, nlb_latent," in line and "nlb_spectral_pretrain, pca, spectral_mlp" in line
 
 
 def test_an_unknown_subcommand_and_a_missing_config(tmp_path, capsys):

@@ -14,6 +14,7 @@ from neuralbrdf.lightning.abc_module import AbcFitModule
 from neuralbrdf.lightning.auto_fit import AutoFitModule
 from neuralbrdf.lightning.common import WritesKind
 from neuralbrdf.lightning.latent_fit_module import LatentFitModule
+from neuralbrdf.lightning.pca_fit import PcaFitModule
 from neuralbrdf.lightning.spectral_mlp_module import SpectralMlpModule
 from neuralbrdf.onnx_contract import generic_metadata
 
@@ -25,13 +26,13 @@ KIND = Kind(name="toy", summary="a kind added as one file")
 
 
 def test_the_shipped_kinds_are_registered_with_what_the_library_needs():
-    assert kinds.names() == ["abc", "auto", "nlb", "nlb_spectral", "reference", "spectral_mlp", "table"]
+    assert kinds.names() == ["abc", "auto", "nlb", "nlb_spectral", "pca", "reference", "spectral_mlp", "table"]
     for name in kinds.names():
         kind = kinds.get(name)
         assert kind.name == name and kind.summary
         assert kind.proposal in ("fitted_ggx", "abc_lobe", "chosen")
     trained = {name for name in kinds.names() if kinds.get(name).from_checkpoint is not None}
-    assert trained == {"abc", "auto", "nlb", "nlb_spectral", "spectral_mlp"}
+    assert trained == {"abc", "auto", "nlb", "nlb_spectral", "pca", "spectral_mlp"}
     assert kinds.get("spectral_mlp").spectral_only and not kinds.get("nlb").spectral_only
     assert kinds.get("abc").proposal == "abc_lobe" and kinds.get("auto").proposal == "chosen"
 
@@ -49,7 +50,7 @@ def test_unknown_kind_names_the_registered_ones():
         kinds.get("gan")
 
 
-@pytest.mark.parametrize("module", [SpectralMlpModule, AbcFitModule, LatentFitModule, AutoFitModule])
+@pytest.mark.parametrize("module", [SpectralMlpModule, AbcFitModule, LatentFitModule, AutoFitModule, PcaFitModule])
 def test_every_fitted_model_module_writes_a_registered_kind(module):
     assert issubclass(module, WritesKind)
     assert kinds.get(module.KIND).from_checkpoint is not None
@@ -131,7 +132,7 @@ def test_checkpoints_without_the_kind_key_are_recognised_by_their_layout(checkpo
 
 @pytest.mark.parametrize("checkpoint", [{}, {CHECKPOINT_KIND_KEY: "reference"}, {"state_dict": {}}])
 def test_a_checkpoint_of_no_trained_kind_is_refused_naming_the_key(checkpoint):
-    with pytest.raises(InputError, match=r"unknown checkpoint kind .*expected one of \['abc', 'auto', 'nlb', 'nlb_spectral', 'spectral_mlp'\]") as info:
+    with pytest.raises(InputError, match=r"unknown checkpoint kind .*expected one of \['abc', 'auto', 'nlb', 'nlb_spectral', 'pca', 'spectral_mlp'\]") as info:
         kinds.checkpoint_kind(checkpoint, "x.ckpt")
     assert info.value.key == CHECKPOINT_KIND_KEY and str(info.value.path) == "x.ckpt"
 

@@ -20,6 +20,7 @@ FIT_KINDS: dict[str, str] = {
     "spectral_mlp": "spectral_mlp",
     "nlb": "nlb_latent",
     "nlb_spectral": "nlb_spectral",
+    "pca": "pca",
 }
 
 
@@ -73,7 +74,7 @@ def _data_options(config: str, source: Source) -> dict[str, Any]:
 def fit(kind: str, data: Source | PathLike | None = None, *, config: PathLike | None = None,
         run_dir: PathLike | None = None, overrides: Mapping[str, Any] | None = None,
         overwrite: bool = False) -> FitResult:
-    """Fit a model of ``kind`` (:data:`FIT_KINDS`: ``auto``, ``abc``, ``spectral_mlp``, ``nlb``, ``nlb_spectral``) to ``data``
+    """Fit a model of ``kind`` (:data:`FIT_KINDS`: ``auto``, ``abc``, ``spectral_mlp``, ``nlb``, ``nlb_spectral``, ``pca``) to ``data``
     (a :class:`Source` or what :func:`read` takes; ``None``: the config's own data) through the
     kind's shipped config, or ``config`` (a shipped name or a YAML file); ``overrides`` sets config
     keys to values, typed as the config's (``{"trainer.max_epochs": 5}``, what ``--trainer.max_epochs 5``

@@ -49,6 +49,8 @@ from neuralbrdf.models.nlb import above_horizon
 #: Floor on the denominators of the coordinate formulas (reached only at degenerate pairs: the
 #: mirror direction for ``φd``, grazing opposite directions for ``θh``).
 _TINY = 1e-20
+#: ``|cos φd|`` within this of 1 is taken as 1 (:func:`table_coordinates`).
+_PLANE_SNAP = 1e-6
 #: Entries a table may hold: float32 indices stay exact below 2^24.
 MAX_ENTRIES = 2**24
 
@@ -75,6 +77,9 @@ def table_coordinates(wi: torch.Tensor, wo: torch.Tensor,
     a_h = torch.sqrt(torch.sqrt(one_minus_cos_h))
     t_norm = torch.sqrt(t[:, 0] * t[:, 0] + t[:, 1] * t[:, 1] + t[:, 2] * t[:, 2])
     ratio = t[:, 2] * s_norm / torch.clamp(t_norm * torch.sqrt(s_xy2), min=_TINY)  # −cos φd
+    # in-plane pairs (cos φd = ±1: every in-plane measurement) sit exactly on the last φd node:
+    # onnxruntime rounds this expression ~3e-7 away from PyTorch, which leaks the next node's value in
+    ratio = torch.where(ratio > 1.0 - _PLANE_SNAP, 1.0, torch.where(ratio < _PLANE_SNAP - 1.0, -1.0, ratio))
     if axes == "measured":
         a_d = torch.clamp(torch.atan(t_norm / torch.clamp(s_norm, min=_TINY)) * (2.0 / math.pi), 0.0, 1.0)
         return a_h, a_d, torch.clamp(0.5 - 0.5 * ratio, 0.0, 1.0)
