@@ -1,7 +1,7 @@
 """The PCA prior (docs/models.md#pca) against ABC and the spectral NLB, each fitted to the same
 measurement of a validation material.
 
-    python benchmarks/pca.py [--groups rgl_validation,virtual_validation] [--plans DS1,DS3,DS4]
+    python benchmarks/pca.py [--groups rgl_validation,virtual_validation] [--plans DS1,DS3,DS4]  # or plan files
         [--methods pca,abc,nlb_spectral] [--work runs/pca_bench] [--out benchmarks/pca.json]
 
 For every material and plan: ``nb.fit`` of each method through its shipped config on the
@@ -59,7 +59,7 @@ def materials(group: str, plan: str, work: Path) -> list[tuple[str, object, str]
         return found
     found = []
     for name in VALIDATION_MATERIALS:
-        path = work / "tables" / f"{name}_{plan}.csv"
+        path = work / "tables" / f"{name}_{plan_label(plan)}.csv"
         if not path.is_file():
             path.parent.mkdir(parents=True, exist_ok=True)
             write_table(virtual_measurement(name, plan, 0.01, seed=0, reference_seed=1), path)
@@ -75,12 +75,17 @@ def truth_file(name: str, truth: str, work: Path) -> Path:
     return path
 
 
+def plan_label(plan: str) -> str:
+    """A plan's name in file names: a report plan's name, a plan file's stem (``configs/plans/pca_6.csv``: ``pca_6``)."""
+    return Path(plan).stem if plan.endswith(".csv") else plan
+
+
 def cell(name: str, measurement: Path, truth: str, plan: str, method: str, work: Path) -> dict:
     """One method's score and fit time on one material and plan (kept in ``work`` and reused)."""
-    done = work / "cells" / f"{name}_{plan}_{method}.json"
+    done = work / "cells" / f"{name}_{plan_label(plan)}_{method}.json"
     if done.is_file():
         return json.loads(done.read_text())
-    folder = work / "runs" / f"{name}_{plan}"
+    folder = work / "runs" / f"{name}_{plan_label(plan)}"
     source = nb.read(measurement, name=name) if measurement.suffix == ".csv" else nb.read(measurement, plan=plan,
                                                                                           name=name)
     truth_path = truth_file(name, truth, work)
@@ -170,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
             for name, measurement, truth in materials(group, plan, work):
                 print(f"[{group} {plan}] {name} ...", flush=True)
                 rows[name] = {m: cell(name, Path(measurement), truth, plan, m, work) for m in methods}
-            results["groups"][group][plan] = {"materials": rows, "summary": summary(rows, methods)}
+            results["groups"][group][plan_label(plan)] = {"materials": rows, "summary": summary(rows, methods)}
     results["wall_s"] = time.time() - began
     with atomic_write(Path(args.out)) as handle:
         handle.write(json.dumps(results, indent=1) + "\n")

@@ -258,3 +258,42 @@ def test_acquire_writes_its_curve_and_refuses_to_overwrite_it(tmp_path, capsys):
     one_line_error(capsys, "acquire", "virtual:val-orange", "--start", "DS3", "--max", 8, "--out-dir", tmp_path / "s2",
                    expect="more than the budget")
     assert not (tmp_path / "s2").exists()
+
+
+def test_the_pca_design_takes_each_pair_that_lowers_the_exact_posterior_variance_most():
+    """The PCA fit is linear: its design's criterion is exact.  Each greedy step against an exhaustive
+    search computed independently with direct inverses of the posterior precision."""
+    from neuralbrdf.acquisition.design import DesignSettings, design_pca
+    from neuralbrdf.evaluation.scores import hemisphere_pairs
+    from neuralbrdf.geometry import inplane_to_vectors
+    from neuralbrdf.models.pca_brdf import design_matrix, load_basis
+
+    settings = DesignSettings(noise=0.01, normalise=True, blends=0, analytic=0, hemisphere_strata=(3, 4), seed=0)
+    instrument = Instrument(60.0, 10.0, 0.0)
+    plan = design_pca(3, instrument, settings)
+    basis = load_basis().truncated(32)
+    ridge = 0.003                                                       # configs/pca.yaml
+    theta_i, theta_r = instrument.candidates()
+    _, phi = design_matrix(basis, *inplane_to_vectors(theta_i, theta_r))
+    _, hemisphere = design_matrix(basis, *hemisphere_pairs(0, (3, 4)))
+    h = hemisphere.T @ hemisphere / len(hemisphere)
+    precision = np.diag(1.0 / basis.scales ** 2)
+    chosen = []
+    for step in range(3):
+        criteria = [np.inf if k in chosen else np.trace(h @ np.linalg.inv(precision + np.outer(row, row) / ridge))
+                    for k, row in enumerate(phi)]                       # a pair is not chosen twice
+        best = int(np.argmin(criteria))
+        assert (plan.theta_i[step], plan.theta_r[step]) == (theta_i[best], theta_r[best])
+        assert plan.predicted_error[step + 1] == pytest.approx(np.sqrt(criteria[best]), rel=1e-6)
+        precision = precision + np.outer(phi[best], phi[best]) / ridge
+        chosen.append(best)
+    assert plan.predicted_error[0] == pytest.approx(np.sqrt(np.trace(h @ np.diag(basis.scales ** 2))), rel=1e-6)
+
+
+def test_plan_design_for_the_pca_prior_writes_a_plan_a_pca_fit_reads(tmp_path, capsys):
+    out = tmp_path / "plan.csv"
+    assert run("plan", "design", "--kind", "pca", "--budget", 4, "--step", 10, "--out", out) == 0
+    assert "designed for pca: 4 pairs" in capsys.readouterr().out
+    theta_i, theta_r = in_plane_plan(out)
+    assert len(theta_i) == 4 and Instrument(60.0, 10.0, 0.0).measurable(theta_i, theta_r).all()
+    one_line_error(capsys, "plan", "design", "--budget", 3, "--kind", "abc", "--out", out, expect="nlb_spectral, pca")

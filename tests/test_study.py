@@ -947,3 +947,128 @@ def test_parameter_count_of_an_auto_file_is_that_of_the_graph_it_holds(tmp_path)
     model = load_model(path)
     assert model.kind == "auto" and graph_kind(model) == "abc"
     assert parameter_count(model.proto, graph_kind(model)) == 3 + 3 + 3
+
+
+# --------------------------------------------------------------------------- the pca method
+
+PCA = BASE + "  - {name: pca, method: pca, config: configs/pca.yaml}\n"
+
+
+def test_every_list_of_methods_knows_pca():
+    """``pca`` is a study method: its checkpoint is the one its config saves, and it is deterministic
+    without noise (a closed-form ridge solve in a fixed basis), so it takes no seed option."""
+    import yaml
+
+    from neuralbrdf.configs_dir import resolve_config
+    from neuralbrdf.study.cell import CHECKPOINTS
+    from neuralbrdf.study.cells import SEEDING, seed_args, seeding_description
+    from neuralbrdf.study.charts import METHOD_COLOURS
+    from neuralbrdf.study.profile import METHODS
+
+    assert "pca" in METHODS
+    assert set(METHODS) == set(CHECKPOINTS) == set(SEEDING) == set(METHOD_COLOURS)
+    assert len(set(METHOD_COLOURS.values())) == len(METHOD_COLOURS)
+    callbacks = yaml.safe_load(resolve_config("pca").read_text())["trainer"]["callbacks"]
+    saved = next(c["init_args"]["filename"] for c in callbacks if c["class_path"].endswith("ModelCheckpoint"))
+    assert CHECKPOINTS["pca"] == f"{saved}.ckpt"
+    assert seed_args("pca", 3) == [] and SEEDING["pca"].varies is None
+    assert "seed 0 only" in seeding_description("pca") and "ridge" in seeding_description("pca")
+
+
+def test_a_pca_variant_is_fitted_like_abc_without_a_seed_option_and_keyed_by_its_basis(tmp_path):
+    """A profile naming ``method: pca`` validates; its cells pass the data as ABC's do, with no seed
+    option, run noise-free at seed 0 only, and their keys hold the contents of the basis file."""
+    from neuralbrdf.configs_dir import resolve_config
+    from neuralbrdf.models.pca_brdf import BASIS_FILE
+    from neuralbrdf.study.cell import fit_arguments
+    from neuralbrdf.study.cells import PCA_BASIS_DEFAULT, file_digest, pca_basis
+    from neuralbrdf.study.runner import cell_spec
+
+    profile = load_profile(str(_write(tmp_path, PCA + "stability: {variants: [abc, pca], plans: [DS1, DS4], "
+                                                      "noise: [0.0, 0.1], seeds: [0, 1]}\n")))
+    assert profile.variant("pca").method == "pca"
+    assert Path(profile.variant("pca").config) == resolve_config("pca").resolve()
+    assert [c for c in plan_cells(profile) if c.variant == "pca"] == [
+        Cell("gold", "pca", "DS1", 0.0, 0), Cell("gold", "pca", "DS4", 0.0, 0),
+        Cell("gold", "pca", "DS1", 0.1, 0), Cell("gold", "pca", "DS1", 0.1, 1)]
+    table, run = tmp_path / "gold.csv", tmp_path / "run"
+    spec = cell_spec(Cell("gold", "pca", "DS4", 0.1, 1), "k", profile, (tmp_path / "truth.onnx", "sha"))
+    assert fit_arguments(spec, table, run) == [
+        "fit", "--config", profile.variant("pca").config, "--data.path", str(table), "--run_dir", str(run),
+        "--seed_everything", "1", "--trainer.enable_progress_bar", "false"]
+    main = Cell("gold", "pca", "DS1", 0.0, 0)
+    assert PCA_BASIS_DEFAULT == BASIS_FILE and pca_basis(profile.variant("pca")) == BASIS_FILE
+    assert cell_settings(main, profile)["variant"]["basis"] == file_digest(str(BASIS_FILE))
+    assert "basis" not in cell_settings(Cell("gold", "abc", "DS1", 0.0, 0), profile)["variant"]
+    # another basis (an override): another key
+    mine = tmp_path / "my_basis.npz"
+    mine.write_bytes(BASIS_FILE.read_bytes() + b"\0")
+    other = load_profile(str(_write(tmp_path, BASE + "  - {name: pca, method: pca, config: configs/pca.yaml, "
+                                                     f"args: [--model.basis, {mine}]}}\n")))
+    assert pca_basis(other.variant("pca")) == mine
+    assert cell_settings(main, other)["variant"]["basis"] == file_digest(str(mine))
+    assert cell_key(main, other) != cell_key(main, profile)
+
+
+@pytest.mark.parametrize("cause, expected", [
+    ("not_finite", "non_finite_loss"),
+    ("no_sample", "optimizer_failure"),
+])
+def test_a_failed_pca_fit_is_mapped_by_its_own_cause(tmp_path, monkeypatch, cause, expected):
+    """A ``pca`` fit that fails on a value that is not finite is a non-finite loss; one that cannot be
+    made from its samples an optimiser failure — read from the fit's cause, not from the material's
+    name (``nan_gold`` holds "nan")."""
+    import numpy as np
+
+    from neuralbrdf.errors import InputError
+    from neuralbrdf.models import pca_brdf
+    from neuralbrdf.study import cell as cell_module
+    from neuralbrdf.study.runner import cell_spec
+
+    if cause == "not_finite":
+        monkeypatch.setattr(pca_brdf, "ridge_coefficients", lambda *args: np.full((31, 32), np.nan))
+    else:
+        def no_sample(*args, source=None, **kwargs):
+            raise InputError("no sample above the horizon to fit the PCA coefficients to", path=source)
+
+        monkeypatch.setattr(pca_brdf, "fit_channels", no_sample)
+    profile = load_profile(str(_write(tmp_path, PCA.replace("name: gold", "name: nan_gold"))))
+    spec = cell_spec(Cell("nan_gold", "pca", "DS4", 0.0, 0), "k", profile, (tmp_path / "truth.onnx", "sha"))
+    table = cell_module.write_data(spec, tmp_path / "data" / "nan_gold.csv")
+    with pytest.raises(cell_module.CellFailure) as failure:
+        cell_module.fit(spec, table, tmp_path / "run")
+    assert failure.value.cause == expected, failure.value
+    assert "PCA fit of nan_gold: " in str(failure.value)
+    assert not (tmp_path / "run" / "checkpoints" / "best.ckpt").exists()
+
+
+def test_a_pca_cell_runs_and_counts_its_table_entries(tmp_path):
+    """One real cell of ``pca`` (the virtual gold on DS4, scored on few hemisphere pairs, no render):
+    the exported file is a ``pca`` file, and its parameter count is its baked table's entries (the
+    basis's nodes × 31 bands), not its 32 coefficients per band."""
+    import onnx
+
+    from neuralbrdf.kinds import load_model
+    from neuralbrdf.models.pca_brdf import load_basis
+    from neuralbrdf.study import cell as cell_module
+    from neuralbrdf.study.cache import Repairs, truth_file
+    from neuralbrdf.study.cost import graph_kind, parameter_count
+    from neuralbrdf.study.runner import cell_spec
+
+    profile = load_profile(str(_write(tmp_path, BASE.replace("  - {name: abc, method: abc, config: configs/abc.yaml}\n",
+                                                             "") + "  - {name: pca, method: pca, config: "
+                                      "configs/pca.yaml, speed_accuracy: false}\nhemisphere_strata: [4, 5]\n")))
+    cell = Cell("gold", "pca", "DS4", 0.0, 0)
+    folder = tmp_path / "cell"
+    folder.mkdir()
+    spec = cell_spec(cell, cell_key(cell, profile), profile, truth_file(profile.materials[0], tmp_path, Repairs(tmp_path)))
+    (folder / "cell.json").write_text(json.dumps(spec))
+    result = cell_module.run_cell(folder)
+    assert result["failure"] is None, result["message"]
+    assert result["error"]["hemisphere_logcos_rmse"] > 0 and result["cost"]["fit_time_s"] > 0
+    model = load_model(folder / "model.onnx")
+    assert model.kind == "pca" and graph_kind(model) == "pca" and model.details.components == 32
+    nodes = load_basis().nodes
+    assert model.details.nodes == (*nodes, 31)
+    count = parameter_count(onnx.load(str(folder / "model.onnx")), graph_kind(model))
+    assert count == nodes[0] * nodes[1] * nodes[2] * 31 == 285_696

@@ -121,9 +121,9 @@ def test_the_budget_profile_sweeps_the_designed_plans_on_validation_materials():
     truths = {m.truth for m in profile.materials}
     assert {f"virtual:{name}" for name in VALIDATION_MATERIALS} <= truths
     assert {Path(t).stem for t in truths if t.endswith(".h5")} == set(RGL_VALIDATION)
-    assert profile.stability.render and {v.name for v in profile.variants} == {"abc", "nlb_spectral", "auto"}
-    assert {v.method for v in profile.variants} == {"abc", "nlb_spectral", "auto"}
-    assert len(plan_cells(profile)) == len(profile.materials) * 3 * 7 == 315
+    assert profile.stability.render and {v.name for v in profile.variants} == {"abc", "nlb_spectral", "auto", "pca"}
+    assert {v.method for v in profile.variants} == {"abc", "nlb_spectral", "auto", "pca"}
+    assert len(plan_cells(profile)) == len(profile.materials) * 4 * 7 == 420
 
 
 def test_a_study_measures_a_plan_file_and_charts_error_against_pairs(tmp_path):

@@ -17,6 +17,15 @@ lowers every material's error by the largest share rather than the largest mater
 Only the training side of the prior enters: the codes of materials the network was pretrained
 on.  Its result is measured on validation materials the pretraining never saw
 (``benchmarks/acquisition.py``).
+
+For the PCA prior (``kind: pca``, Nielsen et al. 2015; :mod:`neuralbrdf.models.pca_brdf`) the fit
+is linear — each channel's ``ln(1 + f)`` is ``μ + Φ c`` — so the design is exact rather than
+linearised, and one problem serves every material and channel: the Jacobian of a pair is its row
+``Φ(p)`` of the basis read at it, the prior the training coefficients' Gaussian ``diag(s²)``, and
+the noise variance the fit's own ridge weight (the ridge solution is the MAP estimate of exactly
+that model, so the design optimises the fit that is run).  The criterion is the integrated
+variance of ``ln(1 + f)`` over the hemisphere pairs; the settings are the ``pca`` config's
+(``components``, ``ridge``, ``basis``) and the design section's ``hemisphere_strata`` and ``seed``.
 """
 
 from __future__ import annotations
@@ -60,6 +69,12 @@ class PlanDesign:
     instrument: Instrument
 
 
+def _check_budget(budget, candidates: int) -> None:
+    if not isinstance(budget, int) or isinstance(budget, bool) or not 1 <= budget <= candidates:
+        raise InputError(f"expected a number of pairs from 1 to {candidates} (the distinct pairs this instrument "
+                         f"can measure), got {budget!r}", key="--budget")
+
+
 def design_material_rows(names: tuple[str, ...], settings: DesignSettings) -> list[int]:
     """Rows of the pretrained codes the design averages over: every measured material, and
     ``settings.blends`` blends and ``settings.analytic`` analytic materials drawn with ``seed``."""
@@ -101,9 +116,7 @@ def design_nlb_spectral(budget: int, instrument: Instrument, settings: DesignSet
     from neuralbrdf.shipped import SPECTRAL_DEFAULT, resolve_pretrained
 
     theta_i, theta_r = instrument.candidates()
-    if not isinstance(budget, int) or isinstance(budget, bool) or not 1 <= budget <= len(theta_i):
-        raise InputError(f"expected a number of pairs from 1 to {len(theta_i)} (the distinct pairs this instrument "
-                         f"can measure), got {budget!r}", key="--budget")
+    _check_budget(budget, len(theta_i))
     pretrained = load_spectral_pretrained(resolve_pretrained(checkpoint, SPECTRAL_DEFAULT))
     rows = design_material_rows(pretrained.names, settings)
     linearisation = SpectralNlbLinearisation(pretrained.network, torch.eye(3))
@@ -119,8 +132,36 @@ def design_nlb_spectral(budget: int, instrument: Instrument, settings: DesignSet
                       "nlb_spectral", instrument)
 
 
+def design_pca(budget: int, instrument: Instrument, settings: DesignSettings, config: str = "pca",
+               progress=None) -> PlanDesign:
+    """The PCA prior's design (module docstring), with the settings of the fit config ``config``."""
+    from neuralbrdf.evaluation.scores import hemisphere_pairs
+    from neuralbrdf.geometry import inplane_to_vectors
+    from neuralbrdf.lightning.config_models import model_settings
+    from neuralbrdf.lightning.pca_fit import PcaFitModule
+    from neuralbrdf.models.pca_brdf import design_matrix, load_basis
+
+    theta_i, theta_r = instrument.candidates()
+    _check_budget(budget, len(theta_i))
+    fit = model_settings(config, PcaFitModule)
+    basis = load_basis(fit.get("basis")).truncated(int(fit.get("components", 32)))
+    ridge = float(fit.get("ridge", 0.003))
+    if not ridge > 0:
+        raise InputError(f"a design needs the fit's noise: a ridge weight > 0, got {ridge!r}", key="model.ridge")
+    _, candidates = design_matrix(basis, *inplane_to_vectors(theta_i, theta_r))           # [C, K]
+    _, hemisphere = design_matrix(basis, *hemisphere_pairs(settings.seed, settings.hemisphere_strata))
+    jacobians = torch.as_tensor(candidates / np.sqrt(ridge), dtype=torch.float64)[None, :, None, :]
+    problem = LinearisedProblem(
+        jacobians, torch.as_tensor(hemisphere.T @ hemisphere / len(hemisphere), dtype=torch.float64)[None],
+        torch.diag(torch.as_tensor(basis.scales, dtype=torch.float64) ** 2)[None])
+    design = greedy_design(problem, budget, progress=progress)
+    chosen = np.asarray(design.chosen)
+    return PlanDesign(theta_i[chosen], theta_r[chosen], [float(np.sqrt(c)) for c in design.criterion], "pca",
+                      instrument)
+
+
 #: The kinds a plan can be designed for, and their designers.
-DESIGNERS = {"nlb_spectral": design_nlb_spectral}
+DESIGNERS = {"nlb_spectral": design_nlb_spectral, "pca": design_pca}
 
 
 def design(kind: str, budget: int, instrument: Instrument, settings: DesignSettings, progress: bool = False) -> PlanDesign:

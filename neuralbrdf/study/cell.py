@@ -37,8 +37,10 @@ once per worker) and the truth's two renders (:data:`TRUTH_RENDERS`).  Steps:
 5. **Cost** (main cell): :mod:`neuralbrdf.study.cost`.
 
 Failure causes recorded (``failure``): ``non_finite_loss`` (a logged loss or the fit's own loss is
-NaN/inf), ``optimizer_failure`` (the fit reported failure, e.g. ABC's ``success: false`` or an
-``auto`` fit in which neither candidate fitted, or training stopped with an error), ``fit_refused``
+NaN/inf; for ``pca``, a fit whose data, ridge solution or in-plane error is not finite),
+``optimizer_failure`` (the fit reported failure, e.g. ABC's ``success: false``, an ``auto`` fit in
+which neither candidate fitted or a ``pca`` fit with no sample above the horizon, or training
+stopped with an error), ``fit_refused``
 (the fit rejected the data as bad input, exit status 2: e.g. a plan without samples in a required
 split, or arguments of the variant the command line does not accept), ``export_refused``,
 ``evaluation_error``.  The fourth cause of
@@ -71,7 +73,11 @@ from neuralbrdf.errors import EXIT_BAD_INPUT, EXIT_ENVIRONMENT, EnvironmentFailu
 #: Reference seed offset: the Munsell N9 is measured with its own noise stream.
 REFERENCE_SEED_OFFSET = 1
 CHECKPOINTS = {"spectral_mlp": "best.ckpt", "abc": "best.ckpt", "nlb": "fitted.ckpt", "nlb_spectral": "fitted.ckpt",
-               "auto": "best.ckpt"}
+               "auto": "best.ckpt", "pca": "best.ckpt"}
+#: What a failed ``pca`` fit's one-line cause (``PCA fit of NAME: CAUSE``) says of a value that is not
+#: finite (its data, its ridge solution or its in-plane error: ``non_finite_loss``); any other cause
+#: (no sample above the horizon) is an ``optimizer_failure``.
+PCA_NOT_FINITE = "not finite"
 #: What a cell of method ``auto`` records of its fit (``result.json``'s ``auto``): ``metrics.json``'s
 #: ``fit/auto/KEY`` for each key.
 AUTO_RESULT_KEYS = ("choice", "inplane_logcos_rmse", "abc_failure")
@@ -215,6 +221,10 @@ def fit(spec: dict, table: Path, run_dir: Path) -> tuple[float, dict]:
             # the fit's own verdict: neither candidate gave a model (an ABC failure and a spectral NLB
             # error that is not finite are its causes, named in the message), as ABC's success: false
             finite = False
+        if spec["variant"]["method"] == "pca" and "PCA fit of " in reason:
+            # the fit's own cause, read after "PCA fit of NAME: " (not from a material's name): a value
+            # that is not finite, else no model could be made from these samples
+            finite = PCA_NOT_FINITE in reason.split("PCA fit of ", 1)[1].split(": ", 1)[-1]
         raise CellFailure("non_finite_loss" if finite else "optimizer_failure", reason)
     metrics_path = run_dir / "metrics.json"
     metrics = json.loads(metrics_path.read_text()) if metrics_path.is_file() else {}
@@ -445,7 +455,7 @@ def _import_fitting() -> None:
     import neuralbrdf.lightning.run  # noqa: F401
     from neuralbrdf.lightning import (abc_module, auto_fit, config_models, latent_fit_data,  # noqa: F401
                                       latent_fit_module, material_data, measurement_data, nlb_spectral_fit,
-                                      spectral_mlp_module)
+                                      pca_fit, spectral_mlp_module)
 
 
 #: Environment variable naming the study process a worker serves (:func:`die_with_study`).

@@ -6,7 +6,8 @@ everything that changes its result — the material's truth and table (file cont
 variant's method, config file contents and overrides (with the contents of any ``--config`` overlay
 among them; for NLB, the pretrained network's file
 contents too; for ``auto``, the contents of its two candidates' configs and of the spectral NLB
-candidate's pretrained network: :func:`auto_candidates`), plan (a plan file's pairs, not its path:
+candidate's pretrained network: :func:`auto_candidates`; for ``pca``, its basis file's contents:
+:func:`pca_basis`), plan (a plan file's pairs, not its path:
 an edited file reruns its cells, a moved one does not), noise, seed, and for the *main*
 cell of a (material, variant) (DS1, no noise, seed 0: the one that is rendered and timed, unless the
 variant is a sweep only — ``speed_accuracy: false``) the render and cost settings (the render
@@ -24,7 +25,8 @@ initial weights and batch order, ABC's random starts — and, with noise, the no
 NLB latent fits take nothing random from the seed (screened starts from pretrained codes; the
 RGB fit's full-batch steps, the spectral fit's subsets drawn from its config's ``data.seed``), nor
 does ``auto`` (its ABC candidate's starts come from its ABC config's ``model.seed``, which no
-``--model.*`` option of ``auto`` sets; its spectral NLB candidate is the spectral latent fit), so
+``--model.*`` option of ``auto`` sets; its spectral NLB candidate is the spectral latent fit), nor
+does ``pca`` (a closed-form ridge solve in a fixed basis), so
 their noise-free cells run at seed 0 only: a spread over seeds that were all the same fit would
 be no evidence of stability.
 """
@@ -42,7 +44,7 @@ import yaml
 
 from neuralbrdf.atomic import file_version
 from neuralbrdf.configs_dir import overlay_base, resolve_config
-from neuralbrdf.shipped import PRETRAINED_DEFAULT, SPECTRAL_DEFAULT, resolve_pretrained
+from neuralbrdf.shipped import PRETRAINED_DEFAULT, PRETRAINED_DIR, SPECTRAL_DEFAULT, resolve_pretrained
 from neuralbrdf.study.profile import Profile, VariantSpec
 
 MAIN_PLAN, MAIN_NOISE, MAIN_SEED = "DS1", 0.0, 0
@@ -77,6 +79,8 @@ SEEDING = {
     "auto": Seeding((), None, "its ABC candidate's random starts come from its ABC config's model.seed, which no "
                               "option of the auto fit sets, and its spectral NLB candidate is the spectral NLB's "
                               "latent fit, which takes nothing random from the seed"),
+    "pca": Seeding((), None, "the fit is a closed-form ridge solve of the samples in a fixed basis (the shipped "
+                             "pca_basis.npz or the config's model.basis): nothing in it is random"),
 }
 #: What the seed changes in every cell with noise (:func:`neuralbrdf.study.cell.write_data`).
 NOISE_SEEDING = "the measurement noise drawn"
@@ -220,6 +224,20 @@ def auto_candidates(variant: VariantSpec) -> dict:
     return {"configs": digests, "pretrained": file_digest(str(network)) if network.is_file() else str(network)}
 
 
+#: The basis a ``pca`` fit reads unless told another (:data:`neuralbrdf.models.pca_brdf.BASIS_FILE`,
+#: named here so that keying a cell imports no torch).
+PCA_BASIS_DEFAULT = PRETRAINED_DIR / "pca_basis.npz"
+
+
+def pca_basis(variant: VariantSpec) -> Path:
+    """The basis file a ``pca`` variant fits in: the last ``--model.basis`` of its arguments, else
+    its config's (or a ``--config`` overlay's) ``model.init_args.basis``, else the shipped one."""
+    files = _config_files(variant.config) + [file for path in flag_values(variant.args, "--config")
+                                             for file in _config_files(path)]
+    named = (flag_values(variant.args, "--model.basis") or [None])[-1] or _init_arg(files, "basis")
+    return Path(named) if named else PCA_BASIS_DEFAULT
+
+
 def overlay_digests(variant: VariantSpec) -> list[str]:
     """Contents (digests) of the config files a variant's arguments add with ``--config``."""
     return [file_digest(str(resolve_config(path))) for path in flag_values(variant.args, "--config")]
@@ -267,6 +285,9 @@ def cell_settings(cell: Cell, profile: Profile) -> dict:
         settings["variant"]["pretrained"] = file_digest(str(network))
     if variant.method == "auto":  # an edited ABC or spectral NLB config, or a retrained network, changes its result
         settings["variant"]["candidates"] = auto_candidates(variant)
+    if variant.method == "pca":  # a rebuilt basis changes every PCA result
+        basis = pca_basis(variant)
+        settings["variant"]["basis"] = file_digest(str(basis)) if basis.is_file() else str(basis)
     plan = profile.stability.plan(cell.plan)
     if plan != cell.plan:  # a plan file (only then: the keys of DS1..DS4 cells stay what they were)
         settings["plan"] = plan_digest(plan)

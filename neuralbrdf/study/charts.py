@@ -37,7 +37,7 @@ STYLE = {"font.size": 10, "axes.titlesize": 10.5, "axes.labelsize": 10, "xtick.l
          "savefig.dpi": DPI}
 LABEL_PT = 9
 METHOD_COLOURS = {"spectral_mlp": "tab:blue", "abc": "tab:orange", "nlb": "tab:green", "nlb_spectral": "tab:purple",
-                  "auto": "tab:red"}
+                  "auto": "tab:red", "pca": "tab:brown"}
 COST_AXES = {"render_ratio": "render time ÷ roughconductor (same run)", "fit_time_s": "fit wall time (s)"}
 MARKERS = ("o", "s", "^", "D", "v")
 #: One letter per failure cause in the failure map (``C``: the cell crashed).

@@ -13,7 +13,11 @@ and ``benchmarks/run.py``).
   cost counted, not timed;
 * :func:`parameter_count` — float weights stored in the ``.onnx`` file and the fitted scalars its
   kind keeps as constants (:attr:`neuralbrdf.kinds.Kind.scalar_parameters`; for an ``auto`` file
-  the kind of the graph it holds, :func:`graph_kind`);
+  the kind of the graph it holds, :func:`graph_kind`): what the file holds, not what its fit
+  chose — a ``table`` or ``pca`` file counts its table's entries (``n_h · n_d · n_p`` per channel
+  or band: 27 648 for RGB, 285 696 for 31 bands on the PCA basis's 48 × 24 × 8 nodes), not the
+  ``K`` coefficients per channel a PCA fit solved for (``metrics.json``'s ``fit/pca/coefficients``),
+  as an NLB file counts its pretrained decoder's weights beside its fitted latent;
 * :func:`machine` — CPU, cores, versions and thread counts, recorded beside every figure.
 """
 
@@ -201,15 +205,18 @@ def bench_throughput(proto, spectral: bool, batch: int, repeats: int, module=Non
 def graph_kind(model) -> str:
     """The kind whose graph the loaded model file ``model`` holds: its own kind, or for an ``auto``
     file the candidate it chose (``abc`` or ``nlb_spectral``; its graph is that kind's, constants
-    included)."""
+    included).  A ``pca`` file is its own kind: a baked table of the mapped values (one float
+    initializer; under the shipped basis's ``ln(1 + f)`` mapping no fitted scalar is held as a
+    constant), read as the ``table`` kind's is."""
     from neuralbrdf.kinds import auto
 
     return model.details.choice if model.kind == auto.NAME else model.kind
 
 
 def parameter_count(proto, kind: str | None = None) -> int:
-    """Floating-point values stored as initializers (weights, baked latent, tables), plus the
-    scalar parameters of ``kind`` (registered in :mod:`neuralbrdf.kinds`) held as constants."""
+    """Floating-point values stored as initializers (weights, baked latent, tables: a ``table`` or
+    ``pca`` file's entries, not a PCA fit's coefficients), plus the scalar parameters of ``kind``
+    (registered in :mod:`neuralbrdf.kinds`) held as constants."""
     import onnx
     from onnx import numpy_helper
 

@@ -27,8 +27,9 @@ A profile is a YAML file (``configs/study/quick.yaml``, ``full.yaml``, or a user
 
 Paths starting with ``configs/`` name the shipped configs (:mod:`neuralbrdf.configs_dir`), those
 starting with ``../shared`` are relative to the repository root, others to the profile file.  ``method`` is ``spectral_mlp``, ``abc``, ``nlb``,
-``nlb_spectral`` or ``auto`` (ABC and the spectral NLB fitted side by side, the better on the measured pairs kept:
-``configs/auto.yaml``): which checkpoint is exported and what the cell's seed changes (every method takes the
+``nlb_spectral``, ``auto`` (ABC and the spectral NLB fitted side by side, the better on the measured pairs kept:
+``configs/auto.yaml``) or ``pca`` (coefficients in a PCA basis of measured BRDFs, baked into a table:
+``configs/pca.yaml``): which checkpoint is exported and what the cell's seed changes (every method takes the
 material's samples as ``--data.path``); ``render_variant`` renders a model in another
 Mitsuba variant (a spectral model in ``llvm_ad_rgb`` uses the reduced-wavelength rule).  Variants
 with a ``group`` are also run at every stability seed (DS1, no noise) and box-plotted by ``label``.
@@ -70,7 +71,7 @@ from neuralbrdf.evaluation.evaluate import MAX_RESOLUTION, MIN_RESOLUTION, REFER
 from neuralbrdf.evaluation.scores import HEMISPHERE_STRATA, check_strata
 from neuralbrdf.virtual.materials import MATERIALS, VALIDATION_MATERIALS
 
-METHODS = ("spectral_mlp", "abc", "nlb", "nlb_spectral", "auto")
+METHODS = ("spectral_mlp", "abc", "nlb", "nlb_spectral", "auto", "pca")
 BUILTIN_DIR = CONFIGS_DIR / "study"
 REPO_ROOT = Path(__file__).resolve().parents[2]
 MAX_NOISE = 1.0
