@@ -21,7 +21,7 @@ and, for the ``--render-groups``, the image ΔE2000 mean of the material-preview
   choose the rule (reported, not tuned on).
 
 The rule was chosen on the first three groups (docs/design.md).  Fit times are ``fit/wall_time_s``
-(the fit proper).  Cells are kept in ``--work`` and reused.  Writes JSON and prints a table: per
+(the fit proper).  Cells are kept in ``--work`` and reused while the three configs are unchanged.  Writes JSON and prints a table: per
 group, the medians, the share of materials where auto is within 1.02x ABC, strictly closer than ABC,
 and auto's median over the spectral NLB's.
 """
@@ -29,6 +29,7 @@ and auto's median over the spectral NLB's.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import platform
 import statistics
@@ -74,7 +75,8 @@ def materials(group: str, plan: str, work: Path) -> list[tuple[str, str, str]]:
 
 def cell(name: str, measurement: str, truth: str, plan: str, render: bool, work: Path) -> dict:
     """Every method's scores and fit time on one material (kept in ``work`` and reused)."""
-    done = work / "cells" / f"{name}_{plan}{'_render' if render else ''}.json"
+    configs = hashlib.sha256("".join((REPO / "configs" / f"{m}.yaml").read_text() for m in METHODS).encode())
+    done = work / "cells" / f"{name}_{plan}{'_render' if render else ''}_{configs.hexdigest()[:12]}.json"
     if done.is_file():
         return json.loads(done.read_text())
     folder = work / "runs" / f"{name}_{plan}"

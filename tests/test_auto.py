@@ -142,6 +142,20 @@ def test_a_bad_candidate_config_is_refused_before_the_fit(tmp_path, abc_table):
     assert not (tmp_path / "run" / "checkpoints").exists()
 
 
+def test_the_abc_candidate_takes_its_configs_settings_with_the_auto_fits_own_number_of_starts():
+    from neuralbrdf.lightning.config_models import abc_settings
+
+    shipped = abc_settings("abc")
+    assert AutoFitModule(abc_starts=None)._abc_arguments == shipped
+    two = AutoFitModule(abc_starts=2)._abc_arguments
+    assert two["n_starts"] == 2 and {k: v for k, v in two.items() if k != "n_starts"} == \
+        {k: v for k, v in shipped.items() if k != "n_starts"}
+    for bad in (0, 1.5, True):
+        with pytest.raises(InputError) as error:
+            AutoFitModule(abc_starts=bad)
+        assert error.value.key == "model.abc_starts"
+
+
 # --------------------------------------------------------------------------- the file's metadata
 
 

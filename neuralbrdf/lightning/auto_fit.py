@@ -4,9 +4,9 @@ measurement, and the one of the two that fits the measured pairs better.
 A user with one measurement cannot know whether their material is close to ABC's analytic form
 (paints, rubbers, fabrics, diffuse standards, where ABC's error can be half the prior's) or
 beyond it (where the spectral NLB's prior wins).  This module fits both candidates to the same
-samples, each exactly as its own kind's shipped config fits it (``abc_config`` and
+samples, each as its own kind's shipped config fits it (``abc_config`` and
 ``nlb_spectral_config``, read by :mod:`neuralbrdf.lightning.config_models`; the ABC fit of Löw
-et al. 2012, Eq. 4.2, and the latent-only fit of the spectral NLB), and keeps the candidate whose
+et al. 2012, Eq. 4.2, from ``abc_starts`` starts, and the latent-only fit of the spectral NLB), and keeps the candidate whose
 log-cosine RMSE on the measured samples (:func:`~neuralbrdf.metrics.hemisphere_logcos_rmse` over
 the table's pairs and channels: the error the report's Eq. 4.1 weighs, the same number for
 either candidate) is lower.  A candidate that cannot fit (ABC on a surface without a lobe, or an
@@ -87,18 +87,27 @@ class AutoFitModule(WritesKind, pl.LightningModule):
         YAML file); default the shipped ``abc``.
     nlb_spectral_config:
         The same for the spectral NLB candidate; default the shipped ``nlb_spectral``.
+    abc_starts:
+        Starts of the ABC candidate's fit instead of its config's ``n_starts`` (``None``: the
+        config's); the rest of the ABC settings are the config's.
     """
 
     KIND = "auto"
 
-    def __init__(self, abc_config: str = ABC_CONFIG, nlb_spectral_config: str = SPECTRAL_NLB_CONFIG) -> None:
+    def __init__(self, abc_config: str = ABC_CONFIG, nlb_spectral_config: str = SPECTRAL_NLB_CONFIG,
+                 abc_starts: int | None = None) -> None:
         super().__init__()
+        if abc_starts is not None and (isinstance(abc_starts, bool) or not isinstance(abc_starts, int)
+                                       or abc_starts < 1):
+            raise InputError(f"expected an integer >= 1 or null, got {abc_starts!r}", key="model.abc_starts")
         self.save_hyperparameters()
         self.automatic_optimization = False
         # both configs read and their settings checked before the run writes anything; the NLB's module
         # is built again for the fit (_fit_nlb): built here, inside LightningCLI's instantiation, it
         # would record this module's hyperparameters as its own
         self._abc_arguments = abc_settings(abc_config)
+        if abc_starts is not None:
+            self._abc_arguments["n_starts"] = abc_starts
         spectral_latent_fit(nlb_spectral_config)
         self.material_name: str | None = None
         self.choice: str | None = None
