@@ -36,13 +36,12 @@ from dataclasses import asdict
 
 import numpy as np
 import pytorch_lightning as pl
-import torch
 
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
 from neuralbrdf.evaluation.scores import fit_scores
 from neuralbrdf.fitting.abc_fit import fit_abc
-from neuralbrdf.lightning.common import WritesKind
+from neuralbrdf.lightning.common import WritesKind, values_at_table
 from neuralbrdf.lightning.config_models import ABC_CONFIG, SPECTRAL_NLB_CONFIG, abc_settings, spectral_latent_fit
 from neuralbrdf.lightning.latent_fit_data import table_samples
 from neuralbrdf.metrics import hemisphere_logcos_rmse
@@ -58,14 +57,7 @@ NEITHER_FITTED = "neither candidate fitted"
 
 def _nlb_values(model: SpectralNlbWithCodes, table: BrdfTable) -> np.ndarray:
     """``model`` at ``table``'s pairs ``[N, C]``: at its bands (spectral) or in linear sRGB."""
-    wi, wo = (torch.as_tensor(v, dtype=torch.float32) for v in table.vectors())
-    with torch.no_grad():
-        if not model.is_spectral:
-            return model(wi, wo).double().numpy()
-        bands = torch.as_tensor(table.wavelengths, dtype=torch.float32)
-        n, k = len(wi), len(bands)
-        values = model(wi.repeat_interleave(k, 0), wo.repeat_interleave(k, 0), bands.repeat(n))
-        return values.reshape(n, k).double().numpy()
+    return values_at_table(model, table, model.is_spectral)
 
 
 def choose(errors: dict[str, float | None]) -> str | None:

@@ -1,10 +1,18 @@
 """What the Lightning modules share: the optimiser factory, the kind written into checkpoints,
-the collate function of data modules whose batches are whole materials, and the option that reads
-a measurement whose numbers look like a unit slip as it is."""
+the collate function of data modules whose batches are whole materials, the option that reads
+a measurement whose numbers look like a unit slip as it is, and a fitted model read at a table's pairs."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from neuralbrdf.kinds import CHECKPOINT_KIND_KEY
+
+if TYPE_CHECKING:
+    import numpy as np
+    from torch import nn
+
+    from neuralbrdf.data.table import BrdfTable
 
 #: How a fit reads its ``data.path`` as it is (:mod:`neuralbrdf.data.units`): every data module
 #: that reads a measurement takes ``trust_units``.
@@ -42,3 +50,18 @@ class WritesKind:
 def identity_collate(item):
     """A DataLoader ``collate_fn`` that hands over each item as it is (one material per batch)."""
     return item
+
+
+def values_at_table(model: nn.Module, table: BrdfTable, spectral: bool) -> np.ndarray:
+    """A model on directions (``model(wi, wo[, wavelength])``, sr⁻¹) at ``table``'s pairs ``[N, C]``,
+    float64: at the table's bands when ``spectral``, else its RGB output."""
+    import torch
+
+    wi, wo = (torch.as_tensor(v, dtype=torch.float32) for v in table.vectors())
+    with torch.no_grad():
+        if not spectral:
+            return model(wi, wo).double().numpy()
+        bands = torch.as_tensor(table.wavelengths, dtype=torch.float32)
+        n, k = len(wi), len(bands)
+        values = model(wi.repeat_interleave(k, 0), wo.repeat_interleave(k, 0), bands.repeat(n))
+        return values.reshape(n, k).double().numpy()

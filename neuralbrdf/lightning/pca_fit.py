@@ -30,12 +30,11 @@ import time
 
 import numpy as np
 import pytorch_lightning as pl
-import torch
 
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
 from neuralbrdf.evaluation.scores import fit_scores
-from neuralbrdf.lightning.common import WritesKind
+from neuralbrdf.lightning.common import WritesKind, values_at_table
 from neuralbrdf.metrics import hemisphere_logcos_rmse
 from neuralbrdf.models import pca_brdf
 from neuralbrdf.models.pca_brdf import PcaTable
@@ -44,14 +43,7 @@ from neuralbrdf.sources import MaterialData
 
 def table_values(model: PcaTable, table: BrdfTable) -> np.ndarray:
     """``model`` at ``table``'s pairs ``[N, C]``: at its bands (spectral model) or in linear sRGB."""
-    wi, wo = (torch.as_tensor(v, dtype=torch.float32) for v in table.vectors())
-    with torch.no_grad():
-        if model.wavelength_range_nm is None:
-            return model(wi, wo).double().numpy()
-        bands = torch.as_tensor(table.wavelengths, dtype=torch.float32)
-        n, k = len(wi), len(bands)
-        values = model(wi.repeat_interleave(k, 0), wo.repeat_interleave(k, 0), bands.repeat(n))
-        return values.reshape(n, k).double().numpy()
+    return values_at_table(model, table, model.wavelength_range_nm is not None)
 
 
 class PcaFitModule(WritesKind, pl.LightningModule):
