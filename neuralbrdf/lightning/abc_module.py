@@ -17,22 +17,18 @@ passed off as a result.  Checkpoints carry ``neuralbrdf_kind = "abc"`` (:class:`
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
-import pytorch_lightning as pl
 from pytorch_lightning.utilities import rank_zero_warn
 
-from neuralbrdf.evaluation.scores import fit_scores
 from neuralbrdf.errors import InputError
 from neuralbrdf.fitting.abc_fit import AbcBounds, AbcFitResult, fit_abc
 from neuralbrdf.lightning.common import WritesKind
-from neuralbrdf.metrics import hemisphere_logcos_rmse
+from neuralbrdf.lightning.one_step_fit import OneStepFit
 from neuralbrdf.physics.abc import AbcParameters
 from neuralbrdf.sources import MaterialData, require_lobe
 
 
-class AbcFitModule(WritesKind, pl.LightningModule):
+class AbcFitModule(WritesKind, OneStepFit):
     """Fits ABC parameters once (first training step); evaluates them in val/test.
 
     Parameters mirror :func:`~neuralbrdf.fitting.abc_fit.fit_abc`; ``bounds`` overrides fields
@@ -47,16 +43,10 @@ class AbcFitModule(WritesKind, pl.LightningModule):
             if isinstance(value, bool) or not isinstance(value, int) or value < least:
                 raise InputError(f"expected an integer >= {least}, got {value!r}", key=f"model.{key}")
         self.save_hyperparameters()
-        self.automatic_optimization = False
         self.bounds = AbcBounds.from_config(bounds)
         self.result: AbcFitResult | None = None
         self.parameters_: AbcParameters | None = None
         self.material_name: str | None = None
-        #: :func:`~neuralbrdf.evaluation.scores.fit_scores` of the last evaluation.
-        self.scores: dict[str, float | None] = {}
-
-    def configure_optimizers(self):
-        return None  # the fit runs its own bounded optimiser (SciPy TNC)
 
     def prepare_data(self) -> None:
         # after the data module read the material, before the run writes anything: a material
@@ -82,34 +72,11 @@ class AbcFitModule(WritesKind, pl.LightningModule):
         self.log("train/success", float(self.result.success), batch_size=1)
         self.log("train/wall_time_s", self.result.wall_time_s, batch_size=1)
 
-    def _evaluate(self, material: MaterialData, stage: str) -> None:
-        if self.parameters_ is None:
-            return  # sanity check before the fit
-        fit, truth = material.fit, material.truth
-        pred = self.parameters_.evaluate(*fit.vectors())
-        self.log(f"{stage}/fit_logcos_rmse", hemisphere_logcos_rmse(pred, fit.values, fit.theta_i), batch_size=1)
-        pred_truth = None
-        if truth is not None:
-            if truth.is_spectral != fit.is_spectral:
-                raise ValueError(f"{material.name}: truth and fit data differ in channels")
-            pred_truth = self.parameters_.evaluate(*truth.vectors())
-            rmse = hemisphere_logcos_rmse(pred_truth, truth.values, truth.theta_i)
-            self.log(f"{stage}/plan_logcos_rmse", rmse, batch_size=1)
-        self.scores = fit_scores(pred, fit.values, *fit.inplane_angles(), pred_truth,
-                                 None if truth is None else truth.values, None if truth is None else truth.theta_i)
+    def fitted_values(self, table):
+        return None if self.parameters_ is None else self.parameters_.evaluate(*table.vectors())
 
-    def validation_step(self, material: MaterialData, batch_idx: int) -> None:
-        self._evaluate(material, "val")
-
-    def test_step(self, material: MaterialData, batch_idx: int) -> None:
-        self._evaluate(material, "test")
-
-    def on_train_end(self) -> None:
-        # One deterministic fit and no optimiser step: ModelCheckpoint, which saves per global
-        # step, never writes "best"; the single fit is both best and last.
-        callback = self.trainer.checkpoint_callback
-        if callback is not None and callback.dirpath is not None:
-            self.trainer.save_checkpoint(os.path.join(callback.dirpath, f"{callback.filename or 'best'}.ckpt"))
+    def has_model(self) -> bool:
+        return self.parameters_ is not None
 
     def fit_failure(self) -> str | None:
         """Why the fit failed, if it did (read by :class:`~neuralbrdf.lightning.fit_health.FitHealth`)."""

@@ -29,19 +29,17 @@ model.  Checkpoints carry ``neuralbrdf_kind = "auto"``, ``auto_choice``, ``auto_
 
 from __future__ import annotations
 
-import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict
 
 import numpy as np
-import pytorch_lightning as pl
 
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
-from neuralbrdf.evaluation.scores import fit_scores
 from neuralbrdf.fitting.abc_fit import fit_abc
 from neuralbrdf.lightning.common import WritesKind, values_at_table
+from neuralbrdf.lightning.one_step_fit import OneStepFit
 from neuralbrdf.lightning.config_models import ABC_CONFIG, SPECTRAL_NLB_CONFIG, abc_settings, spectral_latent_fit
 from neuralbrdf.lightning.latent_fit_data import table_samples
 from neuralbrdf.metrics import hemisphere_logcos_rmse
@@ -69,7 +67,7 @@ def choose(errors: dict[str, float | None]) -> str | None:
     return min(fitted, key=lambda kind: (errors[kind], CANDIDATES.index(kind)))
 
 
-class AutoFitModule(WritesKind, pl.LightningModule):
+class AutoFitModule(WritesKind, OneStepFit):
     """Fits both candidates once (first training step) and keeps the better (module docstring).
 
     Parameters
@@ -93,7 +91,6 @@ class AutoFitModule(WritesKind, pl.LightningModule):
                                        or abc_starts < 1):
             raise InputError(f"expected an integer >= 1 or null, got {abc_starts!r}", key="model.abc_starts")
         self.save_hyperparameters()
-        self.automatic_optimization = False
         # both configs read and their settings checked before the run writes anything; the NLB's module
         # is built again for the fit (_fit_nlb): built here, inside LightningCLI's instantiation, it
         # would record this module's hyperparameters as its own
@@ -109,11 +106,6 @@ class AutoFitModule(WritesKind, pl.LightningModule):
         self.abc_parameters: AbcParameters | None = None
         self.nlb_model: SpectralNlbWithCodes | None = None
         self.nlb_checkpoint: dict | None = None
-        self.scores: dict[str, float | None] = {}
-        self.failure: str | None = None
-
-    def configure_optimizers(self):
-        return None  # each candidate runs its own optimiser
 
     # ------------------------------------------------------------------ the fit
 
@@ -169,44 +161,16 @@ class AutoFitModule(WritesKind, pl.LightningModule):
                 return
         self.log("train/loss", float(self.errors[self.choice]), batch_size=1)
 
-    def chosen_values(self, table: BrdfTable) -> np.ndarray:
-        """The chosen model at ``table``'s pairs ``[N, C]`` (sr⁻¹)."""
+    def fitted_values(self, table: BrdfTable) -> np.ndarray | None:
+        """The chosen model at ``table``'s pairs ``[N, C]`` (sr⁻¹); ``None`` before the choice."""
+        if self.choice is None:
+            return None
         if self.choice == "abc":
             return self.abc_parameters.evaluate(*table.vectors())
         return _nlb_values(self.nlb_model, table)
 
-    def _evaluate(self, material: MaterialData, stage: str) -> None:
-        if self.choice is None:
-            return
-        fit, truth = material.fit, material.truth
-        pred = self.chosen_values(fit)
-        self.log(f"{stage}/fit_logcos_rmse", hemisphere_logcos_rmse(np.clip(pred, 0.0, None), fit.values, fit.theta_i),
-                 batch_size=1)
-        pred_truth = None
-        if truth is not None:
-            if truth.is_spectral and not fit.is_spectral:
-                truth = truth.to_rgb()
-            pred_truth = self.chosen_values(truth)
-            self.log(f"{stage}/plan_logcos_rmse",
-                     hemisphere_logcos_rmse(np.clip(pred_truth, 0.0, None), truth.values, truth.theta_i), batch_size=1)
-        self.scores = fit_scores(pred, fit.values, *fit.inplane_angles(), pred_truth,
-                                 None if truth is None else truth.values, None if truth is None else truth.theta_i)
-
-    def validation_step(self, material: MaterialData, batch_idx: int) -> None:
-        self._evaluate(material, "val")
-
-    def test_step(self, material: MaterialData, batch_idx: int) -> None:
-        self._evaluate(material, "test")
-
-    def on_train_end(self) -> None:
-        # one fit and no optimiser step: ModelCheckpoint never writes "best" by itself (as for ABC)
-        callback = self.trainer.checkpoint_callback
-        if callback is not None and callback.dirpath is not None and self.choice is not None:
-            self.trainer.save_checkpoint(os.path.join(callback.dirpath, f"{callback.filename or 'best'}.ckpt"))
-
-    def fit_failure(self) -> str | None:
-        """Why the fit failed, if it did (read by :class:`~neuralbrdf.lightning.fit_health.FitHealth`)."""
-        return self.failure
+    def has_model(self) -> bool:
+        return self.choice is not None
 
     def metrics_json_extras(self) -> dict:
         """Non-scalar results for ``metrics.json`` (read by :class:`~neuralbrdf.lightning.metrics_json.MetricsJson`)."""

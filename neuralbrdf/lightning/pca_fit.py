@@ -25,16 +25,14 @@ RGB), ``pca_coefficients``, ``pca_components``, ``pca_ridge`` and ``pca_basis_sh
 
 from __future__ import annotations
 
-import os
 import time
 
 import numpy as np
-import pytorch_lightning as pl
 
 from neuralbrdf.data.table import BrdfTable
 from neuralbrdf.errors import InputError
-from neuralbrdf.evaluation.scores import fit_scores
 from neuralbrdf.lightning.common import WritesKind, values_at_table
+from neuralbrdf.lightning.one_step_fit import OneStepFit
 from neuralbrdf.metrics import hemisphere_logcos_rmse
 from neuralbrdf.models import pca_brdf
 from neuralbrdf.models.pca_brdf import PcaTable
@@ -46,7 +44,7 @@ def table_values(model: PcaTable, table: BrdfTable) -> np.ndarray:
     return values_at_table(model, table, model.wavelength_range_nm is not None)
 
 
-class PcaFitModule(WritesKind, pl.LightningModule):
+class PcaFitModule(WritesKind, OneStepFit):
     """Fits the PCA coefficients once (first training step); evaluates the baked table in val/test.
 
     Parameters
@@ -66,7 +64,6 @@ class PcaFitModule(WritesKind, pl.LightningModule):
         if isinstance(ridge, bool) or not isinstance(ridge, (int, float)) or not np.isfinite(ridge) or ridge < 0:
             raise InputError(f"expected a finite number >= 0, got {ridge!r}", key="model.ridge")
         self.save_hyperparameters()
-        self.automatic_optimization = False
         try:
             self.basis = pca_brdf.load_basis(basis).truncated(components)
         except InputError as error:
@@ -79,11 +76,6 @@ class PcaFitModule(WritesKind, pl.LightningModule):
         self.fitted: dict[str, PcaTable] = {}
         self.inplane_error: float | None = None
         self.fit_seconds: float | None = None
-        self.scores: dict[str, float | None] = {}
-        self.failure: str | None = None
-
-    def configure_optimizers(self):
-        return None  # a closed-form solve
 
     # ------------------------------------------------------------------ the fit
 
@@ -121,37 +113,11 @@ class PcaFitModule(WritesKind, pl.LightningModule):
         if self.model_ is not None:
             self.log("train/loss", float(self.inplane_error), batch_size=1)
 
-    def _evaluate(self, material: MaterialData, stage: str) -> None:
-        if self.model_ is None:
-            return
-        fit, truth = material.fit, material.truth
-        pred = table_values(self.model_, fit)
-        self.log(f"{stage}/fit_logcos_rmse", hemisphere_logcos_rmse(pred, fit.values, fit.theta_i), batch_size=1)
-        pred_truth = None
-        if truth is not None:
-            if truth.is_spectral and not fit.is_spectral:
-                truth = truth.to_rgb()
-            pred_truth = table_values(self.model_, truth)
-            self.log(f"{stage}/plan_logcos_rmse", hemisphere_logcos_rmse(pred_truth, truth.values, truth.theta_i),
-                     batch_size=1)
-        self.scores = fit_scores(pred, fit.values, *fit.inplane_angles(), pred_truth,
-                                 None if truth is None else truth.values, None if truth is None else truth.theta_i)
+    def fitted_values(self, table: BrdfTable) -> np.ndarray | None:
+        return None if self.model_ is None else table_values(self.model_, table)
 
-    def validation_step(self, material: MaterialData, batch_idx: int) -> None:
-        self._evaluate(material, "val")
-
-    def test_step(self, material: MaterialData, batch_idx: int) -> None:
-        self._evaluate(material, "test")
-
-    def on_train_end(self) -> None:
-        # one solve and no optimiser step: ModelCheckpoint never writes "best" by itself (as for ABC)
-        callback = self.trainer.checkpoint_callback
-        if callback is not None and callback.dirpath is not None and self.model_ is not None:
-            self.trainer.save_checkpoint(os.path.join(callback.dirpath, f"{callback.filename or 'best'}.ckpt"))
-
-    def fit_failure(self) -> str | None:
-        """Why the fit failed, if it did (read by :class:`~neuralbrdf.lightning.fit_health.FitHealth`)."""
-        return self.failure
+    def has_model(self) -> bool:
+        return self.model_ is not None
 
     def metrics_json_extras(self) -> dict:
         """Non-scalar results for ``metrics.json`` (read by :class:`~neuralbrdf.lightning.metrics_json.MetricsJson`)."""
