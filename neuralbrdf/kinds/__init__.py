@@ -1,9 +1,11 @@
 """Model kinds: one module per kind, found by the registry here (docs/models.md, docs/formats.md#onnx-model-files).
 
 A *kind* is what a model file or checkpoint is: ``spectral_mlp`` (the report's §5 network),
-``nlb`` (a latent fit of the NLB network, docs/models.md#nlb), ``abc`` (Löw et al. 2012,
-docs/models.md#abc), ``reference`` (a ground-truth material, docs/evaluate.md#ground-truths).  Each lives in one module of this
-package that defines ``KIND``, a :class:`Kind` saying
+``nlb`` (a latent fit of the NLB network, docs/models.md#nlb), ``nlb_spectral`` (the spectral
+NLB's), ``abc`` (Löw et al. 2012, docs/models.md#abc), ``auto`` (the better of ABC and the spectral
+NLB on the measured samples, docs/models.md#auto), ``pca`` (Nielsen et al. 2015, docs/models.md#pca),
+``reference`` (a ground-truth material, docs/evaluate.md#ground-truths), ``table`` (a baked ladder
+rung).  Each lives in one module of this package that defines ``KIND``, a :class:`Kind` saying
 
 * its name (the ``neuralbrdf.kind`` entry of an ``.onnx`` file and the ``neuralbrdf_kind``
   entry of a checkpoint, :data:`CHECKPOINT_KIND_KEY`);
