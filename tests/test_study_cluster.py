@@ -229,9 +229,12 @@ def test_ctrl_c_cancels_the_studys_tasks_and_leaves_no_cell_half_written(tmp_pat
 
     out, markers = tmp_path / "study", tmp_path / "markers"
     path = without_stability(profile(tmp_path, variants=variants("endless", "endless2")))
+    # SIGINT as a terminal delivers it, also when pytest itself runs in the background (a shell starts
+    # background jobs with SIGINT ignored, and a child would inherit that)
     submitter = subprocess.Popen([sys.executable, "-c", STUDY_DRIVER, "", "study", "--profile", str(path), "--out",
                                   str(out), "--cluster", cluster, "--no-progress"],
-                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                 preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         wait_for(lambda: markers.is_dir() and len(list(markers.iterdir())) == 2, what="both workers' cells")
         running = [int(m.read_text()) for m in markers.iterdir()]
