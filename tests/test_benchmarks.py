@@ -15,7 +15,7 @@ import onnx_fixtures as fx
 ROOT = Path(__file__).resolve().parents[1]
 RGB_CONFIGS = {
     "roughconductor/symbolic", "roughconductor/wavefront", "spectral_mlp/drjit", "spectral_mlp/onnxruntime",
-    "spectral_mlp_integrated/drjit", "abc/drjit", "nlb/drjit", "nlb_fast/drjit", "flat_model/drjit",
+    "spectral_mlp_integrated/drjit", "abc/drjit", "auto/drjit", "nlb/drjit", "nlb_fast/drjit", "flat_model/drjit",
     "nlb_spectral/drjit", "nlb_spectral/onnxruntime", "nlb_spectral_integrated/drjit",
 }
 SPECTRAL_CONFIGS = (RGB_CONFIGS - {"spectral_mlp_integrated/drjit", "nlb_spectral_integrated/drjit"}) | {
@@ -42,6 +42,7 @@ def test_quick_benchmark_writes_the_documented_results(tmp_path):
     assert set(results["fast_paths"]) == {"spectral_mlp f_rgb", "nlb f_fast", "nlb_spectral f_rgb", "nlb_spectral f_fast"}
     assert all(entry["image_delta_e2000_mean"] >= 0 for entry in results["fast_paths"].values())
     assert results["models"]["nlb_spectral"]["hidden_units"].count("/48") == 3
+    assert results["models"]["auto"]["choice"] in ("abc", "nlb_spectral")
     assert set(results["render"]) == {"llvm_ad_rgb", "llvm_ad_spectral"}
     rgb, spectral = results["render"]["llvm_ad_rgb"], results["render"]["llvm_ad_spectral"]
     assert set(rgb["configs"]) == RGB_CONFIGS and set(spectral["configs"]) == SPECTRAL_CONFIGS
