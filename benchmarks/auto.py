@@ -55,8 +55,14 @@ GROUPS = ("virtual_validation", "rgl_validation", "rgl_real", "merl_held_out")
 QUIET = {"trainer.enable_progress_bar": False, "data.eval_plan": None}
 
 
+def plan_label(plan: str) -> str:
+    """A plan's name in file names: a report plan's name, a plan file's stem (``configs/plans/pca_6.csv``: ``pca_6``)."""
+    return Path(plan).stem if plan.endswith(".csv") else plan
+
+
 def materials(group: str, plan: str, work: Path) -> list[tuple[str, str, str]]:
-    """``(name, measurement, truth)`` of each material of ``group``."""
+    """``(name, measurement, truth)`` of each material of ``group``; ``plan`` (a name or a plan file)
+    is the plan the virtual materials are measured on (the others are sampled on it when read)."""
     if group == "rgl_validation":
         return [(m,) + (str(SHARED / "rgl-nbrdf" / f"{m}.h5"),) * 2 for m in RGL_VALIDATION]
     if group == "merl_held_out":
@@ -65,7 +71,7 @@ def materials(group: str, plan: str, work: Path) -> list[tuple[str, str, str]]:
         return [(p.stem, str(p), str(p)) for p in sorted((SHARED / "rgl-bsdf").glob("*.bsdf"))]
     found = []
     for m in VALIDATION_MATERIALS:
-        path = work / "tables" / f"{m}_{plan}.csv"
+        path = work / "tables" / f"{m}_{plan_label(plan)}.csv"
         if not path.is_file():
             path.parent.mkdir(parents=True, exist_ok=True)
             write_table(virtual_measurement(m, plan, 0.01, seed=0, reference_seed=1), path)

@@ -37,47 +37,19 @@ sys.path.insert(0, str(REPO))
 
 import neuralbrdf as nb  # noqa: E402
 from neuralbrdf.atomic import atomic_write  # noqa: E402
-from neuralbrdf.data.proxy_corpus import RGL_VALIDATION  # noqa: E402
-from neuralbrdf.data.table import write_table  # noqa: E402
-from neuralbrdf.sources import virtual_measurement  # noqa: E402
-from neuralbrdf.virtual.materials import VALIDATION_MATERIALS  # noqa: E402
+from auto import QUIET, materials, plan_label  # noqa: E402  (benchmarks/auto.py: the same groups)
 
-SHARED = REPO.parent / "shared" / "data"
 METHODS = ("pca", "abc", "nlb_spectral")
 GROUPS = ("rgl_validation", "virtual_validation")
 PLANS = ("DS1", "DS3", "DS4")
-QUIET = {"trainer.enable_progress_bar": False, "data.eval_plan": None}
-
-
-def materials(group: str, plan: str, work: Path) -> list[tuple[str, object, str]]:
-    """``(name, source, truth)`` of each material of ``group`` measured on ``plan``."""
-    if group == "rgl_validation":
-        found = []
-        for name in RGL_VALIDATION:
-            proxy = SHARED / "rgl-nbrdf" / f"{name}.h5"
-            found.append((name, proxy, f"nbrdf:{proxy}"))
-        return found
-    found = []
-    for name in VALIDATION_MATERIALS:
-        path = work / "tables" / f"{name}_{plan_label(plan)}.csv"
-        if not path.is_file():
-            path.parent.mkdir(parents=True, exist_ok=True)
-            write_table(virtual_measurement(name, plan, 0.01, seed=0, reference_seed=1), path)
-        found.append((name, path, f"virtual:{name}"))
-    return found
 
 
 def truth_file(name: str, truth: str, work: Path) -> Path:
     path = work / "truths" / f"{name}.onnx"
     if not path.is_file():
         path.parent.mkdir(parents=True, exist_ok=True)
-        nb.truth(truth.removeprefix("nbrdf:"), path)
+        nb.truth(truth, path)
     return path
-
-
-def plan_label(plan: str) -> str:
-    """A plan's name in file names: a report plan's name, a plan file's stem (``configs/plans/pca_6.csv``: ``pca_6``)."""
-    return Path(plan).stem if plan.endswith(".csv") else plan
 
 
 def cell(name: str, measurement: Path, truth: str, plan: str, method: str, work: Path) -> dict:
