@@ -139,13 +139,12 @@ def design_pca(budget: int, instrument: Instrument, settings: DesignSettings, co
     from neuralbrdf.geometry import inplane_to_vectors
     from neuralbrdf.lightning.config_models import model_settings
     from neuralbrdf.lightning.pca_fit import PcaFitModule
-    from neuralbrdf.models.pca_brdf import design_matrix, load_basis
+    from neuralbrdf.models.pca_brdf import design_matrix
 
     theta_i, theta_r = instrument.candidates()
     _check_budget(budget, len(theta_i))
-    fit = model_settings(config, PcaFitModule)
-    basis = load_basis(fit.get("basis")).truncated(int(fit.get("components", 32)))
-    ridge = float(fit.get("ridge", 0.003))
+    fit = PcaFitModule(**model_settings(config, PcaFitModule))  # the basis and ridge the fit would use, checked
+    basis, ridge = fit.basis, float(fit.hparams.ridge)
     if not ridge > 0:
         raise InputError(f"a design needs the fit's noise: a ridge weight > 0, got {ridge!r}", key="model.ridge")
     _, candidates = design_matrix(basis, *inplane_to_vectors(theta_i, theta_r))           # [C, K]
