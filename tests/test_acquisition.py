@@ -296,4 +296,95 @@ def test_plan_design_for_the_pca_prior_writes_a_plan_a_pca_fit_reads(tmp_path, c
     assert "designed for pca: 4 pairs" in capsys.readouterr().out
     theta_i, theta_r = in_plane_plan(out)
     assert len(theta_i) == 4 and Instrument(60.0, 10.0, 0.0).measurable(theta_i, theta_r).all()
-    one_line_error(capsys, "plan", "design", "--budget", 3, "--kind", "abc", "--out", out, expect="nlb_spectral, pca")
+    one_line_error(capsys, "plan", "design", "--budget", 3, "--kind", "mlp", "--out", out,
+                   expect="nlb_spectral, abc, pca")
+
+
+@pytest.mark.parametrize("kd, A, B, C, eta", [([0.1, 0.2, 0.3], [0.5, 0.4, 0.3], 200.0, 0.8, 1.5),
+                                              ([0.0, 0.05, 0.3], [5.0, 4.0, 3.0], 0.02, 1e6, 7.0)])
+def test_the_abc_jacobians_are_the_finite_differences_of_its_log_cosine_values(kd, A, B, C, eta):
+    """Against central differences of ``ln(1 + f cos θi)`` computed by the physics module itself
+    (not the linearisation's own values), on a broad lobe and on the Gaussian limit."""
+    from neuralbrdf.acquisition.abc_linear import AbcLinearisation, theta_of
+    from neuralbrdf.geometry import inplane_to_vectors
+    from neuralbrdf.physics.abc import abc_brdf_by_sharpness
+
+    wi, wo = (torch.as_tensor(v) for v in inplane_to_vectors(np.array([10.0, 30.0, 60.0, -20.0, 45.0, 70.0]),
+                                                              np.array([10.0, 25.0, 0.0, 40.0, 44.0, -70.0])))
+    theta = theta_of(kd, A, B, C, eta)
+
+    def y(t):
+        k = 3
+        f = abc_brdf_by_sharpness(wi, wo, t[:k], torch.exp(t[k:2 * k]), np.exp(float(t[6])), np.expm1(float(t[7])),
+                                  np.exp(float(t[8])))
+        return torch.log1p(f * wi[:, 2:3])
+
+    jacobians = AbcLinearisation(3).jacobians(theta, wi, wo)
+    assert jacobians.shape == (6, 3, 9)
+    for d in range(9):
+        step = torch.zeros(9, dtype=torch.float64)
+        step[d] = 1e-6
+        torch.testing.assert_close(jacobians[..., d], (y(theta + step) - y(theta - step)) / 2e-6, rtol=1e-5, atol=1e-8)
+
+
+def test_the_abc_design_materials_ship_and_a_damaged_file_is_named(tmp_path):
+    from neuralbrdf.acquisition.abc_linear import design_thetas, parameter_covariance
+
+    names, thetas = design_thetas()
+    assert len(names) >= 40 and thetas.shape == (len(names), 9) and torch.isfinite(thetas).all()
+    assert not any(name.split(":")[1] in {"brass", "nylon", "tungsten-carbide"} for name in names)  # test materials
+    covariance = parameter_covariance(thetas)
+    assert torch.linalg.eigvalsh(covariance).min() > 0
+    bad = tmp_path / "materials.json"
+    bad.write_text('{"materials": [{"name": "x", "kd": [0.1, 0.1]}]}')
+    with pytest.raises(InputError, match="materials.json.*not a file of ABC design materials"):
+        design_thetas(bad)
+
+
+def test_the_abc_design_takes_each_pair_that_lowers_the_mean_criterion_most():
+    """Each greedy step of the ABC design against an exhaustive search with direct inverses of the
+    posterior precision, per design material, from the linearisation's Jacobians."""
+    from neuralbrdf.acquisition.abc_linear import AbcLinearisation, design_thetas, parameter_covariance
+    from neuralbrdf.acquisition.design import DesignSettings, design_abc
+    from neuralbrdf.evaluation.scores import hemisphere_pairs
+    from neuralbrdf.geometry import inplane_to_vectors
+
+    settings = DesignSettings(noise=0.03, normalise=True, blends=0, analytic=0, hemisphere_strata=(3, 4), seed=0)
+    instrument = Instrument(60.0, 15.0, 0.0)
+    plan = design_abc(3, instrument, settings)
+    _, thetas = design_thetas()
+    prior = parameter_covariance(thetas).numpy()
+    lin = AbcLinearisation(3)
+    theta_i, theta_r = instrument.candidates()
+    wi, wo = (torch.as_tensor(v) for v in inplane_to_vectors(theta_i, theta_r))
+    hwi, hwo = (torch.as_tensor(v) for v in hemisphere_pairs(0, (3, 4)))
+    per_material = []
+    for theta in thetas:
+        scale = np.maximum(lin.values(theta, hwi, hwo).numpy().mean(0), 1e-3)
+        jh = (lin.jacobians(theta, hwi, hwo).numpy() / scale[None, :, None]).reshape(-1, 9)
+        h = jh.T @ jh / len(jh)
+        j = lin.jacobians(theta, wi, wo).numpy() / (0.03 * scale[None, :, None])
+        per_material.append((h / np.trace(h @ prior), j))
+    precisions = [np.linalg.inv(prior)] * len(thetas)
+    chosen = []
+    for step in range(3):
+        criteria = [np.inf if c in chosen else np.mean([np.trace(h @ np.linalg.inv(p + j[c].T @ j[c]))
+                                                        for (h, j), p in zip(per_material, precisions)])
+                    for c in range(len(theta_i))]
+        best = int(np.argmin(criteria))
+        assert (plan.theta_i[step], plan.theta_r[step]) == (theta_i[best], theta_r[best])
+        assert plan.predicted_error[step + 1] == pytest.approx(np.sqrt(criteria[best]), rel=1e-6)
+        precisions = [p + j[best].T @ j[best] for (_, j), p in zip(per_material, precisions)]
+        chosen.append(best)
+
+
+def test_plan_design_for_abc_writes_a_plan_an_abc_fit_reads(tmp_path, capsys):
+    import neuralbrdf as nb
+
+    out = tmp_path / "plan.csv"
+    assert run("plan", "design", "--kind", "abc", "--budget", 6, "--step", 10, "--out", out) == 0
+    assert "designed for abc: 6 pairs" in capsys.readouterr().out
+    theta_i, theta_r = in_plane_plan(out)
+    assert len(theta_i) == 6 and Instrument(60.0, 10.0, 0.0).measurable(theta_i, theta_r).all()
+    nb.sample("virtual:gold", out, tmp_path / "gold.csv")
+    assert nb.fit("abc", nb.read(tmp_path / "gold.csv"), run_dir=tmp_path / "run").metrics["fit/abc/success"]

@@ -159,8 +159,29 @@ def design_pca(budget: int, instrument: Instrument, settings: DesignSettings, co
                       instrument)
 
 
+def design_abc(budget: int, instrument: Instrument, settings: DesignSettings, materials: str | None = None,
+               progress=None) -> PlanDesign:
+    """ABC's design (module docstring); ``materials``: a design-materials file (default the shipped one)."""
+    from neuralbrdf.acquisition.abc_linear import DESIGN_MATERIALS, AbcLinearisation, design_thetas, parameter_covariance
+    from neuralbrdf.evaluation.scores import hemisphere_pairs
+    from neuralbrdf.geometry import inplane_to_vectors
+
+    theta_i, theta_r = instrument.candidates()
+    _check_budget(budget, len(theta_i))
+    _, thetas = design_thetas(materials or DESIGN_MATERIALS)
+    wi, wo = (torch.as_tensor(v, dtype=torch.float64) for v in inplane_to_vectors(theta_i, theta_r))
+    hwi, hwo = (torch.as_tensor(v, dtype=torch.float64) for v in hemisphere_pairs(settings.seed,
+                                                                                    settings.hemisphere_strata))
+    problem = relative_problem(AbcLinearisation(3), thetas, wi, wo, hwi, hwo, parameter_covariance(thetas),
+                               settings.noise, settings.normalise)
+    design = greedy_design(problem, budget, progress=progress)
+    chosen = np.asarray(design.chosen)
+    return PlanDesign(theta_i[chosen], theta_r[chosen], [float(np.sqrt(c)) for c in design.criterion], "abc",
+                      instrument)
+
+
 #: The kinds a plan can be designed for, and their designers.
-DESIGNERS = {"nlb_spectral": design_nlb_spectral, "pca": design_pca}
+DESIGNERS = {"nlb_spectral": design_nlb_spectral, "abc": design_abc, "pca": design_pca}
 
 
 def design(kind: str, budget: int, instrument: Instrument, settings: DesignSettings, progress: bool = False) -> PlanDesign:

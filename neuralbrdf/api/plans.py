@@ -63,7 +63,7 @@ def design_plan(budget: int, out: PathLike | None = None, *, kind: str = "nlb_sp
                 overrides: Mapping[str, Any] | None = None, progress: bool = False):
     """``budget`` in-plane pairs for an instrument that reaches ``max_theta`` degrees in steps of
     ``step`` degrees and cannot measure within ``retro_band`` degrees of retro-reflection, chosen
-    with the prior of ``kind`` (``nlb_spectral`` or ``pca``) to lower the expected hemisphere error of its fit most
+    with the prior of ``kind`` (``nlb_spectral``, ``abc`` or ``pca``) to lower the expected hemisphere error of its fit most
     (docs/how-many-measurements.md); with ``out``, also written as a plan file (the format of
     ``neuralbrdf plan DS3``), pairs in the order to measure them.  ``overrides``: settings of the
     config's ``design`` section (``{"seed": 1}``).  Returns the

@@ -48,7 +48,7 @@ def add_plan_arguments(parser, report_plans: tuple[str, ...]) -> None:
                        "and write them in the order to measure them.")
     p.add_argument("--budget", type=int, required=True, help="number of pairs")
     p.add_argument("--out", required=True, help="output plan CSV (theta_i,theta_r)")
-    p.add_argument("--kind", default="nlb_spectral", help="the model the plan is designed for: nlb_spectral (default) or pca")
+    p.add_argument("--kind", default="nlb_spectral", help="the model the plan is designed for: nlb_spectral (default), abc or pca")
     p.add_argument("--seed", type=int, default=None, help="which of the prior's materials the design averages over "
                    "(default: the config's)")
     _instrument_arguments(p)
