@@ -8,7 +8,7 @@ and are implemented in :mod:`neuralbrdf.geometry`.
 
 The Python API (:mod:`neuralbrdf.api`) is here at the top level: :func:`read`, :func:`fit`,
 :func:`export`, :func:`load`, :func:`truth`, :func:`evaluate`, :func:`render_image`, :func:`view`, the
-functions of measuring a fraction of the pairs, :func:`design_plan`, :func:`next_pairs`, :func:`acquire`, those of
+functions of measuring a fraction of the pairs, :func:`design_plan`, :func:`next_pairs`, :func:`watch_next_pairs`, :func:`acquire`, those of
 measurement tables, :func:`simulate`, :func:`calibrate`, :func:`to_rgb`, :func:`sample`, :func:`plot`, :func:`demo`,
 and of the level of detail, :func:`ladder`, :func:`select`: what each ``neuralbrdf`` command calls (``render`` is
 the rendering subpackage, :mod:`neuralbrdf.render`).  Its names are imported on first use, so
@@ -23,7 +23,7 @@ __version__ = "0.1.0"
 _API = ("ExportFailed", "FIT_KINDS", "FitResult", "Model", "RenderFailed", "Source", "acquire", "calibrate", "demo",
         "demo_outputs", "design_plan", "evaluate", "export", "fit", "ladder", "ladder_dir", "load", "next_pairs",
         "plot", "read", "regenerate_default_data", "render_image", "sample", "select", "simulate", "stand_ins",
-        "study", "study_report", "to_rgb", "truth", "view", "write_plan")
+        "study", "study_report", "to_rgb", "truth", "view", "watch_next_pairs", "write_plan")
 _ERRORS = ("EnvironmentFailure", "FitFailed", "InputError", "Interrupted")
 
 __all__ = [*_API, *_ERRORS]
@@ -32,7 +32,8 @@ if TYPE_CHECKING:
     from neuralbrdf.api import (FIT_KINDS, ExportFailed, FitResult, Model, RenderFailed, Source, acquire, calibrate,
                                 demo, demo_outputs, design_plan, evaluate, export, fit, ladder, ladder_dir, load,
                                 next_pairs, plot, read, regenerate_default_data, render_image, sample, select,
-                                simulate, stand_ins, study, study_report, to_rgb, truth, view, write_plan)
+                                simulate, stand_ins, study, study_report, to_rgb, truth, view, watch_next_pairs,
+                                write_plan)
     from neuralbrdf.errors import EnvironmentFailure, FitFailed, InputError, Interrupted
 
 

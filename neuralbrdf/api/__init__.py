@@ -37,7 +37,7 @@ from neuralbrdf.api.fitting import FIT_KINDS, FitResult, fit
 from neuralbrdf.api.level_of_detail import ladder, ladder_dir, select
 from neuralbrdf.api.materials import Source, read
 from neuralbrdf.api.model_files import ExportFailed, Model, export, load, truth
-from neuralbrdf.api.plans import acquire, design_plan, next_pairs, write_plan
+from neuralbrdf.api.plans import acquire, design_plan, next_pairs, watch_next_pairs, write_plan
 from neuralbrdf.api.rendering import RenderFailed, evaluate, render_image
 from neuralbrdf.api.studies import study, study_report
 from neuralbrdf.api.tables import (calibrate, demo, demo_outputs, plot, regenerate_default_data, sample, simulate,
@@ -46,4 +46,4 @@ from neuralbrdf.api.tables import (calibrate, demo, demo_outputs, plot, regenera
 __all__ = ["ExportFailed", "FIT_KINDS", "FitResult", "Model", "RenderFailed", "Source", "acquire", "calibrate",
            "demo", "demo_outputs", "design_plan", "evaluate", "export", "fit", "ladder", "ladder_dir", "load",
            "next_pairs", "plot", "read", "regenerate_default_data", "render_image", "sample", "select", "simulate",
-           "stand_ins", "study", "study_report", "to_rgb", "truth", "view", "write_plan"]
+           "stand_ins", "study", "study_report", "to_rgb", "truth", "view", "watch_next_pairs", "write_plan"]

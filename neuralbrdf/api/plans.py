@@ -1,5 +1,5 @@
 """Plans and measuring a fraction of the pairs: :func:`write_plan`, :func:`design_plan`,
-:func:`next_pairs`, a simulated :func:`acquire` session."""
+:func:`next_pairs` (and :func:`watch_next_pairs` of a file that grows), a simulated :func:`acquire` session."""
 
 from __future__ import annotations
 
@@ -8,7 +8,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from neuralbrdf.api.arguments import PathLike, as_path, check_flags, check_integers, check_numbers, check_text
+from neuralbrdf.api.arguments import (PathLike, as_path, check_flags, check_integers, check_numbers, check_positive,
+                                      check_text)
 from neuralbrdf.api.materials import Source, read
 from neuralbrdf.errors import InputError
 
@@ -114,28 +115,97 @@ def next_pairs(measurement: Source | PathLike, count: int = 1, out: PathLike | N
     >>> answer.measured, len(answer.theta_i), answer.logcos.low < answer.logcos.estimate < answer.logcos.high
     (6, 2, True)
     """
-    from neuralbrdf.acquisition.next_pairs import next_pairs as answer
-
     check_integers(count=count)
-    check_numbers(max_theta=max_theta, step=step, retro_band=retro_band)
     if not isinstance(measurement, Source):
         measurement = read(measurement, reference)
     elif reference is not None:
         raise InputError("reference goes with a GCMS raw file path, not with a Source (read it with its reference)")
-    from neuralbrdf.acquisition.settings import load_acquisition_config
+    return _NextPairsAsker(count, out, max_theta, step, retro_band, config).answer(measurement)
 
-    settings = load_acquisition_config(as_path(config, "config", "a shipped config's name or a YAML file"))
-    if out is not None:
-        from neuralbrdf.atomic import check_outputs
 
-        check_outputs(as_path(out, "out", "an output plan file (.csv) path"))
-    result = answer(measurement.samples, count, _instrument(max_theta, step, retro_band), settings.design,
-                    settings.estimate, name=measurement.name)
-    if out is not None:
-        from neuralbrdf.data.plans import write_plan
+class _NextPairsAsker:
+    """:func:`next_pairs`'s settings checked once, and its answer for any measurement."""
 
-        write_plan((result.theta_i, result.theta_r), out)
-    return result
+    def __init__(self, count: int, out: PathLike | None, max_theta: float, step: float, retro_band: float,
+                 config: PathLike, module=None) -> None:
+        from neuralbrdf.acquisition.settings import load_acquisition_config
+
+        check_integers(count=count)
+        check_numbers(max_theta=max_theta, step=step, retro_band=retro_band)
+        self.settings = load_acquisition_config(as_path(config, "config", "a shipped config's name or a YAML file"))
+        if out is not None:
+            from neuralbrdf.atomic import check_outputs
+
+            check_outputs(as_path(out, "out", "an output plan file (.csv) path"))
+        self.count, self.out, self.module = count, out, module
+        self.instrument = _instrument(max_theta, step, retro_band)
+
+    def answer(self, measurement: Source):
+        from neuralbrdf.acquisition.next_pairs import next_pairs as answer
+
+        result = answer(measurement.samples, self.count, self.instrument, self.settings.design, self.settings.estimate,
+                        module=self.module, name=measurement.name)
+        if self.out is not None:
+            from neuralbrdf.data.plans import write_plan
+
+            write_plan((result.theta_i, result.theta_r), self.out)
+        return result
+
+
+def watch_next_pairs(measurement: PathLike, count: int = 1, out: PathLike | None = None, *,
+                     reference: PathLike | None = None, max_theta: float = 60.0, step: float = 1.0,
+                     retro_band: float = 0.0, config: PathLike = "default", on_answer=None, on_error=None,
+                     poll_s: float = 0.5, reads: int | None = None) -> int:
+    """:func:`next_pairs` for the file ``measurement`` now and again each time it changes, in one
+    process: the pretrained network and the fit's starts are loaded once, so each answer costs a
+    warm call, not a new command's imports and loading (a user at the instrument appends the
+    pairs just measured and has the next ones in seconds; docs/how-many-measurements.md).
+    ``on_answer(answer)`` gets each :class:`~neuralbrdf.acquisition.next_pairs.NextPairs` (with
+    ``out``, also written as a plan file); a read or fit that fails — a file caught half-written,
+    say — goes to ``on_error(error)`` (an :class:`InputError`) and watching goes on.  The file is
+    looked at every ``poll_s`` seconds; ``reads``: stop after this many answers and errors
+    (``None``: until interrupted).  Returns the number of reads.
+
+    >>> import tempfile, neuralbrdf as nb
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     table = nb.simulate("gold", f"{folder}/gold.csv", plan="DS4", truth=True)
+    ...     nb.watch_next_pairs(f"{folder}/gold.csv", step=10.0, reads=1,
+    ...                         on_answer=lambda answer: print(answer.measured, len(answer.theta_i)))
+    6 1
+    1
+    """
+    import time
+
+    from neuralbrdf.acquisition.latent_fit import fit_module
+
+    path = as_path(measurement, "measurement", "a measured table file (.csv)")
+    if not os.path.isfile(path):
+        raise InputError("no such file to watch", path=path)
+    check_numbers(poll_s=poll_s)
+    if not poll_s > 0:
+        raise InputError(f"poll_s: expected a positive number of seconds, got {poll_s!r}")
+    check_positive(reads=reads)
+    asker = _NextPairsAsker(count, out, max_theta, step, retro_band, config, module=fit_module())
+    seen, done = None, 0
+    while reads is None or done < reads:
+        try:
+            stat = os.stat(path)
+            state = (stat.st_mtime_ns, stat.st_size)
+        except OSError:
+            state = None                               # replaced by the instrument's software: look again
+        if state is not None and state != seen:
+            seen, done = state, done + 1
+            try:
+                result = asker.answer(read(path, reference))
+            except InputError as error:
+                if on_error is not None:
+                    on_error(error)
+            else:
+                if on_answer is not None:
+                    on_answer(result)
+            continue
+        time.sleep(poll_s)
+    return done
 
 
 def acquire(source: PathLike, out_dir: PathLike | None = None, *, start: PathLike | None = None,

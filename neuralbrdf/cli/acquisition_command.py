@@ -64,6 +64,9 @@ def add_plan_arguments(parser, report_plans: tuple[str, ...]) -> None:
     p.add_argument("--count", type=int, default=1, help="pairs to choose (default 1)")
     p.add_argument("--out", required=True, help="output plan CSV of the pairs to measure next")
     p.add_argument("--target-de", type=float, default=None, help="preview CIEDE2000 the fit should reach")
+    p.add_argument("--watch", action="store_true", help="stay running and answer again each time TABLE changes (the "
+                   "network loaded once: seconds per answer at the instrument); a file that cannot be read is "
+                   "reported and watched on; Ctrl-C stops")
     _instrument_arguments(p)
     p.set_defaults(func=next_measurements)
 
@@ -89,18 +92,38 @@ def _interval(interval, digits: int) -> str:
     return f"{interval.estimate:.{digits}f} (80 % interval {interval.low:.{digits}f}-{interval.high:.{digits}f})"
 
 
-def next_measurements(args) -> None:
+def next_measurements(args) -> int | None:
+    import sys
+    import time
+
     from neuralbrdf.errors import InputError
 
     if args.target_de is not None and not args.target_de > 0:
         raise InputError(f"expected a positive CIEDE2000, got {args.target_de}", key="--target-de")
-    answer = api.next_pairs(args.table, args.count, args.out, reference=args.reference, max_theta=args.max_theta,
-                            step=args.step, retro_band=args.retro_band, config=args.config)
-    verdict = answer.enough(args.target_de)
-    said = "" if verdict is None else (f"; target ΔE2000 {args.target_de:g}: " +
-                                       ("enough" if verdict else "measure these next"))
-    print(f"{_pairs(answer.measured)} measured; the fit's error now: hemisphere log-cos RMSE {_interval(answer.logcos, 4)}, "
-          f"preview ΔE2000 {_interval(answer.delta_e, 2)}{said} -> {args.out} ({_pairs(len(answer.theta_i))})")
+
+    def say(answer) -> None:
+        verdict = answer.enough(args.target_de)
+        said = "" if verdict is None else (f"; target ΔE2000 {args.target_de:g}: " +
+                                           ("enough" if verdict else "measure these next"))
+        when = time.strftime("%H:%M:%S ") if args.watch else ""
+        print(f"{when}{_pairs(answer.measured)} measured; the fit's error now: hemisphere log-cos RMSE "
+              f"{_interval(answer.logcos, 4)}, preview ΔE2000 {_interval(answer.delta_e, 2)}{said} -> {args.out} "
+              f"({_pairs(len(answer.theta_i))})", flush=True)
+
+    options = dict(reference=args.reference, max_theta=args.max_theta, step=args.step, retro_band=args.retro_band,
+                   config=args.config)
+    if not args.watch:
+        say(api.next_pairs(args.table, args.count, args.out, **options))
+        return
+    print(f"watching {args.table}: an answer each time it changes (Ctrl-C stops)", flush=True)
+    try:
+        api.watch_next_pairs(args.table, args.count, args.out, on_answer=say,
+                             on_error=lambda error: print(f"{time.strftime('%H:%M:%S')} {error} (watching on)",
+                                                          file=sys.stderr, flush=True), **options)
+    except KeyboardInterrupt:  # how watching ends: the last answer's plan file is whole (written atomically)
+        pass
+    print("stopped", flush=True)
+    return 0
 
 
 def add_acquire_arguments(parser) -> None:

@@ -22,7 +22,6 @@ import yaml
 
 from neuralbrdf.configs_dir import config_not_found, overlay_base, resolve_config
 from neuralbrdf.errors import InputError
-from neuralbrdf.lightning.abc_module import AbcFitModule
 from neuralbrdf.lightning.nlb_spectral_fit import SpectralLatentFitModule
 
 #: The shipped configs of the two in-process fits.
@@ -70,6 +69,8 @@ def spectral_latent_fit(config: str = SPECTRAL_NLB_CONFIG,
 def abc_settings(config: str = ABC_CONFIG) -> dict[str, Any]:
     """The keyword arguments of :func:`~neuralbrdf.fitting.abc_fit.fit_abc` that ``config`` sets
     (checked as :class:`AbcFitModule` checks them; the module's defaults for keys it leaves out)."""
+    from neuralbrdf.lightning.abc_module import AbcFitModule  # not imported by plan next's spectral fit
+
     settings = model_settings(config, AbcFitModule)
     module = AbcFitModule(**settings)
     defaults = {name: p.default for name, p in inspect.signature(AbcFitModule).parameters.items()}
