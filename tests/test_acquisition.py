@@ -390,27 +390,32 @@ def test_plan_design_for_abc_writes_a_plan_an_abc_fit_reads(tmp_path, capsys):
     assert nb.fit("abc", nb.read(tmp_path / "gold.csv"), run_dir=tmp_path / "run").metrics["fit/abc/success"]
 
 
+def _grey_table(path, pairs):
+    """An RGB table of a grey Lambertian-like material at ``pairs`` (signed in-plane degrees): quick to fit."""
+    rows = "".join(f"{ti},{tr},0.2,0.2,0.2\n" for ti, tr in pairs)
+    path.write_text("theta_i_signed,theta_r_signed,R,G,B\n" + rows, encoding="utf-8")
+    return path
+
+
 def test_watching_a_table_answers_at_each_change_and_reports_a_damaged_file_without_stopping(tmp_path):
     """The instrument's software rewrites the table: each change gets an answer from the one loaded
     network; a change that leaves the file unreadable is reported and watched on."""
     import neuralbrdf as nb
 
-    table = tmp_path / "gold.csv"
-    nb.simulate("gold", table, plan="DS4", truth=True)
-    more = tmp_path / "more.csv"
-    nb.simulate("gold", more, plan="DS3", truth=True)
+    pairs = [(0.0, 10.0), (20.0, 20.0), (40.0, -30.0), (-50.0, 50.0), (30.0, 0.0), (60.0, 55.0)]
+    table = _grey_table(tmp_path / "grey.csv", pairs[:4])
     answers, errors = [], []
 
     def answered(answer):
         answers.append(answer.measured)
         if len(answers) == 1:
-            table.write_bytes(more.read_bytes())              # more pairs measured
+            _grey_table(table, pairs)                                     # more pairs measured
         else:
-            table.write_text("theta_i_signed,theta_r_signed\n10,")   # caught half-written
+            table.write_text("theta_i_signed,theta_r_signed\n10,")      # caught half-written
 
     reads = nb.watch_next_pairs(table, 2, tmp_path / "next.csv", step=10.0, poll_s=0.01, reads=3,
                                 on_answer=answered, on_error=errors.append)
-    assert reads == 3 and answers == [6, 57] and len(errors) == 1
+    assert reads == 3 and answers == [4, 6] and len(errors) == 1
     assert str(table) in str(errors[0])
     assert len(in_plane_plan(tmp_path / "next.csv")[0]) == 2
     with pytest.raises(InputError, match="missing.csv: no such file to watch"):
@@ -420,10 +425,7 @@ def test_watching_a_table_answers_at_each_change_and_reports_a_damaged_file_with
 def test_plan_next_watch_prints_each_answer_and_stops_on_ctrl_c(tmp_path, capsys, monkeypatch):
     import time
 
-    import neuralbrdf as nb
-
-    table = tmp_path / "gold.csv"
-    nb.simulate("gold", table, plan="DS4", truth=True)
+    table = _grey_table(tmp_path / "grey.csv", [(0.0, 10.0), (20.0, 20.0), (40.0, -30.0)])
 
     def interrupt(seconds):                                   # nothing changed after the first answer: Ctrl-C
         raise KeyboardInterrupt
@@ -432,5 +434,5 @@ def test_plan_next_watch_prints_each_answer_and_stops_on_ctrl_c(tmp_path, capsys
     assert run("plan", "next", table, "--count", 1, "--step", 10, "--watch", "--out", tmp_path / "next.csv") == 0
     out = capsys.readouterr().out.splitlines()
     assert out[0].startswith(f"watching {table}") and out[-1] == "stopped" and len(out) == 3
-    assert "6 pairs measured; the fit's error now" in out[1] and out[1][2] == ":" == out[1][5]   # HH:MM:SS first
+    assert "3 pairs measured; the fit's error now" in out[1] and out[1][2] == ":" == out[1][5]   # HH:MM:SS first
     assert len(in_plane_plan(tmp_path / "next.csv")[0]) == 1
