@@ -117,13 +117,13 @@ def test_the_budget_profile_sweeps_the_designed_plans_on_validation_materials():
     from neuralbrdf.virtual.materials import VALIDATION_MATERIALS
 
     profile = load_profile("budget")
-    assert [profile.stability.pairs(p) for p in profile.stability.plans] == [6, 6, 12, 24, 57, 185, 1001]
+    assert [profile.stability.pairs(p) for p in profile.stability.plans] == [6, 6, 12, 24, 48, 57, 185, 1001]
     truths = {m.truth for m in profile.materials}
     assert {f"virtual:{name}" for name in VALIDATION_MATERIALS} <= truths
     assert {Path(t).stem for t in truths if t.endswith(".h5")} == set(RGL_VALIDATION)
     assert profile.stability.render and {v.name for v in profile.variants} == {"abc", "nlb_spectral", "auto", "pca"}
     assert {v.method for v in profile.variants} == {"abc", "nlb_spectral", "auto", "pca"}
-    assert len(plan_cells(profile)) == len(profile.materials) * 4 * 7 == 420
+    assert len(plan_cells(profile)) == len(profile.materials) * 4 * 8 == 480
 
 
 def test_a_study_measures_a_plan_file_and_charts_error_against_pairs(tmp_path):
