@@ -78,6 +78,15 @@ SPECTRAL_NLB = (("benchmarks/spectral_nlb.json", "python benchmarks/spectral_nlb
                 ("benchmarks/spectral_nlb_virtual.json", "python benchmarks/spectral_nlb.py --groups virtual "
                  "--plans DS1,DS3,DS4 --out benchmarks/spectral_nlb_virtual.json"))
 STUDY_CLUSTER = "benchmarks/study_cluster.json"
+#: The budget profile's study (error against the number of measured pairs) and its report.
+BUDGET_STUDY = ("docs/study/budget/study.json", "docs/study/budget/index.html")
+#: Designed plans against the report's plans of as many pairs or more: (designed plan, named plan).
+BUDGET_PAIRS = (("nlb_spectral_6", "DS4"), ("nlb_spectral_12", "DS3"), ("nlb_spectral_24", "DS3"),
+                ("nlb_spectral_48", "DS3"))
+#: The report's plans (a study point's plan is one of these or a plan file's stem).
+REPORT_PLANS = ("DS1", "DS2", "DS3", "DS4")
+#: The image and hemisphere metrics of the budget tables.
+BUDGET_METRICS = (("hemisphere_logcos_rmse", "hemisphere log-cos", 4), ("image_delta_e2000_mean", "image ΔE2000", 2))
 SPECTRAL_NLB_VALIDATION = "benchmarks/spectral_nlb_validation.json"
 SPECTRAL_NLB_TIMING = "benchmarks/spectral_nlb_timing.json"
 SPECTRAL_PRETRAIN = "benchmarks/nlb_spectral_pretrain.json"
@@ -638,6 +647,71 @@ def studies_section() -> list[str]:
             lines += study_section(relative, report)
     if (ROOT / STUDY_CLUSTER).is_file():
         lines += study_cluster_section()
+    return lines + budget_section()
+
+
+def _budget_values(points: list[dict], metric: str) -> dict:
+    """``{model: {plan: {material: value}}}`` of the noise-free points (failed fits have none)."""
+    values: dict = defaultdict(lambda: defaultdict(dict))
+    for p in points:
+        if p["noise"] == 0.0 and p["error"].get(metric) is not None:
+            values[p["model"]][p["plan"]][p["material"]] = p["error"][metric]
+    return values
+
+
+def _plan_label(plan: str) -> str:
+    return plan if plan in REPORT_PLANS else f"designed {plan.rpartition('_')[2]}"
+
+
+def budget_section() -> list[str]:
+    """Error against the number of measured pairs: the ``budget`` study profile (docs/study/budget)."""
+    relative, report = BUDGET_STUDY
+    if not (ROOT / relative).is_file():
+        return []
+    study = load(relative)
+    points = study["points"]
+    pairs = {p["plan"]: p.get("pairs") for p in points}
+    plans = sorted(pairs, key=lambda plan: (pairs[plan] or 0, plan in REPORT_PLANS))
+    models = list(dict.fromkeys(p["model"] for p in points))
+    materials = list(dict.fromkeys(p["material"] for p in points))
+    failures = Counter((p["model"], p["plan"]) for p in points if p.get("failure") and not p["error"])
+    run = study.get("run", {})
+    lines = ["## Error against the number of measured pairs", "",
+             f"The `budget` study profile: {', '.join(f'`{m}`' for m in models)} fitted to {len(materials)} validation "
+             "materials (six virtual, spectral; nine RGL proxies, RGB) from each plan, without noise, one seed, every "
+             "fit scored over the hemisphere and rendered; designed plans are `neuralbrdf plan design`'s for the "
+             "spectral NLB (made on training materials). Per plan the median over materials, "
+             "fits that failed left out (their count in brackets). Report: [`{report}`](../{report}). "
+             f"Reproduce: `{run.get('command', 'neuralbrdf study --profile budget --out docs/study/budget --jobs 2 --allow-failures')}`.",
+             machine_line(study.get("machine")), "",
+             "![Error against the number of measured pairs](study/budget/figures/stability_pairs.png)", ""]
+    for metric, label, digits in BUDGET_METRICS:
+        values = _budget_values(points, metric)
+        rows = []
+        for plan in plans:
+            row = [_plan_label(plan), str(pairs[plan])]
+            for model in models:
+                got = values[model].get(plan, {})
+                failed = failures[(model, plan)]
+                row.append(num(median(got.values()), digits) + (f" ({failed})" if failed else ""))
+            rows.append(row)
+        lines += [f"Median {label}:", ""] + table(["plan", "pairs"] + [f"`{m}`" for m in models], rows)
+    rows = []
+    for designed, named in BUDGET_PAIRS:
+        if designed not in pairs or named not in pairs:
+            continue
+        for metric, label, _ in BUDGET_METRICS:
+            values = _budget_values(points, metric)
+            row = [f"{_plan_label(designed)} ÷ {named}", label]
+            for model in models:
+                a, b = values[model].get(designed, {}), values[model].get(named, {})
+                both = [m for m in a if m in b and b[m] > 0]
+                ratios = [a[m] / b[m] for m in both]
+                row.append(f"{num(median(ratios), 2)} ({sum(r < 1 for r in ratios)}/{len(ratios)})" if ratios else "—")
+            rows.append(row)
+    lines += ["Designed plans against the report's: per material the ratio of errors, the median over materials "
+              "and (in brackets) on how many materials the designed plan is better:", ""]
+    lines += table(["plans", "metric"] + [f"`{m}`" for m in models], rows)
     return lines
 
 
