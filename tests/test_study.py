@@ -1072,3 +1072,17 @@ def test_a_pca_cell_runs_and_counts_its_table_entries(tmp_path):
     assert model.details.nodes == (*nodes, 31)
     count = parameter_count(onnx.load(str(folder / "model.onnx")), graph_kind(model))
     assert count == nodes[0] * nodes[1] * nodes[2] * 31 == 285_696
+
+
+def test_a_report_of_a_profile_that_times_nothing_recommends_nothing_rather_than_no_model(synthetic, tmp_path):
+    """The budget profile sweeps plans and times no cell: its report must not say "no model within
+    this budget" for every material, as if every model had failed."""
+    from neuralbrdf.study.report import write_report
+
+    points = [dict(p, is_main=False) for p in synthetic["study"]["points"]]
+    shutil.copytree(synthetic["folder"] / "figures", tmp_path / "figures")
+    page = write_report({**synthetic["study"], "points": points}, synthetic["figures"], tmp_path).read_text(
+        encoding="utf-8")
+    assert "This profile times no model" in page
+    assert "no model within this budget" not in page and "speed_accuracy_pooled.png" not in page
+    assert "stability_pairs.png" in page

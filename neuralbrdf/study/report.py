@@ -383,25 +383,23 @@ def _machine_section(study: dict, rerun: str) -> str:
         "(DIR: the folder holding this page).</p>"))
 
 
-def write_report(study: dict, figs: dict, out_dir: str | Path) -> Path:
-    """Write ``out_dir/index.html`` from ``study`` (the content of ``study.json``) and ``figs``
-    (:func:`neuralbrdf.study.figures.write_figures` of it)."""
-    out_dir = Path(out_dir)
-    figures_dir = out_dir / "figures"
-    run = study["run"]
-    rerun = run["command"]
+#: What a report of a profile that times no cell says instead of a recommendation.
+_UNTIMED = ("<h2>Which model to use</h2><p>This profile times no model (each variant has "
+            "<code>speed_accuracy: false</code>): without render costs there is no recommendation and no chart of "
+            "speed against accuracy. What it measures — each model's error over its sweep — is below.</p>")
+
+
+def _timed(study: dict) -> bool:
+    """Whether some main cell was timed (a render cost to recommend by)."""
+    return any(p.get("is_main") and (p.get("cost") or {}).get("render_ratio") is not None for p in study["points"])
+
+
+def _choice_parts(study: dict, figs: dict, figures_dir: Path) -> list[str]:
+    """The recommendation per material and ΔE budget, and the pooled chart of speed against accuracy."""
     shared = pooled_materials(study)
     fronts = study["pareto"]
     budgets = ", ".join(f"{b:g}" for b in BUDGETS_DELTA_E)
-    parts = [
-        "<!doctype html><html lang=en><head><meta charset=utf-8><meta name=viewport content=\"width=device-width\">"
-        f"<title>neuralbrdf study: which model to use</title><style>{STYLE}</style></head><body><main>",
-        "<h1>neuralbrdf study: which model to use</h1>",
-        f"<p>Profile <code>{html.escape(run['profile'])}</code>, run {html.escape(_when(run['started']))}: {len(study['points'])} "
-        f"cells{_on_cluster(run) + ', submitted from' if run.get('cluster') else ' on'} "
-        f"{html.escape(study['machine']['cpu'])} ({study['machine']['cores']} cores). "
-        'Data: <a href="study.json">study.json</a>.</p>',
-        _status(study),
+    return [
         "<h2>Which model to use</h2>",
         "<p>Per material, the cheapest model to render (render time ÷ Mitsuba's roughconductor in the same run) "
         "whose mean CIEDE2000 difference from the truth's render stays within the budget; ΔE 1 is about a just "
@@ -415,6 +413,26 @@ def write_report(study: dict, figs: dict, out_dir: str | Path) -> Path:
                f"Pareto front (dashed: no other model is both cheaper and more accurate) against render cost: "
                f"<b>{_names(fronts['render_ratio']['pooled'])}</b>; against fit time: "
                f"<b>{_names(fronts['fit_time_s']['pooled'])}</b>."),
+    ]
+
+
+def write_report(study: dict, figs: dict, out_dir: str | Path) -> Path:
+    """Write ``out_dir/index.html`` from ``study`` (the content of ``study.json``) and ``figs``
+    (:func:`neuralbrdf.study.figures.write_figures` of it)."""
+    out_dir = Path(out_dir)
+    figures_dir = out_dir / "figures"
+    run = study["run"]
+    rerun = run["command"]
+    parts = [
+        "<!doctype html><html lang=en><head><meta charset=utf-8><meta name=viewport content=\"width=device-width\">"
+        f"<title>neuralbrdf study: which model to use</title><style>{STYLE}</style></head><body><main>",
+        "<h1>neuralbrdf study: which model to use</h1>",
+        f"<p>Profile <code>{html.escape(run['profile'])}</code>, run {html.escape(_when(run['started']))}: {len(study['points'])} "
+        f"cells{_on_cluster(run) + ', submitted from' if run.get('cluster') else ' on'} "
+        f"{html.escape(study['machine']['cpu'])} ({study['machine']['cores']} cores). "
+        'Data: <a href="study.json">study.json</a>.</p>',
+        _status(study),
+        *(_choice_parts(study, figs, figures_dir) if _timed(study) else [_UNTIMED]),
         _pairs_part(figs, figures_dir),
         "<h2>Details</h2>",
         _per_material_section(study, figs, figures_dir),
