@@ -681,7 +681,7 @@ def budget_section() -> list[str]:
              "materials (six virtual, spectral; nine RGL proxies, RGB) from each plan, without noise, one seed, every "
              "fit scored over the hemisphere and rendered; designed plans are `neuralbrdf plan design`'s for the "
              "spectral NLB (made on training materials). Per plan the median over materials, "
-             "fits that failed left out (their count in brackets). Report: [`{report}`](../{report}). "
+             f"fits that failed left out (their count in brackets). Report: [`{report}`](../{report}). "
              f"Reproduce: `{run.get('command', 'neuralbrdf study --profile budget --out docs/study/budget --jobs 2 --allow-failures')}`.",
              machine_line(study.get("machine")), "",
              "![Error against the number of measured pairs](study/budget/figures/stability_pairs.png)", ""]
