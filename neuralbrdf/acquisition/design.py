@@ -26,6 +26,11 @@ the noise variance the fit's own ridge weight (the ridge solution is the MAP est
 that model, so the design optimises the fit that is run).  The criterion is the integrated
 variance of ``ln(1 + f)`` over the hemisphere pairs; the settings are the ``pca`` config's
 (``components``, ``ridge``, ``basis``) and the design section's ``hemisphere_strata`` and ``seed``.
+
+For ABC (``kind: abc``; report §4.1.1 after Löw et al. 2012) the design is the spectral NLB's,
+linearised in ABC's parameters (:mod:`neuralbrdf.acquisition.abc_linear`) at each of the shipped
+design materials — ABC fits of the training proxies — with the prior their Gaussian, and the same
+relative noise, hemisphere errors and normalisation (RGB channels).
 """
 
 from __future__ import annotations
