@@ -115,12 +115,10 @@ def next_pairs(measurement: Source | PathLike, count: int = 1, out: PathLike | N
     >>> answer.measured, len(answer.theta_i), answer.logcos.low < answer.logcos.estimate < answer.logcos.high
     (6, 2, True)
     """
-    check_integers(count=count)
-    if not isinstance(measurement, Source):
-        measurement = read(measurement, reference)
-    elif reference is not None:
+    if isinstance(measurement, Source) and reference is not None:
         raise InputError("reference goes with a GCMS raw file path, not with a Source (read it with its reference)")
-    return _NextPairsAsker(count, out, max_theta, step, retro_band, config).answer(measurement)
+    asker = _NextPairsAsker(count, out, max_theta, step, retro_band, config)
+    return asker.answer(measurement if isinstance(measurement, Source) else read(measurement, reference))
 
 
 class _NextPairsAsker:
