@@ -112,6 +112,15 @@ def relative_problem(linearisation: SpectralNlbLinearisation, thetas: torch.Tens
     return LinearisedProblem(torch.stack(jacobians), hemisphere, prior)
 
 
+def _greedy_plan(problem: LinearisedProblem, budget: int, theta_i: np.ndarray, theta_r: np.ndarray, kind: str,
+                 instrument: Instrument, progress=None) -> PlanDesign:
+    """The :func:`greedy_design` of ``problem`` over the candidates ``theta_i, theta_r`` as a plan."""
+    design = greedy_design(problem, budget, progress=progress)
+    chosen = np.asarray(design.chosen)
+    return PlanDesign(theta_i[chosen], theta_r[chosen], [float(np.sqrt(c)) for c in design.criterion], kind,
+                      instrument)
+
+
 def design_nlb_spectral(budget: int, instrument: Instrument, settings: DesignSettings, checkpoint: str | None = None,
                         progress=None) -> PlanDesign:
     """The spectral NLB's design (module docstring); ``checkpoint``: a pretrained network (default the shipped one)."""
@@ -131,10 +140,7 @@ def design_nlb_spectral(budget: int, instrument: Instrument, settings: DesignSet
                                                                                    settings.hemisphere_strata))
     covariance = code_covariance(pretrained.shared, pretrained.channel_codes, 3)
     problem = relative_problem(linearisation, thetas, wi, wo, hwi, hwo, covariance, settings.noise, settings.normalise)
-    design = greedy_design(problem, budget, progress=progress)
-    chosen = np.asarray(design.chosen)
-    return PlanDesign(theta_i[chosen], theta_r[chosen], [float(np.sqrt(c)) for c in design.criterion],
-                      "nlb_spectral", instrument)
+    return _greedy_plan(problem, budget, theta_i, theta_r, "nlb_spectral", instrument, progress)
 
 
 def design_pca(budget: int, instrument: Instrument, settings: DesignSettings, config: str = "pca",
@@ -158,10 +164,7 @@ def design_pca(budget: int, instrument: Instrument, settings: DesignSettings, co
     problem = LinearisedProblem(
         jacobians, torch.as_tensor(hemisphere.T @ hemisphere / len(hemisphere), dtype=torch.float64)[None],
         torch.diag(torch.as_tensor(basis.scales, dtype=torch.float64) ** 2)[None])
-    design = greedy_design(problem, budget, progress=progress)
-    chosen = np.asarray(design.chosen)
-    return PlanDesign(theta_i[chosen], theta_r[chosen], [float(np.sqrt(c)) for c in design.criterion], "pca",
-                      instrument)
+    return _greedy_plan(problem, budget, theta_i, theta_r, "pca", instrument, progress)
 
 
 def design_abc(budget: int, instrument: Instrument, settings: DesignSettings, materials: str | None = None,
@@ -179,10 +182,7 @@ def design_abc(budget: int, instrument: Instrument, settings: DesignSettings, ma
                                                                                     settings.hemisphere_strata))
     problem = relative_problem(AbcLinearisation(3), thetas, wi, wo, hwi, hwo, parameter_covariance(thetas),
                                settings.noise, settings.normalise)
-    design = greedy_design(problem, budget, progress=progress)
-    chosen = np.asarray(design.chosen)
-    return PlanDesign(theta_i[chosen], theta_r[chosen], [float(np.sqrt(c)) for c in design.criterion], "abc",
-                      instrument)
+    return _greedy_plan(problem, budget, theta_i, theta_r, "abc", instrument, progress)
 
 
 #: The kinds a plan can be designed for, and their designers.
