@@ -390,8 +390,9 @@ _UNTIMED = ("<h2>Which model to use</h2><p>This profile times no model (each var
 
 
 def _timed(study: dict) -> bool:
-    """Whether some main cell was timed (a render cost to recommend by)."""
-    return any(p.get("is_main") and (p.get("cost") or {}).get("render_ratio") is not None for p in study["points"])
+    """Whether the profile times any cell: a point's ``is_main`` marks a rendered and timed cell
+    (:func:`neuralbrdf.study.cells.is_rendered`), failed or not."""
+    return any(p["is_main"] for p in study["points"])
 
 
 def _choice_parts(study: dict, figs: dict, figures_dir: Path) -> list[str]:
