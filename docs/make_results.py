@@ -685,8 +685,9 @@ def budget_section() -> list[str]:
              f"Reproduce: `{run.get('command', 'neuralbrdf study --profile budget --out docs/study/budget --jobs 2 --allow-failures')}`.",
              machine_line(study.get("machine")), "",
              "![Error against the number of measured pairs](study/budget/figures/stability_pairs.png)", ""]
+    values_of = {metric: _budget_values(points, metric) for metric, _, _ in BUDGET_METRICS}
     for metric, label, digits in BUDGET_METRICS:
-        values = _budget_values(points, metric)
+        values = values_of[metric]
         rows = []
         for plan in plans:
             row = [_plan_label(plan), str(pairs[plan])]
@@ -701,7 +702,7 @@ def budget_section() -> list[str]:
         if designed not in pairs or named not in pairs:
             continue
         for metric, label, _ in BUDGET_METRICS:
-            values = _budget_values(points, metric)
+            values = values_of[metric]
             row = [f"{_plan_label(designed)} ÷ {named}", label]
             for model in models:
                 a, b = values[model].get(designed, {}), values[model].get(named, {})
