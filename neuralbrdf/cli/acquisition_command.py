@@ -92,7 +92,7 @@ def _interval(interval, digits: int) -> str:
     return f"{interval.estimate:.{digits}f} (80 % interval {interval.low:.{digits}f}-{interval.high:.{digits}f})"
 
 
-def next_measurements(args) -> int | None:
+def next_measurements(args) -> None:
     import sys
     import time
 
@@ -123,7 +123,6 @@ def next_measurements(args) -> int | None:
     except KeyboardInterrupt:  # how watching ends: the last answer's plan file is whole (written atomically)
         pass
     print("stopped", flush=True)
-    return 0
 
 
 def add_acquire_arguments(parser) -> None:
